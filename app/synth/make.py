@@ -1,0 +1,166 @@
+"""`panogrf dataset make`: write synthetic scenes as scene folders (RGB + spherical depth + poses).
+
+Layout of the output::
+
+    OUT/
+      dataset.json                 # index: split, seeds, baselines, sizes, one entry per scene
+      <split>_00000/
+        transforms.json            # camera_model EQUIRECTANGULAR, frames with c2w and depth
+        images/frame_000.png ...   # first, middle, last camera on a line
+        depth/frame_000.png ...    # 16-bit PNG, spherical depth in millimetres, 0 = unknown
+
+Seeds: scene ``i`` of a split gets seed ``2 * (base_seed * 1_000_000 + i) + s`` with s = 0 for
+train and 1 for test, so the splits never share a seed; their textures are disjoint too
+(`app.synth.textures`).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from panogrf.app.images import write_depth, write_rgb
+from panogrf.app.synth.gl_render import PanoramaRenderer
+from panogrf.app.synth.layout import LayoutConfig, SynthScene, generate_layout
+from panogrf.app.synth.textures import texture_bank
+
+SPLITS = ("train", "test")
+
+
+@dataclass(frozen=True)
+class MakeConfig:
+    """What `make_dataset` writes."""
+
+    out: Path
+    """Output folder (created; files of scene folders with the same name are overwritten)."""
+    split: str = "train"
+    """"train" or "test": disjoint seeds and disjoint texture sets."""
+    count: int = 12
+    """Number of scenes (three panoramas each)."""
+    height: int = 256
+    """Panorama height in pixels; width is twice this."""
+    baselines: tuple[float, ...] = ()
+    """First-to-last camera distances to cycle through (metres); empty: random in [0.2, 2.0]."""
+    seed: int = 0
+    """Base seed; the same seed and split always give the same scenes."""
+    start: int = 0
+    """Index of the first scene (to extend a dataset)."""
+
+
+def scene_seed(split: str, base_seed: int, index: int) -> int:
+    """The seed of scene ``index`` of ``split``; even for train, odd for test."""
+    if split not in SPLITS:
+        raise ValueError(f"split must be one of {SPLITS}, got {split!r}")
+    return 2 * (base_seed * 1_000_000 + index) + SPLITS.index(split)
+
+
+def build_scene(
+    split: str, seed: int, baseline: float | None, config: LayoutConfig = LayoutConfig()
+) -> tuple[SynthScene, np.ndarray]:
+    """The layout and texture array [L, S, S, 3] of one synthetic scene."""
+    rng = np.random.default_rng([seed, 0x7E7])
+    textures = texture_bank(split, rng, config.procedural_textures)
+    return generate_layout(seed, split, len(textures), baseline, config), textures
+
+
+def _write_json_atomic(path: Path, obj: dict) -> None:
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    with os.fdopen(fd, "w", encoding="utf-8") as f:
+        json.dump(obj, f, indent=2)
+    os.replace(tmp, path)
+
+
+def transforms_dict(scene: SynthScene, height: int, names: list[str]) -> dict:
+    """The scene's nerfstudio-style transforms.json content."""
+    return {
+        "camera_model": "EQUIRECTANGULAR",
+        "w": 2 * height,
+        "h": height,
+        "frames": [
+            {
+                "file_path": f"images/{name}.png",
+                "depth_file_path": f"depth/{name}.png",
+                "transform_matrix": np.asarray(c2w).tolist(),
+            }
+            for name, c2w in zip(names, scene.cameras, strict=True)
+        ],
+        "panogrf": {
+            "generator": "panogrf.app.synth",
+            "split": scene.split,
+            "seed": scene.seed,
+            "baseline_m": scene.baseline,
+            "layout": scene.meta,
+        },
+    }
+
+
+def make_dataset(cfg: MakeConfig, progress: bool = True) -> dict:
+    """Render ``cfg.count`` scenes into ``cfg.out``; returns a summary with timings."""
+    if cfg.split not in SPLITS:
+        raise ValueError(f"split must be one of {SPLITS}, got {cfg.split!r}")
+    if cfg.count < 1 or cfg.height < 8:
+        raise ValueError("count must be >= 1 and height >= 8")
+    out = Path(cfg.out)
+    out.mkdir(parents=True, exist_ok=True)
+    names = ["frame_000", "frame_001", "frame_002"]
+    entries, triangles = [], []
+    render_s = 0.0
+    start = time.perf_counter()
+    with (
+        PanoramaRenderer() as renderer,
+        ThreadPoolExecutor(max_workers=2) as pool,
+        tqdm(total=cfg.count * 3, unit="pano", disable=not progress, desc=f"{cfg.split}") as bar,
+    ):
+        pending = []
+        for i in range(cfg.start, cfg.start + cfg.count):
+            seed = scene_seed(cfg.split, cfg.seed, i)
+            baseline = cfg.baselines[i % len(cfg.baselines)] if cfg.baselines else None
+            scene, textures = build_scene(cfg.split, seed, baseline)
+            folder = out / f"{cfg.split}_{i:05d}"
+            (folder / "images").mkdir(parents=True, exist_ok=True)
+            (folder / "depth").mkdir(parents=True, exist_ok=True)
+            t0 = time.perf_counter()
+            renderer.set_scene(scene, textures)
+            triangles.append(renderer.triangles)
+            for name, c2w in zip(names, scene.cameras, strict=True):
+                rgb, depth = renderer.render(c2w, cfg.height, 2 * cfg.height)
+                # PNG encoding runs beside the next render (OpenCV releases the GIL).
+                pending.append(pool.submit(write_rgb, folder / "images" / f"{name}.png", rgb))
+                pending.append(pool.submit(write_depth, folder / "depth" / f"{name}.png", depth))
+                bar.update(1)
+            render_s += time.perf_counter() - t0
+            for fut in pending:
+                fut.result()  # surface write errors here, scene by scene
+            pending.clear()
+            # transforms.json last: a folder is a scene only once all its files are in place.
+            _write_json_atomic(folder / "transforms.json", transforms_dict(scene, cfg.height, names))
+            entries.append(
+                {"folder": folder.name, "seed": seed, "baseline_m": scene.baseline, "triangles": triangles[-1]}
+            )
+    elapsed = time.perf_counter() - start
+    index_path = out / "dataset.json"
+    index = json.loads(index_path.read_text()) if index_path.exists() else {"scenes": []}
+    known = {e["folder"] for e in entries}
+    index["scenes"] = [e for e in index.get("scenes", []) if e["folder"] not in known] + entries
+    index["scenes"].sort(key=lambda e: e["folder"])
+    index.update({"generator": "panogrf dataset make", "height": cfg.height, "width": 2 * cfg.height})
+    _write_json_atomic(index_path, index)
+    n = 3 * cfg.count
+    return {
+        "scenes": cfg.count,
+        "panoramas": n,
+        "height": cfg.height,
+        "width": 2 * cfg.height,
+        "seconds": elapsed,
+        "panoramas_per_s": n / elapsed,
+        "render_panoramas_per_s": n / render_s if render_s > 0 else float("nan"),
+        "max_triangles": int(max(triangles)),
+    }

@@ -1,0 +1,1 @@
+"""Pure torch: spherical geometry, networks and metrics. No GL, no file I/O."""

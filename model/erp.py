@@ -1,0 +1,162 @@
+"""Equirectangular (ERP) geometry: pixels, directions, projection and sampling with wrap-around.
+
+Conventions (DESIGN.md section 3), the same everywhere in the project:
+- camera frame OpenGL: x right, y up, looking down -z; poses are camera-to-world 4x4 (metres);
+- an ERP image has width W = 2H; pixel (u, v) (column, row) has its centre at integer
+  coordinates, and
+  ``lon = 2*pi*((u+0.5)/W - 0.5)``, ``lat = pi*(0.5 - (v+0.5)/H)``,
+  ``d = (cos(lat) sin(lon), sin(lat), -cos(lat) cos(lon))``:
+  the centre column looks along -z, the right quarter along +x, the top row up (+y);
+- depth is spherical: the Euclidean distance from the camera centre, in metres.
+
+Sampling wraps horizontally (left and right edges are neighbours) and clamps vertically.
+Shapes: ``...`` any batch shape; ``H W`` image size; ``C`` channels; ``N`` points.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+
+def pixel_to_lonlat(u: Tensor, v: Tensor, height: int, width: int) -> tuple[Tensor, Tensor]:
+    """Pixel coordinates (centres at integers) -> (longitude, latitude) in radians."""
+    lon = 2.0 * math.pi * ((u + 0.5) / width - 0.5)
+    lat = math.pi * (0.5 - (v + 0.5) / height)
+    return lon, lat
+
+
+def lonlat_to_direction(lon: Tensor, lat: Tensor) -> Tensor:
+    """(lon, lat) [...] radians -> unit direction [..., 3] in the camera frame."""
+    cos_lat = torch.cos(lat)
+    return torch.stack((cos_lat * torch.sin(lon), torch.sin(lat), -cos_lat * torch.cos(lon)), -1)
+
+
+def direction_to_lonlat(d: Tensor) -> tuple[Tensor, Tensor]:
+    """Direction [..., 3] (any length > 0) -> (lon in (-pi, pi], lat in [-pi/2, pi/2])."""
+    x, y, z = d.unbind(-1)
+    lon = torch.atan2(x, -z)
+    lat = torch.atan2(y, torch.sqrt(x * x + z * z))
+    return lon, lat
+
+
+def lonlat_to_pixel(lon: Tensor, lat: Tensor, height: int, width: int) -> tuple[Tensor, Tensor]:
+    """(lon, lat) radians -> continuous pixel coordinates (u, v), pixel centres at integers."""
+    u = (lon / (2.0 * math.pi) + 0.5) * width - 0.5
+    v = (0.5 - lat / math.pi) * height - 0.5
+    return u, v
+
+
+def pixel_to_direction(u: Tensor, v: Tensor, height: int, width: int) -> Tensor:
+    """Pixel coordinates [...] -> unit direction [..., 3] in the camera frame."""
+    return lonlat_to_direction(*pixel_to_lonlat(u, v, height, width))
+
+
+def direction_to_pixel(d: Tensor, height: int, width: int) -> Tensor:
+    """Direction [..., 3] -> continuous pixel coordinates [..., 2] as (u, v)."""
+    u, v = lonlat_to_pixel(*direction_to_lonlat(d), height, width)
+    return torch.stack((u, v), -1)
+
+
+def erp_directions(
+    height: int,
+    width: int,
+    *,
+    device: torch.device | str | None = None,
+    dtype: torch.dtype = torch.float32,
+) -> Tensor:
+    """Unit ray directions of every pixel centre of an H x W panorama, camera frame: [H, W, 3]."""
+    v, u = torch.meshgrid(
+        torch.arange(height, device=device, dtype=dtype),
+        torch.arange(width, device=device, dtype=dtype),
+        indexing="ij",
+    )
+    return pixel_to_direction(u, v, height, width)
+
+
+def latitude_weights(
+    height: int,
+    width: int,
+    *,
+    device: torch.device | str | None = None,
+    dtype: torch.dtype = torch.float32,
+) -> Tensor:
+    """cos(latitude) of every pixel row, broadcast to [H, W]: the ERP solid-angle weight."""
+    v = torch.arange(height, device=device, dtype=dtype)
+    lat = math.pi * (0.5 - (v + 0.5) / height)
+    return torch.cos(lat)[:, None].expand(height, width)
+
+
+def transform_points(points: Tensor, matrix: Tensor) -> Tensor:
+    """Apply a 4x4 rigid transform [..., 4, 4] to points [..., N, 3] -> [..., N, 3]."""
+    return points @ matrix[..., :3, :3].transpose(-1, -2) + matrix[..., None, :3, 3]
+
+
+def invert_rigid(c2w: Tensor) -> Tensor:
+    """Inverse of rigid transforms [..., 4, 4] (rotation + translation), exact, no general inverse."""
+    rot_t = c2w[..., :3, :3].transpose(-1, -2)
+    out = torch.zeros_like(c2w)
+    out[..., :3, :3] = rot_t
+    out[..., :3, 3] = -(rot_t @ c2w[..., :3, 3:4])[..., 0]
+    out[..., 3, 3] = 1.0
+    return out
+
+
+def world_to_erp(points: Tensor, c2w: Tensor, height: int, width: int) -> tuple[Tensor, Tensor]:
+    """Project world points [..., N, 3] into ERP cameras c2w [..., 4, 4].
+
+    Returns pixel coordinates [..., N, 2] (u, v) and spherical depth [..., N] in metres.
+    A point at the camera centre gets depth 0 and an arbitrary (finite) pixel.
+    """
+    cam = transform_points(points, invert_rigid(c2w))
+    depth = torch.linalg.vector_norm(cam, dim=-1)
+    return direction_to_pixel(cam, height, width), depth
+
+
+def erp_to_world(depth: Tensor, c2w: Tensor) -> Tensor:
+    """Lift spherical depth maps [..., H, W] of cameras c2w [..., 4, 4] to world points [..., H*W, 3]."""
+    height, width = depth.shape[-2:]
+    dirs = erp_directions(height, width, device=depth.device, dtype=depth.dtype).reshape(-1, 3)
+    cam = dirs * depth.reshape(*depth.shape[:-2], -1, 1)
+    return transform_points(cam, c2w)
+
+
+def sample_erp(image: Tensor, uv: Tensor, mode: str = "bilinear") -> Tensor:
+    """Sample panoramas at continuous pixel coordinates, wrapping horizontally.
+
+    image: [B, C, H, W]; uv: [B, N, 2] as (u, v), pixel centres at integers (u may be any
+    real number: it is taken modulo W). Rows clamp at the poles (no vertical wrap).
+    Returns [B, C, N]. ``mode``: "bilinear" or "nearest".
+    """
+    height, width = image.shape[-2:]
+    # One wrapped column on each side makes the seam an ordinary interior neighbour.
+    padded = torch.cat((image[..., -1:], image, image[..., :1]), dim=-1)
+    u = torch.remainder(uv[..., 0] + 0.5, width) - 0.5  # in [-0.5, W - 0.5)
+    x = (u + 1.5) / (width + 2) * 2.0 - 1.0
+    y = (uv[..., 1] + 0.5) / height * 2.0 - 1.0
+    grid = torch.stack((x, y), -1)[:, None]  # [B, 1, N, 2]
+    out = F.grid_sample(padded, grid, mode=mode, padding_mode="border", align_corners=False)
+    return out[:, :, 0]
+
+
+def sample_erp_directions(image: Tensor, directions: Tensor, mode: str = "bilinear") -> Tensor:
+    """Sample panoramas [B, C, H, W] along camera-frame directions [B, N, 3] -> [B, C, N]."""
+    height, width = image.shape[-2:]
+    return sample_erp(image, direction_to_pixel(directions, height, width), mode=mode)
+
+
+def rotation_about(axis: str, angle: float) -> Tensor:
+    """3x3 rotation matrix (float64) about the x, y or z axis by ``angle`` radians (right-handed)."""
+    c, s = math.cos(angle), math.sin(angle)
+    if axis == "x":
+        m = [[1, 0, 0], [0, c, -s], [0, s, c]]
+    elif axis == "y":
+        m = [[c, 0, s], [0, 1, 0], [-s, 0, c]]
+    elif axis == "z":
+        m = [[c, -s, 0], [s, c, 0], [0, 0, 1]]
+    else:
+        raise ValueError(f"axis must be 'x', 'y' or 'z', got {axis!r}")
+    return torch.tensor(m, dtype=torch.float64)

@@ -1,0 +1,1 @@
+"""Rendering of novel views from a scene cache (depends on `model`)."""

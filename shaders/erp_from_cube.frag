@@ -1,0 +1,48 @@
+#version 330 core
+// Resamples a six-face cube atlas (faces side by side, each F x F, the face order and
+// orientation of model/cubemap.py) into an equirectangular panorama. Row 0 of the output
+// framebuffer is the top image row (latitude +90 deg), so read-back needs no flip.
+uniform sampler2D u_color_atlas;   // linear filtering
+uniform sampler2D u_plane_atlas;   // (n, c) per texel, camera frame; fetched, not filtered
+uniform mat3 u_face_rot[6];        // face camera -> panorama camera
+uniform int u_face_size;
+uniform vec2 u_erp_size;           // (W, H)
+uniform float u_max_depth;
+
+layout(location = 0) out vec4 out_color;
+layout(location = 1) out float out_depth;
+
+const float PI = 3.14159265358979;
+
+void main() {
+    float lon = 2.0 * PI * (gl_FragCoord.x / u_erp_size.x - 0.5);
+    float lat = PI * (0.5 - gl_FragCoord.y / u_erp_size.y);
+    vec3 d = vec3(cos(lat) * sin(lon), sin(lat), -cos(lat) * cos(lon));
+
+    int face = 0;
+    float best = -2.0;
+    vec3 local = d;
+    for (int k = 0; k < 6; ++k) {
+        vec3 q = transpose(u_face_rot[k]) * d;
+        if (-q.z > best) { best = -q.z; face = k; local = q; }
+    }
+    vec2 f = local.xy / -local.z;               // [-1, 1] on the face, y up
+    float fs = float(u_face_size);
+    vec2 px = (f * 0.5 + 0.5) * fs;             // texel units within the face, GL rows (y up)
+    // Colour: bilinear, clamped inside the face so the atlas neighbour never bleeds in.
+    vec2 pc = clamp(px, vec2(0.5), vec2(fs - 0.5));
+    vec2 atlas = vec2(6.0 * fs, fs);
+    out_color = texture(u_color_atlas, (vec2(float(face) * fs, 0.0) + pc) / atlas);
+
+    // Depth: exact intersection of this pixel's ray with the nearest texel's surface plane.
+    ivec2 ti = clamp(ivec2(floor(px)), ivec2(0), ivec2(u_face_size - 1));
+    vec4 plane = texelFetch(u_plane_atlas, ivec2(face * u_face_size + ti.x, ti.y), 0);
+    vec2 tc = (vec2(ti) + 0.5) / fs * 2.0 - 1.0;
+    vec3 d_texel = normalize(u_face_rot[face] * vec3(tc, -1.0));
+    float t_texel = plane.w / dot(plane.xyz, d_texel);
+    float denom = dot(plane.xyz, d);
+    float t = denom != 0.0 ? plane.w / denom : -1.0;
+    // At a depth edge the nearest texel can belong to another surface: keep its own distance.
+    if (!(t > 0.0) || abs(t - t_texel) > 0.05 * t_texel) t = t_texel;
+    out_depth = (t > 0.0 && t < u_max_depth) ? t : 0.0;
+}

@@ -1,0 +1,145 @@
+"""Synthetic scene generator: layout rules, determinism, split disjointness, GL depth vs ray casting."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import trimesh
+
+from panogrf.app.synth.layout import LayoutConfig, generate_layout
+from panogrf.app.synth.make import MakeConfig, build_scene, make_dataset, scene_seed
+from panogrf.app.synth.textures import photo_names, texture_bank
+
+
+def _horizontal_distance_to_segment(p, a, b):
+    ab = b - a
+    t = np.clip(np.dot(p - a, ab) / np.dot(ab, ab), 0, 1)
+    return np.linalg.norm(p - (a + t * ab))
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_layout_rules(seed):
+    cfg = LayoutConfig()
+    scene = generate_layout(seed, "train", n_layers=10, config=cfg)
+    cams = scene.cameras
+    pos = cams[:, :3, 3]
+    # Three cameras on a line, middle at the midpoint, baseline in range, heights in range.
+    assert np.allclose(pos[1], 0.5 * (pos[0] + pos[2]))
+    assert cfg.baseline[0] - 1e-9 <= np.linalg.norm(pos[2] - pos[0]) <= cfg.baseline[1] + 1e-9
+    assert np.all((pos[:, 1] >= 1.2) & (pos[:, 1] <= 1.7))
+    # Rigid, upright poses; headings differ from camera to camera.
+    for c2w in cams:
+        r = c2w[:3, :3]
+        assert np.allclose(r.T @ r, np.eye(3), atol=1e-9) and np.isclose(np.linalg.det(r), 1.0)
+        assert np.allclose(r[:, 1], [0, 1, 0])
+    yaws = np.arctan2(cams[:, 0, 2], cams[:, 2, 2])
+    assert len(np.unique(np.round(yaws, 6))) == 3
+    # Cameras inside room A and never inside or against an object: every object's vertices stay
+    # horizontally clear of the camera line.
+    lx, _, lz = scene.meta["room_a"]
+    assert np.all((pos[:, 0] > 0) & (pos[:, 0] < lx) & (pos[:, 2] > 0) & (pos[:, 2] < lz))
+    a, b = pos[0, [0, 2]], pos[2, [0, 2]]
+    for obj in scene.objects:
+        if obj.name[:2] not in ("A_", "B_"):
+            continue
+        d = min(_horizontal_distance_to_segment(v[[0, 2]], a, b) for v in obj.mesh.vertices)
+        assert d > cfg.camera_clearance - 0.15, obj.name  # footprint circles are conservative
+    assert scene.merged_mesh().faces.shape[0] < 50_000
+
+
+def test_fixed_baseline_and_determinism():
+    s1 = generate_layout(5, "test", n_layers=8, baseline=2.0)
+    s2 = generate_layout(5, "test", n_layers=8, baseline=2.0)
+    assert np.isclose(np.linalg.norm(s1.cameras[2, :3, 3] - s1.cameras[0, :3, 3]), 2.0)
+    assert np.array_equal(s1.cameras, s2.cameras)
+    assert np.array_equal(s1.merged_mesh().vertices, s2.merged_mesh().vertices)
+    s3 = generate_layout(6, "test", n_layers=8, baseline=2.0)
+    assert not np.array_equal(s1.cameras, s3.cameras)
+
+
+def test_splits_are_disjoint():
+    train = {scene_seed("train", s, i) for s in range(3) for i in range(200)}
+    test = {scene_seed("test", s, i) for s in range(3) for i in range(200)}
+    assert not train & test
+    assert not set(photo_names("train")) & set(photo_names("test"))
+    rng = np.random.default_rng(0)
+    a = texture_bank("train", rng, 8)
+    b = texture_bank("test", rng, 8)
+    assert a.dtype == np.float32 and a.min() >= 0 and a.max() <= 1
+    # No texture layer of one split appears in the other.
+    for layer in b:
+        assert np.min(np.abs(a - layer[None]).mean(axis=(1, 2, 3))) > 0.01
+
+
+def _same_surface_mask(mesh: trimesh.Trimesh, c2w, height, width):
+    """Pixels whose 3x3 neighbourhood hits one plane (no edge or crease): where depth is exact."""
+    from panogrf.app.synth.raycast import first_hits
+
+    tri = first_hits(mesh, c2w, height, width)
+    normals = mesh.face_normals[np.maximum(tri, 0)]
+    offsets = np.einsum("ij,ij->i", normals, mesh.vertices[mesh.faces[np.maximum(tri, 0), 0]])
+    plane = np.concatenate([normals, offsets[:, None]], 1).reshape(height, width, 4)
+    plane[tri.reshape(height, width) < 0] = np.nan
+    ok = np.isfinite(plane).all(-1)
+    padded = np.pad(plane, ((1, 1), (0, 0), (0, 0)), mode="edge")
+    padded = np.concatenate([padded[:, -1:], padded, padded[:, :1]], 1)  # wrap in longitude
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            nb = padded[1 + dy : 1 + dy + height, 1 + dx : 1 + dx + width]
+            ok &= np.all(np.abs(nb - plane) < 1e-6, axis=-1)
+    return ok
+
+
+@pytest.mark.gl
+@pytest.mark.parametrize("split,seed", [("train", 3), ("test", 7)])
+def test_gl_depth_matches_ray_casting(split, seed):
+    from panogrf.app.synth.gl_render import PanoramaRenderer
+    from panogrf.app.synth.raycast import raycast_depth
+
+    scene, textures = build_scene(split, seed, baseline=1.5)
+    mesh = scene.merged_mesh()
+    height, width = 48, 96
+    with PanoramaRenderer() as renderer:
+        renderer.set_scene(scene, textures)
+        for c2w in scene.cameras[[0, 2]]:
+            rgb, depth = renderer.render(c2w, height, width)
+            ref = raycast_depth(mesh, c2w, height, width)
+            assert rgb.shape == (height, width, 3) and rgb.dtype == np.uint8
+            assert np.all(ref > 0), "rooms are closed: every ray hits something"
+            assert np.all(depth > 0) and np.all(np.isfinite(depth))
+            interior = _same_surface_mask(mesh, c2w, height, width)
+            assert interior.mean() > 0.6
+            err = np.abs(depth - ref)
+            assert err[interior].max() < 0.01, "GL depth must agree with ray casting within 1 cm"
+            assert np.median(err) < 1e-3
+            assert (err < 0.01).mean() > 0.9  # edges and creases included
+
+
+@pytest.mark.gl
+def test_make_dataset_writes_scene_folders(tmp_path):
+    from panogrf.app.images import read_depth, read_rgb
+
+    summary = make_dataset(
+        MakeConfig(out=tmp_path, split="test", count=2, height=16, baselines=(1.0, 2.0)),
+        progress=False,
+    )
+    assert summary["panoramas"] == 6
+    index = json.loads((tmp_path / "dataset.json").read_text())
+    assert [e["folder"] for e in index["scenes"]] == ["test_00000", "test_00001"]
+    for entry, baseline in zip(index["scenes"], (1.0, 2.0), strict=True):
+        meta = json.loads((tmp_path / entry["folder"] / "transforms.json").read_text())
+        assert meta["camera_model"] == "EQUIRECTANGULAR" and (meta["w"], meta["h"]) == (32, 16)
+        pos = np.array([f["transform_matrix"] for f in meta["frames"]])[:, :3, 3]
+        assert np.isclose(np.linalg.norm(pos[2] - pos[0]), baseline)
+        for frame in meta["frames"]:
+            rgb = read_rgb(tmp_path / entry["folder"] / frame["file_path"])
+            depth = read_depth(tmp_path / entry["folder"] / frame["depth_file_path"])
+            assert rgb.shape == (16, 32, 3) and depth.shape == (16, 32)
+            assert depth.min() > 0.05 and depth.max() < 30
+    # Same seed, same bytes.
+    again = tmp_path / "again"
+    make_dataset(MakeConfig(out=again, split="test", count=1, height=16, baselines=(1.0,)), False)
+    a = (tmp_path / "test_00000" / "images" / "frame_001.png").read_bytes()
+    assert a == (again / "test_00000" / "images" / "frame_001.png").read_bytes()
