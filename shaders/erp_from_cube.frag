@@ -42,7 +42,9 @@ void main() {
     float t_texel = plane.w / dot(plane.xyz, d_texel);
     float denom = dot(plane.xyz, d);
     float t = denom != 0.0 ? plane.w / denom : -1.0;
-    // At a depth edge the nearest texel can belong to another surface: keep its own distance.
-    if (!(t > 0.0) || abs(t - t_texel) > 0.05 * t_texel) t = t_texel;
+    // At a depth edge the nearest texel can belong to another surface whose plane this ray meets
+    // far away or behind: then keep the texel's own distance. (On grazing walls the depth
+    // legitimately changes a lot within one texel, so the bound is loose.)
+    if (!(t > 0.0) || t > 2.0 * t_texel || t < 0.5 * t_texel) t = t_texel;
     out_depth = (t > 0.0 && t < u_max_depth) ? t : 0.0;
 }

@@ -202,18 +202,21 @@ def generate_layout(
         grow = baseline + 2 * clear + 0.5
         lx, lz = max(lx, grow), max(lz, grow)
 
-    # Cameras: a line of length `baseline` inside room A, `clear` away from the walls.
+    # Cameras: a line of length `baseline` (3D) inside room A, `clear` away from the walls.
+    h0 = rng.uniform(*config.camera_height)
+    lo_h, hi_h = config.camera_height
+    rise = float(np.clip(rng.uniform(-0.25, 0.25) * baseline, lo_h - h0, hi_h - h0))
+    horizontal = math.sqrt(max(baseline**2 - rise**2, 0.0))
     for _ in range(1000):
         theta = rng.uniform(0, 2 * np.pi)
         a = rng.uniform([clear, clear], [lx - clear, lz - clear])
-        b = a + baseline * np.array([math.cos(theta), math.sin(theta)])
+        b = a + horizontal * np.array([math.cos(theta), math.sin(theta)])
         if clear <= b[0] <= lx - clear and clear <= b[1] <= lz - clear:
             break
     else:  # pragma: no cover - the room is grown above so this cannot happen
         raise RuntimeError("could not place the camera line")
-    h0, h2 = rng.uniform(*config.camera_height, size=2)
     p0 = np.array([a[0], h0, a[1]])
-    p2 = np.array([b[0], h2, b[1]])
+    p2 = np.array([b[0], h0 + rise, b[1]])
     cameras = np.stack(
         [_camera_pose(p, rng.uniform(0, 2 * np.pi)) for p in (p0, 0.5 * (p0 + p2), p2)]
     )
@@ -221,13 +224,13 @@ def generate_layout(
     # Doorway in the wall x = lx, room B behind it.
     t = config.wall
     dw = rng.uniform(0.8, 1.6)
-    dh = rng.uniform(2.0, min(2.4, ha - 0.1))
+    dh = rng.uniform(2.0, min(2.4, ha - 0.3))
     lbx = rng.uniform(2.5, 8.0)
     lbz = rng.uniform(max(dw + 0.6, 2.0), max(lz, dw + 0.6))
     lbz = min(lbz, lz)
     zb0 = rng.uniform(0.0, lz - lbz)
     dz = rng.uniform(zb0 + 0.2, zb0 + lbz - 0.2 - dw)
-    hb = rng.uniform(max(dh + 0.2, 2.3), ha)
+    hb = rng.uniform(min(max(dh + 0.2, 2.3), ha), ha)
 
     n_layers = max(1, n_layers)
     wall_mat = _material(rng, n_layers, (0.8, 2.5))

@@ -73,26 +73,38 @@ def test_splits_are_disjoint():
         assert np.min(np.abs(a - layer[None]).mean(axis=(1, 2, 3))) > 0.01
 
 
-def _same_surface_mask(mesh: trimesh.Trimesh, c2w, height, width):
-    """Pixels whose 3x3 neighbourhood hits one plane (no edge or crease): where depth is exact."""
+def _planes(mesh: trimesh.Trimesh, c2w, height, width) -> np.ndarray:
+    """Plane (n, n.x) of the first surface hit by each pixel ray [H, W, 4] (NaN: no hit)."""
     from panogrf.app.synth.raycast import first_hits
 
     tri = first_hits(mesh, c2w, height, width)
-    normals = mesh.face_normals[np.maximum(tri, 0)]
-    offsets = np.einsum("ij,ij->i", normals, mesh.vertices[mesh.faces[np.maximum(tri, 0), 0]])
-    plane = np.concatenate([normals, offsets[:, None]], 1).reshape(height, width, 4)
-    plane[tri.reshape(height, width) < 0] = np.nan
-    ok = np.isfinite(plane).all(-1)
-    padded = np.pad(plane, ((1, 1), (0, 0), (0, 0)), mode="edge")
-    padded = np.concatenate([padded[:, -1:], padded, padded[:, :1]], 1)  # wrap in longitude
-    for dy in (-1, 0, 1):
-        for dx in (-1, 0, 1):
-            nb = padded[1 + dy : 1 + dy + height, 1 + dx : 1 + dx + width]
-            ok &= np.all(np.abs(nb - plane) < 1e-6, axis=-1)
-    return ok
+    safe = np.maximum(tri, 0)
+    normals = mesh.face_normals[safe]
+    offsets = np.einsum("ij,ij->i", normals, mesh.vertices[mesh.faces[safe, 0]])
+    plane = np.concatenate([normals, offsets[:, None]], 1)
+    plane[tri < 0] = np.nan
+    return plane.reshape(height, width, 4)
+
+
+def _interior_mask(mesh: trimesh.Trimesh, c2w, height, width, factor=3) -> np.ndarray:
+    """Pixels whose whole 3x3-pixel neighbourhood, ray cast 3x finer, sees one plane.
+
+    There the depth is a smooth function of direction and must be exact; elsewhere (edges,
+    creases, objects thinner than a pixel) GL and ray casting sample different surfaces.
+    """
+    from scipy.ndimage import minimum_filter
+
+    lo = _planes(mesh, c2w, height, width)
+    hi = _planes(mesh, c2w, height * factor, width * factor)
+    lo_up = np.repeat(np.repeat(lo, factor, 0), factor, 1)
+    same = np.all(np.abs(hi - lo_up) < 1e-6, axis=-1)  # NaN compares False
+    window = 3 * factor
+    ok = minimum_filter(same.astype(np.uint8), size=window, mode=("nearest", "wrap"))
+    return ok[factor // 2 :: factor, factor // 2 :: factor].astype(bool)
 
 
 @pytest.mark.gl
+@pytest.mark.slow
 @pytest.mark.parametrize("split,seed", [("train", 3), ("test", 7)])
 def test_gl_depth_matches_ray_casting(split, seed):
     from panogrf.app.synth.gl_render import PanoramaRenderer
@@ -109,7 +121,7 @@ def test_gl_depth_matches_ray_casting(split, seed):
             assert rgb.shape == (height, width, 3) and rgb.dtype == np.uint8
             assert np.all(ref > 0), "rooms are closed: every ray hits something"
             assert np.all(depth > 0) and np.all(np.isfinite(depth))
-            interior = _same_surface_mask(mesh, c2w, height, width)
+            interior = _interior_mask(mesh, c2w, height, width)
             assert interior.mean() > 0.6
             err = np.abs(depth - ref)
             assert err[interior].max() < 0.01, "GL depth must agree with ray casting within 1 cm"
