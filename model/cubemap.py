@@ -72,7 +72,9 @@ def cubemap_to_erp(faces: Tensor, height: int, width: int, mode: str = "bilinear
         fx = loc[:, 0] / -loc[:, 2]
         fy = -loc[:, 1] / -loc[:, 2]  # image rows grow downwards
         grid = torch.stack((fx, fy), -1)[None, None].expand(b, -1, -1, -1)
-        vals = F.grid_sample(faces[:, k], grid, mode=mode, padding_mode="border", align_corners=False)
+        vals = F.grid_sample(
+            faces[:, k], grid, mode=mode, padding_mode="border", align_corners=False
+        )
         out[:, :, mask] = vals[:, :, 0]
     del fsize
     return out

@@ -36,10 +36,18 @@ def lonlat_to_direction(lon: Tensor, lat: Tensor) -> Tensor:
 
 
 def direction_to_lonlat(d: Tensor) -> tuple[Tensor, Tensor]:
-    """Direction [..., 3] (any length > 0) -> (lon in (-pi, pi], lat in [-pi/2, pi/2])."""
+    """Direction [..., 3] (any length > 0) -> (lon in [-pi, pi], lat in [-pi/2, pi/2]).
+
+    On the vertical axis (x = z = 0) longitude is undefined; it is then 0 (the centre column),
+    and the gradients stay finite there instead of becoming NaN.
+    """
     x, y, z = d.unbind(-1)
-    lon = torch.atan2(x, -z)
-    lat = torch.atan2(y, torch.sqrt(x * x + z * z))
+    r2 = x * x + z * z
+    off_axis = r2 > torch.finfo(d.dtype).tiny
+    # The `where`s keep atan2(0, 0) and sqrt'(0) out of the backward pass at the poles.
+    lon = torch.atan2(x, torch.where(off_axis, -z, 1.0))
+    horizontal = torch.where(off_axis, torch.sqrt(torch.where(off_axis, r2, 1.0)), 0.0)
+    lat = torch.atan2(y, horizontal)
     return lon, lat
 
 
@@ -96,7 +104,7 @@ def transform_points(points: Tensor, matrix: Tensor) -> Tensor:
 
 
 def invert_rigid(c2w: Tensor) -> Tensor:
-    """Inverse of rigid transforms [..., 4, 4] (rotation + translation), exact, no general inverse."""
+    """Exact inverse of rigid transforms [..., 4, 4] (rotation + translation), no matrix inverse."""
     rot_t = c2w[..., :3, :3].transpose(-1, -2)
     out = torch.zeros_like(c2w)
     out[..., :3, :3] = rot_t
@@ -117,7 +125,11 @@ def world_to_erp(points: Tensor, c2w: Tensor, height: int, width: int) -> tuple[
 
 
 def erp_to_world(depth: Tensor, c2w: Tensor) -> Tensor:
-    """Lift spherical depth maps [..., H, W] of cameras c2w [..., 4, 4] to world points [..., H*W, 3]."""
+    """Lift spherical depth maps [..., H, W] (metres) of cameras c2w [..., 4, 4] to the world.
+
+    Returns world points [..., H*W, 3] in row-major pixel order. The batch shapes of ``depth``
+    and ``c2w`` broadcast: pass depth [V, H, W] with c2w [V, 4, 4] (not [V, 1, H, W]).
+    """
     height, width = depth.shape[-2:]
     dirs = erp_directions(height, width, device=depth.device, dtype=depth.dtype).reshape(-1, 3)
     cam = dirs * depth.reshape(*depth.shape[:-2], -1, 1)
@@ -149,7 +161,7 @@ def sample_erp_directions(image: Tensor, directions: Tensor, mode: str = "biline
 
 
 def rotation_about(axis: str, angle: float) -> Tensor:
-    """3x3 rotation matrix (float64) about the x, y or z axis by ``angle`` radians (right-handed)."""
+    """3x3 rotation (float64) about the x, y or z axis by ``angle`` radians (right-handed)."""
     c, s = math.cos(angle), math.sin(angle)
     if axis == "x":
         m = [[1, 0, 0], [0, c, -s], [0, s, c]]

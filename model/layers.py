@@ -1,4 +1,4 @@
-"""Layers for panoramas: convolutions that wrap around in width (longitude) and zero-pad in height."""
+"""Layers for panoramas: convolutions that wrap around in width (longitude), zero-pad in height."""
 
 from __future__ import annotations
 
@@ -18,12 +18,36 @@ def circular_pad(x: Tensor, pad_w: int, pad_h: int) -> Tensor:
 class CircularConv2d(nn.Conv2d):
     """Conv2d whose padding wraps in width and is zero in height (an ERP's topology).
 
-    Takes the same arguments as `nn.Conv2d`; ``padding`` must be an int or an (h, w) pair.
+    Takes the same arguments as `nn.Conv2d`, positionally or by name; ``padding`` must be an
+    int or an (h, w) pair of ints, and ``padding_mode`` is not accepted (the mode is fixed).
     """
 
-    def __init__(self, *args, padding: int | tuple[int, int] = 0, **kwargs) -> None:
-        super().__init__(*args, padding=0, **kwargs)
-        self.pad_hw = (padding, padding) if isinstance(padding, int) else tuple(padding)
+    def __init__(
+        self,
+        in_channels: int,
+        out_channels: int,
+        kernel_size: int | tuple[int, int],
+        stride: int | tuple[int, int] = 1,
+        padding: int | tuple[int, int] = 0,
+        *args,
+        **kwargs,
+    ) -> None:
+        if "padding_mode" in kwargs:
+            raise TypeError("CircularConv2d pads circularly in width and with zeros in height")
+        pad_hw = (padding, padding) if isinstance(padding, int) else padding
+        if (
+            not isinstance(pad_hw, (tuple, list))
+            or len(pad_hw) != 2
+            or not all(isinstance(p, int) and p >= 0 for p in pad_hw)
+        ):
+            raise ValueError(
+                f"padding must be an int or an (h, w) pair of ints >= 0, got {padding!r}"
+            )
+        super().__init__(in_channels, out_channels, kernel_size, stride, 0, *args, **kwargs)
+        self.pad_hw = tuple(pad_hw)
 
     def forward(self, x: Tensor) -> Tensor:
         return super().forward(circular_pad(x, self.pad_hw[1], self.pad_hw[0]))
+
+    def extra_repr(self) -> str:
+        return f"{super().extra_repr()}, circular_padding(h, w)={self.pad_hw}"

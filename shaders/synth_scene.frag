@@ -20,11 +20,16 @@ layout(location = 0) out vec4 out_color;
 layout(location = 1) out vec4 out_plane;
 
 vec3 triplanar(vec3 p, vec3 n) {
-    vec3 w = pow(abs(n), vec3(4.0));
-    w /= (w.x + w.y + w.z);
     vec2 off = v_mat.zw;
     float layer = v_mat.x;
     vec3 q = p / v_mat.y;
+    vec3 a = abs(n);
+    // Walls and boxes are axis-aligned: one fetch instead of three (a third of the cost).
+    if (a.x > 0.999) return texture(u_textures, vec3(q.zy + off, layer)).rgb;
+    if (a.y > 0.999) return texture(u_textures, vec3(q.xz + off, layer)).rgb;
+    if (a.z > 0.999) return texture(u_textures, vec3(q.xy + off, layer)).rgb;
+    vec3 w = pow(a, vec3(4.0));
+    w /= (w.x + w.y + w.z);
     vec3 cx = texture(u_textures, vec3(q.zy + off, layer)).rgb;
     vec3 cy = texture(u_textures, vec3(q.xz + off, layer)).rgb;
     vec3 cz = texture(u_textures, vec3(q.xy + off, layer)).rgb;

@@ -42,8 +42,9 @@ def _gl_mat(m: np.ndarray) -> bytes:
 
 
 def face_size_for(width: int) -> int:
-    """Cube face resolution for an ERP of width W: a little finer than the ERP at the equator."""
-    return max(8, int(math.ceil(width * 0.375)))
+    """Cube face resolution for an ERP of width W: the ERP's W/(2 pi) pixels per radian at the
+    equator equal the face's F/2 at its centre (and the face is finer towards its edges)."""
+    return max(8, int(math.ceil(width / math.pi)))
 
 
 class PanoramaRenderer:
@@ -69,14 +70,30 @@ class PanoramaRenderer:
         self._scene_vao = None
         self._scene_buffers: list = []
         self._textures = None
+        self.texture_layers = 0
         self.triangles = 0
 
     # -- scene upload -------------------------------------------------------------------------
-    def set_scene(self, scene: SynthScene, textures: np.ndarray) -> None:
-        """Upload a scene's geometry and its texture array [L, S, S, 3] (float in [0, 1])."""
+    def set_textures(self, textures: np.ndarray) -> None:
+        """Upload the texture array [L, S, S, 3] (float in [0, 1]) that materials index into."""
+        if self._textures is not None:
+            self._textures.release()
+        layers, size = textures.shape[0], textures.shape[1]
+        tex8 = np.ascontiguousarray(np.clip(textures * 255.0 + 0.5, 0, 255).astype(np.uint8))
+        self._textures = self.ctx.texture_array((size, size, layers), 3, tex8.tobytes())
+        self._textures.build_mipmaps()
+        self._textures.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
+        # No anisotropic filtering: on llvmpipe it triples the cost of a panorama.
+        self.texture_layers = layers
+
+    def set_scene(self, scene: SynthScene) -> None:
+        """Upload a scene's geometry and lights (textures come from `set_textures`)."""
         self._release_scene()
         rows = []
-        for obj in scene.objects:
+        # Furniture before the room shell: early depth rejection then skips shading the walls
+        # behind it (llvmpipe is fill-rate bound here).
+        ordered = sorted(scene.objects, key=lambda o: not o.name[:2] in ("A_", "B_"))
+        for obj in ordered:
             mesh = obj.mesh
             tris = mesh.vertices[mesh.faces].reshape(-1, 3)
             normals = np.repeat(mesh.face_normals, 3, axis=0)
@@ -91,12 +108,6 @@ class PanoramaRenderer:
             [(vbo, "3f 3f 4f 3f", "in_pos", "in_normal", "in_mat", "in_tint")],
         )
         self._scene_buffers = [vbo]
-        layers, size = textures.shape[0], textures.shape[1]
-        tex8 = np.ascontiguousarray(np.clip(textures * 255.0 + 0.5, 0, 255).astype(np.uint8))
-        self._textures = self.ctx.texture_array((size, size, layers), 3, tex8.tobytes())
-        self._textures.build_mipmaps()
-        self._textures.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
-        # No anisotropic filtering: on llvmpipe it triples the cost of a panorama.
         prog = self.scene_prog
         n = min(len(scene.lights), _MAX_LIGHTS)
         pos = np.zeros((_MAX_LIGHTS, 3), "f4")
@@ -143,8 +154,8 @@ class PanoramaRenderer:
         Returns RGB uint8 [H, W, 3] and spherical depth float32 [H, W] in metres (0 where
         nothing is hit within ``MAX_DEPTH``). Requires W = 2H.
         """
-        if self._scene_vao is None:
-            raise RuntimeError("call set_scene() before render()")
+        if self._scene_vao is None or self._textures is None:
+            raise RuntimeError("call set_textures() and set_scene() before render()")
         if width != 2 * height or height < 2:
             raise ValueError(f"an ERP must be W = 2H, got {height}x{width}")
         face = face_size_for(width)
@@ -194,13 +205,13 @@ class PanoramaRenderer:
         for buf in self._scene_buffers:
             buf.release()
         self._scene_buffers = []
-        if self._textures is not None:
-            self._textures.release()
-            self._textures = None
 
     def release(self) -> None:
         """Free every GL object (and the context, if this renderer created it)."""
         self._release_scene()
+        if self._textures is not None:
+            self._textures.release()
+            self._textures = None
         for group in (self._atlas, self._erp):
             if group is not None:
                 for obj in group[1:]:

@@ -36,8 +36,6 @@ class LayoutConfig:
     """Number of furniture pieces in the main room (inclusive range)."""
     occluders: tuple[int, int] = (1, 2)
     """How many of them are placed close to the camera line."""
-    procedural_textures: int = 8
-    """Procedural textures generated per scene (besides the split's photographs)."""
 
 
 @dataclass(frozen=True)

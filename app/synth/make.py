@@ -53,6 +53,8 @@ class MakeConfig:
     """Base seed; the same seed and split always give the same scenes."""
     start: int = 0
     """Index of the first scene (to extend a dataset)."""
+    procedural_textures: int = 32
+    """Procedural textures in the split's pool (besides its photographs)."""
 
 
 def scene_seed(split: str, base_seed: int, index: int) -> int:
@@ -62,13 +64,20 @@ def scene_seed(split: str, base_seed: int, index: int) -> int:
     return 2 * (base_seed * 1_000_000 + index) + SPLITS.index(split)
 
 
+def build_textures(split: str, base_seed: int, procedural: int = 32) -> np.ndarray:
+    """The texture pool [L, S, S, 3] of a split: its photographs plus procedural textures.
+
+    Made once per dataset run (and uploaded once); each scene picks its materials from it.
+    """
+    rng = np.random.default_rng([base_seed, SPLITS.index(split), 0x7E7])
+    return texture_bank(split, rng, procedural)
+
+
 def build_scene(
-    split: str, seed: int, baseline: float | None, config: LayoutConfig = LayoutConfig()
-) -> tuple[SynthScene, np.ndarray]:
-    """The layout and texture array [L, S, S, 3] of one synthetic scene."""
-    rng = np.random.default_rng([seed, 0x7E7])
-    textures = texture_bank(split, rng, config.procedural_textures)
-    return generate_layout(seed, split, len(textures), baseline, config), textures
+    split: str, seed: int, baseline: float | None, n_layers: int, config: LayoutConfig = LayoutConfig()
+) -> SynthScene:
+    """The layout of one synthetic scene whose materials index a pool of ``n_layers`` textures."""
+    return generate_layout(seed, split, n_layers, baseline, config)
 
 
 def _write_json_atomic(path: Path, obj: dict) -> None:
@@ -119,32 +128,48 @@ def make_dataset(cfg: MakeConfig, progress: bool = True) -> dict:
         ThreadPoolExecutor(max_workers=2) as pool,
         tqdm(total=cfg.count * 3, unit="pano", disable=not progress, desc=f"{cfg.split}") as bar,
     ):
-        pending = []
+        textures = build_textures(cfg.split, cfg.seed, cfg.procedural_textures)
+        renderer.set_textures(textures)
+        previous = None  # (folder, transforms, write futures) of the scene still being written
+
+        def finish(job) -> None:
+            folder, meta, futures = job
+            for fut in futures:
+                fut.result()  # surface write errors here, scene by scene
+            # transforms.json last: a folder is a scene only once all its files are in place.
+            _write_json_atomic(folder / "transforms.json", meta)
+
         for i in range(cfg.start, cfg.start + cfg.count):
             seed = scene_seed(cfg.split, cfg.seed, i)
             baseline = cfg.baselines[i % len(cfg.baselines)] if cfg.baselines else None
-            scene, textures = build_scene(cfg.split, seed, baseline)
+            scene = build_scene(cfg.split, seed, baseline, len(textures))
             folder = out / f"{cfg.split}_{i:05d}"
             (folder / "images").mkdir(parents=True, exist_ok=True)
             (folder / "depth").mkdir(parents=True, exist_ok=True)
             t0 = time.perf_counter()
-            renderer.set_scene(scene, textures)
+            renderer.set_scene(scene)
             triangles.append(renderer.triangles)
+            futures = []
             for name, c2w in zip(names, scene.cameras, strict=True):
                 rgb, depth = renderer.render(c2w, cfg.height, 2 * cfg.height)
-                # PNG encoding runs beside the next render (OpenCV releases the GIL).
-                pending.append(pool.submit(write_rgb, folder / "images" / f"{name}.png", rgb))
-                pending.append(pool.submit(write_depth, folder / "depth" / f"{name}.png", depth))
+                # PNG encoding runs beside the next renders (OpenCV releases the GIL).
+                futures.append(pool.submit(write_rgb, folder / "images" / f"{name}.png", rgb))
+                futures.append(pool.submit(write_depth, folder / "depth" / f"{name}.png", depth))
                 bar.update(1)
             render_s += time.perf_counter() - t0
-            for fut in pending:
-                fut.result()  # surface write errors here, scene by scene
-            pending.clear()
-            # transforms.json last: a folder is a scene only once all its files are in place.
-            _write_json_atomic(folder / "transforms.json", transforms_dict(scene, cfg.height, names))
+            if previous is not None:
+                finish(previous)
+            previous = (folder, transforms_dict(scene, cfg.height, names), futures)
             entries.append(
-                {"folder": folder.name, "seed": seed, "baseline_m": scene.baseline, "triangles": triangles[-1]}
+                {
+                    "folder": folder.name,
+                    "seed": seed,
+                    "baseline_m": scene.baseline,
+                    "triangles": triangles[-1],
+                }
             )
+        if previous is not None:
+            finish(previous)
     elapsed = time.perf_counter() - start
     index_path = out / "dataset.json"
     index = json.loads(index_path.read_text()) if index_path.exists() else {"scenes": []}

@@ -121,10 +121,12 @@ def _plaster(rng: np.random.Generator, s: int) -> np.ndarray:
 
 def _cells(rng: np.random.Generator, s: int) -> np.ndarray:
     """Voronoi-like stones: distance to the nearest of random seeds."""
-    pts = rng.random((int(rng.integers(12, 40)), 2)) * s
-    y, x = np.mgrid[0:s, 0:s].astype(np.float32)
-    d = np.min(np.hypot(x[..., None] - pts[:, 0], y[..., None] - pts[:, 1]), axis=-1)
-    t = np.clip(d / (s / np.sqrt(len(pts)) * 0.6), 0, 1)
+    n = int(rng.integers(12, 40))
+    seeds = np.full((s, s), 255, np.uint8)
+    pts = rng.integers(0, s, size=(n, 2))
+    seeds[pts[:, 1], pts[:, 0]] = 0
+    d = cv2.distanceTransform(seeds, cv2.DIST_L2, 5)  # distance to the nearest seed
+    t = np.clip(d / (s / np.sqrt(n) * 0.6), 0, 1)
     return _mix(t, *_two_colors(rng))
 
 

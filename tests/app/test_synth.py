@@ -9,7 +9,13 @@ import pytest
 import trimesh
 
 from panogrf.app.synth.layout import LayoutConfig, generate_layout
-from panogrf.app.synth.make import MakeConfig, build_scene, make_dataset, scene_seed
+from panogrf.app.synth.make import (
+    MakeConfig,
+    build_scene,
+    build_textures,
+    make_dataset,
+    scene_seed,
+)
 from panogrf.app.synth.textures import photo_names, texture_bank
 
 
@@ -110,11 +116,13 @@ def test_gl_depth_matches_ray_casting(split, seed):
     from panogrf.app.synth.gl_render import PanoramaRenderer
     from panogrf.app.synth.raycast import raycast_depth
 
-    scene, textures = build_scene(split, seed, baseline=1.5)
+    textures = build_textures(split, 0, procedural=4)
+    scene = build_scene(split, seed, baseline=1.5, n_layers=len(textures))
     mesh = scene.merged_mesh()
     height, width = 48, 96
     with PanoramaRenderer() as renderer:
-        renderer.set_scene(scene, textures)
+        renderer.set_textures(textures)
+        renderer.set_scene(scene)
         for c2w in scene.cameras[[0, 2]]:
             rgb, depth = renderer.render(c2w, height, width)
             ref = raycast_depth(mesh, c2w, height, width)
