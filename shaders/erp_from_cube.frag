@@ -2,8 +2,8 @@
 // Resamples a six-face cube atlas (faces side by side, each F x F, the face order and
 // orientation of model/cubemap.py) into an equirectangular panorama. Row 0 of the output
 // framebuffer is the top image row (latitude +90 deg), so read-back needs no flip.
-uniform sampler2D u_color_atlas;   // linear filtering
-uniform sampler2D u_plane_atlas;   // (n, c) per texel, camera frame; fetched, not filtered
+uniform sampler2D u_color_atlas;   // alpha 0 where no triangle was drawn
+uniform sampler2D u_plane_atlas;   // (n, c) per texel, camera frame
 uniform mat3 u_face_rot[6];        // face camera -> panorama camera
 uniform int u_face_size;
 uniform vec2 u_erp_size;           // (W, H)
@@ -28,14 +28,30 @@ void main() {
     }
     vec2 f = local.xy / -local.z;               // [-1, 1] on the face, y up
     float fs = float(u_face_size);
-    vec2 px = (f * 0.5 + 0.5) * fs;             // texel units within the face, GL rows (y up)
-    // Colour: bilinear, clamped inside the face so the atlas neighbour never bleeds in.
-    vec2 pc = clamp(px, vec2(0.5), vec2(fs - 0.5));
-    vec2 atlas = vec2(6.0 * fs, fs);
-    out_color = texture(u_color_atlas, (vec2(float(face) * fs, 0.0) + pc) / atlas);
+    vec2 px = clamp((f * 0.5 + 0.5) * fs, vec2(0.0), vec2(fs - 1e-3)); // texel units, y up
 
-    // Depth: exact intersection of this pixel's ray with the nearest texel's surface plane.
-    ivec2 ti = clamp(ivec2(floor(px)), ivec2(0), ivec2(u_face_size - 1));
+    // Bilinear colour by hand, within the face, skipping uncovered texels (alpha 0): clipping
+    // of huge triangles at the camera plane can leave one-texel cracks between them.
+    vec2 q = px - 0.5;
+    ivec2 i0 = ivec2(floor(q));
+    vec2 fr = q - vec2(i0);
+    vec4 acc = vec4(0.0);
+    float best_w = -1.0;
+    ivec2 best_t = clamp(ivec2(floor(px)), ivec2(0), ivec2(u_face_size - 1));
+    for (int j = 0; j < 2; ++j) {
+        for (int i = 0; i < 2; ++i) {
+            ivec2 t = clamp(i0 + ivec2(i, j), ivec2(0), ivec2(u_face_size - 1));
+            vec4 c = texelFetch(u_color_atlas, ivec2(face * u_face_size + t.x, t.y), 0);
+            float w = (i == 1 ? fr.x : 1.0 - fr.x) * (j == 1 ? fr.y : 1.0 - fr.y) * c.a;
+            acc += vec4(c.rgb * w, w);
+            if (w > best_w) { best_w = w; best_t = t; }
+        }
+    }
+    out_color = vec4(acc.a > 0.0 ? acc.rgb / acc.a : vec3(0.0), 1.0);
+
+    // Depth: exact intersection of this pixel's ray with the surface plane of the nearest
+    // covered texel (the heaviest of the bilinear four).
+    ivec2 ti = best_t;
     vec4 plane = texelFetch(u_plane_atlas, ivec2(face * u_face_size + ti.x, ti.y), 0);
     vec2 tc = (vec2(ti) + 0.5) / fs * 2.0 - 1.0;
     vec3 d_texel = normalize(u_face_rot[face] * vec3(tc, -1.0));

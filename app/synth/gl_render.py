@@ -126,7 +126,7 @@ class PanoramaRenderer:
                 for obj in self._atlas[1:]:
                     obj.release()
             color = self.ctx.texture((6 * face, face), 4)
-            color.filter = (moderngl.LINEAR, moderngl.LINEAR)
+            color.filter = (moderngl.NEAREST, moderngl.NEAREST)
             plane = self.ctx.texture((6 * face, face), 4, dtype="f4")
             plane.filter = (moderngl.NEAREST, moderngl.NEAREST)
             depth = self.ctx.depth_renderbuffer((6 * face, face))
@@ -172,7 +172,7 @@ class PanoramaRenderer:
         atlas_fbo.use()
         self.ctx.enable(moderngl.DEPTH_TEST)
         self.ctx.disable(moderngl.CULL_FACE)
-        atlas_fbo.clear(0.0, 0.0, 0.0, 1.0, depth=1.0)
+        atlas_fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)  # alpha 0 marks uncovered texels
         for k in range(6):
             view = np.eye(4)
             view[:3, :3] = self._faces[k].T @ w2c

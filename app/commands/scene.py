@@ -1,0 +1,169 @@
+"""`panogrf scene ...`: tools for scene folders (posed panoramas in a transforms.json).
+
+Each sub-subcommand is one ``_add_<name>(sub)`` function listed in `_SUBCOMMANDS`: it adds its
+parser and sets ``func`` to a function of the parsed arguments that returns the exit code.
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+from collections.abc import Callable
+
+import numpy as np
+
+from panogrf.app.errors import UserError
+from panogrf.app.scene import TRANSFORMS, SceneReport, inspect_scene
+
+#: Up to this many views, every pairwise baseline is printed; beyond, a summary.
+_MAX_LISTED_VIEWS = 5
+
+_DESCRIPTION = f"""\
+Scene folders hold posed 360-degree panoramas: a nerfstudio-style {TRANSFORMS} with
+"camera_model": "EQUIRECTANGULAR", "w", "h" and frames[] (file_path, 4x4 camera-to-world
+transform_matrix in the OpenGL frame, metres, optional 16-bit depth_file_path in mm)."""
+
+
+def _baseline_lines(report: SceneReport) -> list[str]:
+    scene = report.scene
+    centres = scene.c2w[:, :3, 3]
+    names = [f.name for f in scene.frames]
+    if scene.num_views < 2:
+        return ["  baselines: none (a single view)"]
+    if scene.num_views <= _MAX_LISTED_VIEWS:
+        pairs = itertools.combinations(range(scene.num_views), 2)
+        return ["  baselines between view centres (m):"] + [
+            f"    {names[a]} - {names[b]}: {np.linalg.norm(centres[a] - centres[b]):.3f}"
+            for a, b in pairs
+        ]
+    dist = np.linalg.norm(centres[:, None] - centres[None], axis=-1)
+    np.fill_diagonal(dist, np.inf)
+    nearest = dist.min(axis=1)
+    dist[np.isinf(dist)] = 0.0
+    return [
+        f"  nearest-neighbour baselines (m): min {nearest.min():.3f}, "
+        f"median {np.median(nearest):.3f}, max {nearest.max():.3f}; "
+        f"largest pairwise {dist.max():.3f}"
+    ]
+
+
+def _summary(report: SceneReport) -> list[str]:
+    scene = report.scene
+    with_depth = sum(f.depth_path is not None for f in scene.frames)
+    lines = [
+        f"scene OK: {report.root}",
+        f"  views: {scene.num_views} ({', '.join(f.name for f in scene.frames)})",
+        f"  size: {scene.width}x{scene.height} (width x height)",
+        *_baseline_lines(report),
+    ]
+    if with_depth == 0:
+        lines.append("  depth: none")
+    elif report.depth_range_m is None:
+        lines.append(f"  depth: {with_depth} of {scene.num_views} views, all pixels unknown (0)")
+    else:
+        lo, hi = report.depth_range_m
+        lines.append(f"  depth: {with_depth} of {scene.num_views} views, {lo:.3f} to {hi:.3f} m")
+    lines += [f"  note: {n}" for n in report.notes]
+    return lines
+
+
+def run_check(args: argparse.Namespace) -> int:
+    report = inspect_scene(args.dir)
+    if report.ok:
+        print("\n".join(_summary(report)))
+        return 0
+    n = len(report.problems)
+    print(f"scene INVALID: {report.root} ({n} problem{'s' if n != 1 else ''})")
+    for problem in report.problems:
+        print(f"  {problem}")
+    return 1
+
+
+def _add_check(sub: argparse._SubParsersAction) -> None:
+    parser = sub.add_parser(
+        "check",
+        help="validate a scene folder and summarise it",
+        description=(
+            "Validate a scene folder, reporting every problem at once (one per line, naming the "
+            "file or field), or print a summary: views, size, baselines, depth. Exit status 0 "
+            "when valid, 1 when not."
+        ),
+        epilog="example: panogrf scene check data/val_00000",
+    )
+    parser.add_argument("dir", metavar="DIR", help=f"scene folder (containing {TRANSFORMS})")
+    parser.set_defaults(func=run_check)
+
+
+def run_reproject(args: argparse.Namespace) -> int:
+    from panogrf.app.consistency import reprojection_check
+    from panogrf.app.scene import load_scene
+
+    scene = load_scene(args.dir, load_images=True)
+    data = scene.images
+    if data.depths is None:
+        raise UserError(f"{args.dir}: the scene has no depth maps to warp with")
+    n = scene.num_views
+    target = args.target if args.target is not None else n // 2
+    if not 0 <= target < n:
+        raise UserError(f"--target {target} is out of range: the scene has {n} views")
+    sources = [i for i in range(n) if i != target] if args.sources is None else args.sources
+    for i in sources:
+        if not 0 <= i < n or i == target:
+            raise UserError(f"--sources: {i} is not another view of the {n}-view scene")
+    print(f"reprojection into view {target} ({scene.frames[target].name}), {scene.width}x{scene.height}:")
+    print(f"  {'source':<12} {'baseline m':>10} {'covered':>8} {'PSNR depth warp':>16} {'PSNR rotation only':>19}")
+    for i in sources:
+        r = reprojection_check(data.images, data.c2w, data.depths, i, target, args.occlusion_tol)
+        print(
+            f"  {scene.frames[i].name:<12} {r.baseline_m:>10.3f} {r.covered:>8.1%} "
+            f"{r.psnr_depth_warp:>13.2f} dB {r.psnr_rotation_only:>16.2f} dB"
+        )
+    return 0
+
+
+def _add_reproject(sub: argparse._SubParsersAction) -> None:
+    parser = sub.add_parser(
+        "reproject",
+        help="check that poses, depth and pixels agree by warping views into each other",
+        description=(
+            "Warp source views into a target view through the target's depth and report the "
+            "PSNR against the target on the pixels the source sees, next to the PSNR of the "
+            "source merely rotated to the target's orientation (no parallax). Consistent "
+            "poses and depth give a far higher PSNR for the depth warp."
+        ),
+        epilog="example: panogrf scene reproject data/test_00000 --target 1 --sources 0,2",
+    )
+    parser.add_argument("dir", metavar="DIR", help=f"scene folder (containing {TRANSFORMS})")
+    parser.add_argument("--target", type=int, default=None, help="target view (default: middle)")
+    parser.add_argument(
+        "--sources",
+        type=lambda s: [int(x) for x in s.split(",")],
+        default=None,
+        help="comma-separated source views (default: all others)",
+    )
+    parser.add_argument(
+        "--occlusion-tol",
+        type=float,
+        default=0.05,
+        help="relative depth difference above which a point counts as occluded (default 0.05)",
+    )
+    parser.set_defaults(func=run_reproject)
+
+
+# Name -> function adding that sub-subcommand; the order is the order in --help.
+_SUBCOMMANDS: dict[str, Callable[[argparse._SubParsersAction], None]] = {
+    "check": _add_check,
+    "reproject": _add_reproject,
+}
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "scene",
+        help="inspect and validate scene folders",
+        description=_DESCRIPTION,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    sub = parser.add_subparsers(dest="scene_command", metavar="SUBCOMMAND", required=True)
+    for add in _SUBCOMMANDS.values():
+        add(sub)

@@ -1,0 +1,190 @@
+"""Reading and writing panoramas and depth maps on disk, with atomic writes.
+
+- Colour images come back as RGB ``uint8`` ``[H, W, 3]``. Grayscale, opaque RGBA and 16-bit
+  files are converted (the conversion is reported as a note); a non-opaque alpha channel is
+  refused, since a transparent panorama is not a photograph of a place.
+- Depth maps are single-channel 16-bit PNGs holding spherical depth (distance from the camera
+  centre) in millimetres; 0 means unknown. In memory they are ``float32`` metres, 0.0 unknown.
+- Every write goes to a temporary file in the destination folder and is then renamed over the
+  destination, so a reader never sees a half-written file.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import uuid
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from panogrf.app.errors import UserError
+
+#: Largest depth a 16-bit millimetre PNG can hold, in metres.
+MAX_DEPTH_M = 65.535
+
+
+class ImageReadError(UserError):
+    """An image or depth file that cannot be used; ``reason`` says why without the path."""
+
+    def __init__(self, path: str | os.PathLike[str], reason: str) -> None:
+        self.path = Path(path)
+        self.reason = reason
+        super().__init__(f"{self.path}: {reason}")
+
+
+def write_bytes_atomic(path: str | os.PathLike[str], data: bytes) -> None:
+    """Write ``data`` to ``path`` through a temporary file in the same folder and a rename."""
+    path = Path(path)
+    # A unique name in the same folder: os.replace is atomic only within one file system.
+    tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex[:12]}.tmp")
+    # os.open with mode 0o666 lets the umask decide the permissions, as for a plain open().
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+# An innermost JSON list of plain scalars, as json.dumps indents it. The raw newline after "["
+# never occurs inside a JSON string (dumps escapes it), so string contents are never touched.
+_FLAT_LIST = re.compile(r"\[\n\s*([^\[\]{}\"]*?)\n\s*\]")
+
+
+def write_json_atomic(path: str | os.PathLike[str], data: object) -> None:
+    """Write ``data`` as indented JSON (UTF-8), atomically; number lists stay on one line.
+
+    Keeps each matrix row on one line so that poses read well in a text editor. NaN and
+    infinity are refused (they are not JSON).
+    """
+    text = json.dumps(data, indent=2, allow_nan=False)
+    text = _FLAT_LIST.sub(lambda m: "[" + ", ".join(x.strip() for x in m[1].split(",")) + "]", text)
+    write_bytes_atomic(path, (text + "\n").encode("utf-8"))
+
+
+def _imread(path: Path) -> np.ndarray:
+    """Decode any image file unchanged (channels, bit depth); errors name the file."""
+    if not path.exists():
+        raise ImageReadError(path, "file not found")
+    if not path.is_file():
+        raise ImageReadError(path, "not a file")
+    pixels = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if pixels is None:
+        raise ImageReadError(path, "not a readable image (unknown format or corrupt file)")
+    return pixels
+
+
+def _channels(pixels: np.ndarray) -> int:
+    return 1 if pixels.ndim == 2 else pixels.shape[2]
+
+
+def read_rgb_with_notes(path: str | os.PathLike[str]) -> tuple[np.ndarray, list[str]]:
+    """Read a colour image as RGB ``uint8`` ``[H, W, 3]``, and notes on any conversion made.
+
+    Accepts 8- or 16-bit gray, gray+alpha, BGR and BGRA files. 16-bit values are mapped to 8
+    bits with rounding (65535 -> 255). Raises `ImageReadError` for a missing or unreadable file,
+    another pixel type, or an alpha channel that is not fully opaque.
+    """
+    path = Path(path)
+    pixels = _imread(path)
+    notes: list[str] = []
+    if pixels.dtype == np.uint16:
+        full = 65535
+    elif pixels.dtype == np.uint8:
+        full = 255
+    else:
+        raise ImageReadError(path, f"unsupported pixel type {pixels.dtype}; expected 8 or 16 bit")
+    channels = _channels(pixels)
+    if channels not in (1, 2, 3, 4):
+        raise ImageReadError(path, f"unsupported image with {channels} channels")
+    if channels in (2, 4):
+        alpha = pixels[..., -1]
+        if (alpha != full).any():
+            share = float((alpha != full).mean())
+            raise ImageReadError(
+                path,
+                f"alpha channel is not fully opaque ({share:.1%} of pixels are transparent); "
+                "a panorama must be an opaque photo: flatten it onto a background first",
+            )
+        pixels = pixels[..., :-1]
+        notes.append("opaque alpha channel dropped")
+    if pixels.ndim == 3 and pixels.shape[2] == 1:
+        pixels = pixels[..., 0]
+    if pixels.ndim == 2:
+        pixels = np.repeat(pixels[..., None], 3, axis=2)
+        notes.append("grayscale converted to RGB")
+    else:
+        pixels = pixels[..., ::-1]  # OpenCV decodes to BGR order
+    if full == 65535:
+        pixels = np.round(pixels.astype(np.float32) * (255.0 / 65535.0)).astype(np.uint8)
+        notes.append("16-bit converted to 8-bit")
+    return np.ascontiguousarray(pixels, dtype=np.uint8), notes
+
+
+def read_rgb(path: str | os.PathLike[str]) -> np.ndarray:
+    """Read a colour image as RGB ``uint8`` ``[H, W, 3]`` (see `read_rgb_with_notes`)."""
+    return read_rgb_with_notes(path)[0]
+
+
+def _encode(path: Path, pixels: np.ndarray) -> bytes:
+    ok, buf = cv2.imencode(path.suffix or ".png", pixels)
+    if not ok:
+        raise ValueError(f"{path}: OpenCV cannot encode an image with suffix {path.suffix!r}")
+    return buf.tobytes()
+
+
+def write_rgb(path: str | os.PathLike[str], img: np.ndarray) -> None:
+    """Write an RGB image atomically; the format follows the suffix (``.png`` is lossless).
+
+    img: ``[H, W, 3]`` ``uint8``, or floating point in [0, 1] (rounded to 8 bits, clipped).
+    """
+    path = Path(path)
+    img = np.asarray(img)
+    if img.ndim != 3 or img.shape[2] != 3:
+        raise ValueError(f"{path}: expected an RGB image [H, W, 3], got shape {img.shape}")
+    if np.issubdtype(img.dtype, np.floating):
+        img = np.round(np.clip(img, 0.0, 1.0) * 255.0).astype(np.uint8)
+    elif img.dtype != np.uint8:
+        raise ValueError(f"{path}: expected uint8 or float pixels, got {img.dtype}")
+    write_bytes_atomic(path, _encode(path, np.ascontiguousarray(img[..., ::-1])))
+
+
+def read_depth(path: str | os.PathLike[str]) -> np.ndarray:
+    """Read a spherical depth map: 16-bit single-channel PNG in mm -> ``float32 [H, W]`` metres.
+
+    0 stays 0.0 (unknown). Raises `ImageReadError` for any other kind of file, so an 8-bit
+    visualisation or a colour image is never mistaken for depth.
+    """
+    path = Path(path)
+    pixels = _imread(path)
+    if pixels.dtype != np.uint16 or pixels.ndim != 2:
+        raise ImageReadError(
+            path,
+            f"expected a single-channel 16-bit PNG (depth in millimetres), got "
+            f"{_channels(pixels)}-channel {pixels.dtype}",
+        )
+    return pixels.astype(np.float32) / np.float32(1000.0)
+
+
+def write_depth(path: str | os.PathLike[str], depth_m: np.ndarray) -> None:
+    """Write spherical depth ``[H, W]`` in metres as a 16-bit PNG in millimetres, atomically.
+
+    Values are rounded to the millimetre and clipped to 65535 mm (`MAX_DEPTH_M`); non-finite
+    and non-positive values become 0 (unknown).
+    """
+    path = Path(path)
+    depth = np.asarray(depth_m, dtype=np.float64)
+    if depth.ndim != 2:
+        raise ValueError(f"{path}: expected a depth map [H, W], got shape {depth.shape}")
+    if path.suffix.lower() != ".png":
+        raise ValueError(f"{path}: depth maps are written as 16-bit PNG; use a .png name")
+    valid = np.isfinite(depth) & (depth > 0)
+    mm = np.where(valid, np.round(np.where(valid, depth, 0.0) * 1000.0), 0.0)
+    write_bytes_atomic(path, _encode(path, np.clip(mm, 0, 65535).astype(np.uint16)))
