@@ -1,1 +1,1 @@
-"""Application layer: CLI, scene files, synthetic data, (later) the viewer. Imports renderer and model."""
+"""Application layer: CLI, scene files, synthetic data, the viewer. Imports renderer and model."""

@@ -110,8 +110,12 @@ def run_reproject(args: argparse.Namespace) -> int:
     for i in sources:
         if not 0 <= i < n or i == target:
             raise UserError(f"--sources: {i} is not another view of the {n}-view scene")
-    print(f"reprojection into view {target} ({scene.frames[target].name}), {scene.width}x{scene.height}:")
-    print(f"  {'source':<12} {'baseline m':>10} {'covered':>8} {'PSNR depth warp':>16} {'PSNR rotation only':>19}")
+    name = scene.frames[target].name
+    print(f"reprojection into view {target} ({name}), {scene.width}x{scene.height}:")
+    print(
+        f"  {'source':<12} {'baseline m':>10} {'covered':>8} "
+        f"{'PSNR depth warp':>16} {'PSNR rotation only':>19}"
+    )
     for i in sources:
         r = reprojection_check(data.images, data.c2w, data.depths, i, target, args.occlusion_tol)
         print(

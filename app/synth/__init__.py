@@ -1,1 +1,1 @@
-"""Procedural indoor 360-degree scenes rendered headless (EGL): the project's training and test data."""
+"""Procedural indoor 360-degree scenes rendered headless (EGL): training and test data."""

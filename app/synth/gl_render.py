@@ -92,7 +92,7 @@ class PanoramaRenderer:
         rows = []
         # Furniture before the room shell: early depth rejection then skips shading the walls
         # behind it (llvmpipe is fill-rate bound here).
-        ordered = sorted(scene.objects, key=lambda o: not o.name[:2] in ("A_", "B_"))
+        ordered = sorted(scene.objects, key=lambda o: o.name[:2] not in ("A_", "B_"))
         for obj in ordered:
             mesh = obj.mesh
             tris = mesh.vertices[mesh.faces].reshape(-1, 3)

@@ -126,10 +126,19 @@ def _furniture(rng: np.random.Generator, kind: str, ceiling: float) -> tuple[lis
         parts = [_box([w, 0.05, d], [0, h - 0.025, 0])]
         for sx in (-1, 1):
             for sz in (-1, 1):
-                parts.append(_box([0.06, h - 0.05, 0.06], [sx * (w / 2 - 0.08), (h - 0.05) / 2, sz * (d / 2 - 0.08)]))
+                parts.append(
+                    _box(
+                        [0.06, h - 0.05, 0.06],
+                        [sx * (w / 2 - 0.08), (h - 0.05) / 2, sz * (d / 2 - 0.08)],
+                    )
+                )
         return parts, math.hypot(w, d) / 2
     if kind == "cabinet":
-        w, d, h = rng.uniform(0.5, 2.0), rng.uniform(0.4, 0.7), rng.uniform(0.8, min(2.2, ceiling - 0.2))
+        w, d, h = (
+            rng.uniform(0.5, 2.0),
+            rng.uniform(0.4, 0.7),
+            rng.uniform(0.8, min(2.2, ceiling - 0.2)),
+        )
         return [_box([w, h, d], [0, h / 2, 0])], math.hypot(w, d) / 2
     if kind == "sofa":
         w, d = rng.uniform(1.4, 2.4), rng.uniform(0.8, 1.0)
@@ -182,13 +191,14 @@ def generate_layout(
     split: str,
     n_layers: int,
     baseline: float | None = None,
-    config: LayoutConfig = LayoutConfig(),
+    config: LayoutConfig | None = None,
 ) -> SynthScene:
     """A random two-room scene with three cameras on a line (deterministic from ``seed``).
 
     ``n_layers`` is the number of textures available; ``baseline`` fixes the first-to-last
     camera distance (metres), otherwise it is drawn from ``config.baseline``.
     """
+    config = config or LayoutConfig()
     rng = np.random.default_rng([seed, 0x5EED])
     lx, lz = rng.uniform(*config.room_size, size=2)
     ha = rng.uniform(*config.ceiling)
@@ -274,13 +284,19 @@ def generate_layout(
             tf[:3, 3] = [c[0], 0.0, c[1]]
             mesh = trimesh.util.concatenate(parts)
             mesh.apply_transform(tf)
-            objects.append(SceneObject(f"{room}_{kind}_{len(placed)}", mesh, _material(rng, n_layers, (0.2, 1.0))))
+            objects.append(
+                SceneObject(
+                    f"{room}_{kind}_{len(placed)}", mesh, _material(rng, n_layers, (0.2, 1.0))
+                )
+            )
             placed.append((c, radius))
             return
 
     lo_a, hi_a = np.array([0.05, 0.05]), np.array([lx - 0.05, lz - 0.05])
     for i in range(n_main):
-        kind = "pillar" if i < n_occ and rng.random() < 0.6 else _KINDS[int(rng.integers(len(_KINDS)))]
+        kind = (
+            "pillar" if i < n_occ and rng.random() < 0.6 else _KINDS[int(rng.integers(len(_KINDS)))]
+        )
         place(kind, lo_a, hi_a, near_line=i < n_occ, room="A")
     lo_b = np.array([lx + t + 0.05, zb0 + 0.05])
     hi_b = np.array([lx + t + lbx - 0.05, zb0 + lbz - 0.05])
@@ -289,7 +305,10 @@ def generate_layout(
 
     # Lights near the ceilings, warm to cool.
     lights = []
-    for room_lo, room_hi, h, n in ((lo_a, hi_a, ha, rng.integers(1, 4)), (lo_b, hi_b, hb, rng.integers(1, 3))):
+    for room_lo, room_hi, h, n in (
+        (lo_a, hi_a, ha, rng.integers(1, 4)),
+        (lo_b, hi_b, hb, rng.integers(1, 3)),
+    ):
         for _ in range(int(n)):
             xz = rng.uniform(room_lo, room_hi)
             warmth = rng.uniform(-1, 1)

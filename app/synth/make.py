@@ -74,10 +74,14 @@ def build_textures(split: str, base_seed: int, procedural: int = 32) -> np.ndarr
 
 
 def build_scene(
-    split: str, seed: int, baseline: float | None, n_layers: int, config: LayoutConfig = LayoutConfig()
+    split: str,
+    seed: int,
+    baseline: float | None,
+    n_layers: int,
+    config: LayoutConfig | None = None,
 ) -> SynthScene:
     """The layout of one synthetic scene whose materials index a pool of ``n_layers`` textures."""
-    return generate_layout(seed, split, n_layers, baseline, config)
+    return generate_layout(seed, split, n_layers, baseline, config or LayoutConfig())
 
 
 def _write_json_atomic(path: Path, obj: dict) -> None:
@@ -176,7 +180,9 @@ def make_dataset(cfg: MakeConfig, progress: bool = True) -> dict:
     known = {e["folder"] for e in entries}
     index["scenes"] = [e for e in index.get("scenes", []) if e["folder"] not in known] + entries
     index["scenes"].sort(key=lambda e: e["folder"])
-    index.update({"generator": "panogrf dataset make", "height": cfg.height, "width": 2 * cfg.height})
+    index.update(
+        {"generator": "panogrf dataset make", "height": cfg.height, "width": 2 * cfg.height}
+    )
     _write_json_atomic(index_path, index)
     n = 3 * cfg.count
     return {

@@ -9,7 +9,7 @@ hides little; seams of photographs are part of the realism).
 from __future__ import annotations
 
 from collections.abc import Callable
-from functools import lru_cache
+from functools import cache
 from pathlib import Path
 
 import cv2
@@ -149,7 +149,7 @@ _PROCEDURAL: dict[str, tuple[Callable[[np.random.Generator, int], np.ndarray], .
 }
 
 
-@lru_cache(maxsize=None)
+@cache
 def _photo(name: str, size: int) -> np.ndarray:
     import skimage
 

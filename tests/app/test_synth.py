@@ -1,4 +1,4 @@
-"""Synthetic scene generator: layout rules, determinism, split disjointness, GL depth vs ray casting."""
+"""Synthetic scenes: layout rules, determinism, disjoint splits, GL depth vs ray casting."""
 
 from __future__ import annotations
 
