@@ -97,8 +97,6 @@ def _lpips(x: torch.Tensor, y: torch.Tensor, device: str) -> float:
         net = load_lpips(device)
     except FileNotFoundError as exc:
         raise UserError(str(exc)) from exc
-    except (RuntimeError, ValueError) as exc:  # unknown or unavailable device
-        raise UserError(f"cannot run LPIPS on device {device!r}: {exc}") from exc
     with torch.no_grad():
         return float(net(x.to(device), y.to(device)))
 
@@ -134,7 +132,8 @@ def compare(a: LoadedImage, b: LoadedImage, device: str = "cpu") -> dict:
         values["lpips"] = None
         notes.append(f"LPIPS needs at least {LPIPS_MIN_SIZE}x{LPIPS_MIN_SIZE} pixels")
     if math.isinf(values["psnr"]):
-        notes.append("the images are identical: PSNR and WS-PSNR are infinite")
+        which = "PSNR and WS-PSNR are" if values["ws_psnr"] is not None else "PSNR is"
+        notes.append(f"the images are identical: {which} infinite")
     return {"width": w, "height": h, **values, "notes": notes}
 
 
@@ -155,9 +154,21 @@ def _format_text(path_a: Path, path_b: Path, a: LoadedImage, b: LoadedImage, res
     return "\n".join(lines)
 
 
+def _check_device(name: str) -> str:
+    """The --device argument, if torch can use it here; UserError otherwise."""
+    try:
+        device = torch.device(name)
+    except RuntimeError as exc:
+        raise UserError(f"unknown device {name!r} (try cpu or cuda)") from exc
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise UserError(f"device {name!r} requested but CUDA is not available here")
+    return str(device)
+
+
 def run(args: argparse.Namespace) -> int:
+    device = _check_device(args.device)
     a, b = load_image(args.a), load_image(args.b)
-    result = compare(a, b, device=args.device)
+    result = compare(a, b, device=device)
     if args.json:
         # JSON has no inf: infinite PSNRs become null, and the notes say why.
         finite = {
