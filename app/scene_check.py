@@ -1,0 +1,332 @@
+"""The scene validator: `inspect_scene` reads a scene folder once and lists every problem.
+
+Each problem names the file or field (and frame index) and says what is wrong; `load_scene` and
+``panogrf scene check`` both use it. `number_array` and `pose_problems` are shared with
+`panogrf.app.camera_path` and `panogrf.app.scene.write_scene`.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from scipy.spatial import cKDTree
+
+from panogrf.app.images import ImageReadError, read_depth, read_rgb_with_notes
+from panogrf.app.scene_types import (
+    CAMERA_MODEL,
+    RESERVED_KEYS,
+    TRANSFORMS,
+    Frame,
+    Scene,
+    SceneImages,
+)
+
+#: Largest allowed max |R^T R - I| (and last-row deviation) of a pose.
+POSE_TOLERANCE = 1e-4
+#: Two views closer than this (metres) are "at the same position": no baseline to triangulate.
+MIN_VIEW_SEPARATION_M = 1e-3
+
+
+@dataclass(frozen=True, eq=False)
+class SceneReport:
+    """What `inspect_scene` found: the scene when valid, else the problems."""
+
+    root: Path
+    scene: Scene | None
+    """None when there are problems."""
+    problems: tuple[str, ...]
+    notes: tuple[str, ...]
+    """Harmless findings, e.g. conversions applied on load (grayscale -> RGB)."""
+    depth_range_m: tuple[float, float] | None
+    """(min, max) of known depth over all depth maps, or None."""
+
+    @property
+    def ok(self) -> bool:
+        return not self.problems
+
+
+# --- validation helpers, shared with camera_path.py -------------------------------------------
+
+
+def number_array(value: Any) -> np.ndarray:
+    """A JSON value (nested lists of numbers) -> float64 array; ValueError saying what is wrong."""
+    stack = [value]
+    while stack:
+        item = stack.pop()
+        if isinstance(item, list):
+            stack.extend(item)
+        elif isinstance(item, bool) or not isinstance(item, (int, float)):
+            raise ValueError(f"contains a non-number ({_short(item)})")
+    try:
+        return np.array(value, dtype=np.float64)
+    except ValueError:
+        raise ValueError("is not a rectangular list of numbers") from None
+
+
+def pose_problems(m: np.ndarray, tol: float = POSE_TOLERANCE) -> list[str]:
+    """Problems of a [4, 4] camera-to-world matrix: finite, rigid (R^T R = I, det +1), last row."""
+    if not np.isfinite(m).all():
+        return ["contains NaN or infinite values"]
+    problems = []
+    if np.abs(m[3] - (0.0, 0.0, 0.0, 1.0)).max() > tol:
+        problems.append(f"last row is {_fmt_row(m[3])}, expected [0, 0, 0, 1]")
+    r = m[:3, :3]
+    err = float(np.abs(r.T @ r - np.eye(3)).max())
+    if err > tol:
+        problems.append(f"rotation is not orthonormal (max |R^T R - I| = {err:.3g})")
+    elif np.linalg.det(r) < 0:
+        problems.append("rotation is a reflection (det = -1); expected det = +1")
+    return problems
+
+
+def _short(value: Any) -> str:
+    text = json.dumps(value) if isinstance(value, (str, bool, dict, type(None))) else repr(value)
+    return text if len(text) <= 30 else text[:27] + "..."
+
+
+def _fmt_row(row: np.ndarray) -> str:
+    return "[" + ", ".join(f"{x:g}" for x in row) + "]"
+
+
+def _positive_int(data: dict, key: str, what: str, problems: list[str]) -> int | None:
+    if key not in data:
+        problems.append(f"{TRANSFORMS}: {key} is missing ({what})")
+        return None
+    value = data[key]
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or value != int(value):
+        problems.append(f"{TRANSFORMS}: {key} must be a positive integer, got {_short(value)}")
+        return None
+    if value <= 0:
+        problems.append(f"{TRANSFORMS}: {key} must be a positive integer, got {value}")
+        return None
+    return int(value)
+
+
+def _relative_path(frame: dict, key: str, where: str, problems: list[str]) -> str | None:
+    value = frame[key]
+    if not isinstance(value, str) or not value:
+        problems.append(f"{where}.{key}: expected a file name, got {_short(value)}")
+        return None
+    if Path(value).is_absolute():
+        problems.append(f"{where}.{key} ({value}): must be relative to the scene folder")
+        return None
+    return value
+
+
+# --- the validator -------------------------------------------------------------------------
+
+
+@dataclass
+class _Found:
+    """Per-frame results while inspecting (None where unusable)."""
+
+    file_path: str | None = None
+    size: tuple[int, int] | None = None  # (width, height)
+    pixels: np.ndarray | None = None
+    c2w: np.ndarray | None = None
+    depth_file: str | None = None
+    depth: np.ndarray | None = None
+
+
+def _inspect_frame(root: Path, i: int, frame: Any, keep: bool, problems: list, notes: list):
+    where = f"frames[{i}]"
+    found = _Found()
+    if not isinstance(frame, dict):
+        problems.append(f"{where}: expected an object with file_path and transform_matrix")
+        return found
+    if "file_path" not in frame:
+        problems.append(f"{where}.file_path is missing")
+    else:
+        found.file_path = _relative_path(frame, "file_path", where, problems)
+    if found.file_path is not None:
+        try:
+            pixels, image_notes = read_rgb_with_notes(root / found.file_path)
+            found.size = (pixels.shape[1], pixels.shape[0])
+            found.pixels = pixels if keep else None
+            notes.extend(f"{where} ({found.file_path}): {n}" for n in image_notes)
+        except ImageReadError as exc:
+            problems.append(f"{where}.file_path ({found.file_path}): {exc.reason}")
+
+    key = f"{where}.transform_matrix"
+    if "transform_matrix" not in frame:
+        problems.append(f"{key} is missing (4x4 camera-to-world)")
+    else:
+        try:
+            m = number_array(frame["transform_matrix"])
+            if m.shape != (4, 4):
+                shape = "x".join(map(str, m.shape)) or "a single number"
+                problems.append(f"{key}: expected a 4x4 matrix, got {shape}")
+            else:
+                found_problems = pose_problems(m)
+                problems.extend(f"{key}: {p}" for p in found_problems)
+                found.c2w = None if found_problems else m
+        except ValueError as exc:
+            problems.append(f"{key}: {exc}")
+
+    if frame.get("depth_file_path") is not None:
+        found.depth_file = _relative_path(frame, "depth_file_path", where, problems)
+    if found.depth_file is not None:
+        try:
+            found.depth = read_depth(root / found.depth_file)
+            dh, dw = found.depth.shape
+            if found.size is not None and (dw, dh) != found.size:
+                problems.append(
+                    f"{where}.depth_file_path ({found.depth_file}): depth map is {dw}x{dh} but "
+                    f"its image is {found.size[0]}x{found.size[1]} (width x height)"
+                )
+        except ImageReadError as exc:
+            problems.append(f"{where}.depth_file_path ({found.depth_file}): {exc.reason}")
+    return found
+
+
+def _check_sizes(found: list[_Found], w: int | None, h: int | None, problems: list[str]) -> None:
+    sized = [(i, f) for i, f in enumerate(found) if f.size is not None]
+    if not sized:
+        if w is not None and h is not None and w != 2 * h:
+            problems.append(f"{TRANSFORMS}: w={w}, h={h} is not 2:1 (an ERP panorama has w = 2h)")
+        return
+    j, ref = sized[0]
+    rw, rh = ref.size
+    for i, f in sized[1:]:
+        if f.size != ref.size:
+            problems.append(
+                f"frames[{i}].file_path ({f.file_path}): image is {f.size[0]}x{f.size[1]} but "
+                f"frames[{j}] ({ref.file_path}) is {rw}x{rh}; all views must have the same size"
+            )
+    if rw != 2 * rh:
+        problems.append(
+            f"frames[{j}].file_path ({ref.file_path}): image is {rw}x{rh} (width x height), "
+            "not 2:1; an equirectangular panorama has width = 2 x height"
+        )
+    if w is not None and h is not None and (w, h) != (rw, rh):
+        problems.append(f"{TRANSFORMS}: w={w}, h={h} but the images are {rw}x{rh} (width x height)")
+
+
+def _check_separation(found: list[_Found], problems: list[str]) -> None:
+    posed = [(i, f.c2w[:3, 3]) for i, f in enumerate(found) if f.c2w is not None]
+    if len(posed) < 2:
+        return
+    centres = np.stack([c for _, c in posed])
+    for a, b in sorted(cKDTree(centres).query_pairs(MIN_VIEW_SEPARATION_M)):
+        dist_mm = 1000.0 * float(np.linalg.norm(centres[a] - centres[b]))
+        problems.append(
+            f"frames[{posed[a][0]}] and frames[{posed[b][0]}]: views at the same position "
+            f"({dist_mm:.2f} mm apart); views must be at least "
+            f"{MIN_VIEW_SEPARATION_M * 1000:g} mm apart"
+        )
+
+
+def _read_transforms(root: Path, problems: list[str]) -> dict | None:
+    if not root.exists():
+        problems.append(f"scene folder not found: {root}")
+        return None
+    if not root.is_dir():
+        problems.append(f"not a folder: {root} (a scene is a folder with {TRANSFORMS})")
+        return None
+    path = root / TRANSFORMS
+    if not path.is_file():
+        problems.append(f"{TRANSFORMS}: file not found in {root}")
+        return None
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError:
+        problems.append(f"{TRANSFORMS}: not UTF-8 text")
+        return None
+    except json.JSONDecodeError as exc:
+        problems.append(
+            f"{TRANSFORMS}: invalid JSON at line {exc.lineno}, column {exc.colno}: {exc.msg}"
+        )
+        return None
+    if not isinstance(data, dict):
+        problems.append(f"{TRANSFORMS}: expected a JSON object at the top level")
+        return None
+    return data
+
+
+def _inspect(root: str | os.PathLike[str], keep_pixels: bool) -> tuple[SceneReport, list[_Found]]:
+    root = Path(root)
+    problems: list[str] = []
+    notes: list[str] = []
+    data = _read_transforms(root, problems)
+    if data is None:
+        return SceneReport(root, None, tuple(problems), (), None), []
+
+    model = data.get("camera_model")
+    if model is None:
+        problems.append(f'{TRANSFORMS}: camera_model is missing; expected "{CAMERA_MODEL}"')
+    elif model != CAMERA_MODEL:
+        problems.append(
+            f'{TRANSFORMS}: camera_model is {_short(model)}; only "{CAMERA_MODEL}" '
+            "(360-degree panoramas) is supported"
+        )
+    w = _positive_int(data, "w", "panorama width in pixels", problems)
+    h = _positive_int(data, "h", "panorama height in pixels", problems)
+    frames = data.get("frames")
+    if frames is None:
+        problems.append(f"{TRANSFORMS}: frames is missing (the list of views)")
+        frames = []
+    elif not isinstance(frames, list):
+        problems.append(f"{TRANSFORMS}: frames must be a list of views")
+        frames = []
+    elif not frames:
+        problems.append(f"{TRANSFORMS}: frames is empty; a scene needs at least one view")
+
+    found = [
+        _inspect_frame(root, i, fr, keep_pixels, problems, notes) for i, fr in enumerate(frames)
+    ]
+    _check_sizes(found, w, h, problems)
+    _check_separation(found, problems)
+
+    known = [f.depth[f.depth > 0] for f in found if f.depth is not None]
+    known = [k for k in known if k.size]
+    depth_range = None
+    if known:
+        depth_range = (float(min(k.min() for k in known)), float(max(k.max() for k in known)))
+
+    scene = None
+    if not problems:
+        scene = Scene(
+            root=root,
+            width=found[0].size[0],
+            height=found[0].size[1],
+            frames=tuple(
+                Frame(
+                    name=Path(f.file_path).stem,
+                    image_path=root / f.file_path,
+                    c2w=f.c2w,
+                    depth_path=None if f.depth_file is None else root / f.depth_file,
+                )
+                for f in found
+            ),
+            metadata={k: v for k, v in data.items() if k not in RESERVED_KEYS},
+        )
+    report = SceneReport(root, scene, tuple(problems), tuple(notes), depth_range)
+    return report, found
+
+
+def inspect_scene(root: str | os.PathLike[str]) -> SceneReport:
+    """Validate a scene folder, reading every file once; never raises for bad input."""
+    return _inspect(root, keep_pixels=False)[0]
+
+
+def check_scene(root: str | os.PathLike[str]) -> list[str]:
+    """Every problem of a scene folder, one message each (empty when the scene is valid)."""
+    return list(inspect_scene(root).problems)
+
+
+def inspect_and_load(
+    root: str | os.PathLike[str], dtype: torch.dtype = torch.float32
+) -> tuple[SceneReport, SceneImages | None]:
+    """`inspect_scene`, keeping the pixels read on the way: (report, images or None if invalid)."""
+    report, found = _inspect(root, keep_pixels=True)
+    if report.scene is None:
+        return report, None
+    pixels = [f.pixels for f in found]
+    depths = [f.depth for f in found]
+    return report, SceneImages.from_arrays(pixels, depths, report.scene.c2w, dtype)

@@ -1,0 +1,105 @@
+"""Typed containers of a scene folder (`Frame`, `Scene`, `SceneImages`) and its format constants.
+
+Kept apart from `panogrf.app.scene` (loading, writing) and `panogrf.app.scene_check` (the
+validator) so that both can build scenes without importing each other.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from panogrf.app.images import read_depth, read_rgb_with_notes
+
+TRANSFORMS = "transforms.json"
+CAMERA_MODEL = "EQUIRECTANGULAR"
+#: Top-level keys of transforms.json that are not metadata.
+RESERVED_KEYS = ("camera_model", "w", "h", "frames")
+
+
+@dataclass(frozen=True, eq=False)
+class Frame:
+    """One posed panorama of a scene."""
+
+    name: str
+    """Short name for messages and output files (the image file's stem)."""
+    image_path: Path
+    """The panorama file (scene root joined with ``file_path``)."""
+    c2w: np.ndarray
+    """Camera-to-world [4, 4] float64, OpenGL camera frame, metres."""
+    depth_path: Path | None = None
+    """Spherical depth PNG (mm, 0 = unknown), or None."""
+
+
+@dataclass(frozen=True, eq=False)
+class SceneImages:
+    """Pixels and poses of a scene as tensors, ready for the model."""
+
+    images: torch.Tensor
+    """[V, 3, H, W] RGB in [0, 1]."""
+    c2w: torch.Tensor
+    """[V, 4, 4] camera-to-world, OpenGL, metres."""
+    depths: torch.Tensor | None
+    """[V, 1, H, W] spherical depth in metres, 0 = unknown; None when no view has depth."""
+
+    def to(self, device: torch.device | str) -> SceneImages:
+        depths = None if self.depths is None else self.depths.to(device)
+        return SceneImages(self.images.to(device), self.c2w.to(device), depths)
+
+    @classmethod
+    def from_arrays(
+        cls,
+        pixels: Sequence[np.ndarray],
+        depths: Sequence[np.ndarray | None],
+        c2w: np.ndarray,
+        dtype: torch.dtype,
+    ) -> SceneImages:
+        """Stack per-view arrays: pixels [H, W, 3] uint8, depths [H, W] metres or None each,
+        c2w [V, 4, 4]; views without depth get zeros (unknown) when any view has depth."""
+        images = torch.from_numpy(np.stack(pixels)).permute(0, 3, 1, 2).to(dtype) / 255.0
+        depth = None
+        if any(d is not None for d in depths):
+            h, w = pixels[0].shape[:2]
+            filled = [np.zeros((h, w), np.float32) if d is None else d for d in depths]
+            depth = torch.from_numpy(np.stack(filled))[:, None].to(dtype)
+        return cls(images.contiguous(), torch.from_numpy(c2w).to(dtype), depth)
+
+
+@dataclass(frozen=True, eq=False)
+class Scene:
+    """A validated scene folder; pixels are loaded on request (`load_images`)."""
+
+    root: Path
+    width: int
+    """Panorama width W in pixels (= 2 * height)."""
+    height: int
+    frames: tuple[Frame, ...]
+    metadata: dict[str, Any] = field(default_factory=dict)
+    """Top-level keys of transforms.json other than camera_model, w, h, frames."""
+    images: SceneImages | None = None
+    """Filled by ``load_scene(..., load_images=True)``."""
+
+    @property
+    def num_views(self) -> int:
+        return len(self.frames)
+
+    @property
+    def c2w(self) -> np.ndarray:
+        """[V, 4, 4] float64 camera-to-world poses."""
+        return np.stack([f.c2w for f in self.frames])
+
+    @property
+    def has_depth(self) -> bool:
+        """True when at least one view has a depth map."""
+        return any(f.depth_path is not None for f in self.frames)
+
+    def load_images(self, dtype: torch.dtype = torch.float32) -> SceneImages:
+        """Read every panorama (and depth map) into tensors on the CPU."""
+        pixels = [read_rgb_with_notes(f.image_path)[0] for f in self.frames]
+        depths = [None if f.depth_path is None else read_depth(f.depth_path) for f in self.frames]
+        return SceneImages.from_arrays(pixels, depths, self.c2w, dtype)
