@@ -1,0 +1,100 @@
+"""`panogrf train depth`: reproduce the shipped depth weights from the synthetic train split."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from panogrf.app.errors import UserError
+
+
+def register(subparsers) -> None:
+    parser = subparsers.add_parser(
+        "train",
+        help="train the networks on synthetic data",
+        description="Train the project's networks on the synthetic train split (CPU).",
+    )
+    sub = parser.add_subparsers(dest="train_command", metavar="SUBCOMMAND", required=True)
+    depth = sub.add_parser(
+        "depth",
+        help="train the 360-degree mono depth network or the mono-guided MVS",
+        description=(
+            "Train the monocular depth network (--stage mono) or the mono-guided 360-degree "
+            "MVS with the monocular network frozen (--stage mvs). Logs the loss curve and "
+            "writes safetensors weights with the command and final figures in the metadata."
+        ),
+        epilog=(
+            "example: panogrf train depth --data data/train --stage mono "
+            "--out assets/depth_mono.safetensors --log logs/mono.log"
+        ),
+    )
+    depth.add_argument("--data", type=Path, required=True, help="train-split dataset folder")
+    depth.add_argument("--stage", choices=("mono", "mvs"), required=True, help="which network")
+    depth.add_argument("--out", type=Path, required=True, help="output weights (.safetensors)")
+    depth.add_argument("--steps", type=int, default=2500, help="optimiser steps (default 2500)")
+    depth.add_argument("--batch", type=int, default=8, help="batch size (default 8)")
+    depth.add_argument("--lr", type=float, default=1e-3, help="initial learning rate")
+    depth.add_argument("--height", type=int, default=128, help="working height (default 128)")
+    depth.add_argument("--seed", type=int, default=0, help="seed (default 0)")
+    depth.add_argument("--mono", type=Path, default=None, help="stage mvs: mono weights")
+    depth.add_argument(
+        "--preset",
+        choices=("full", "mvs"),
+        default="full",
+        help="stage mvs: full (mono-guided) or mvs (N_mono=0, N_uni=64, no mono input)",
+    )
+    depth.add_argument("--threads", type=int, default=0, help="torch threads (default: all)")
+    depth.add_argument("--log", type=Path, default=None, help="also append log lines here")
+    depth.add_argument("--limit-scenes", type=int, default=None, help="load only N scenes")
+    depth.set_defaults(func=run_depth)
+
+
+def run_depth(args: argparse.Namespace) -> int:
+    import torch
+
+    from panogrf.app.train.depth import TrainDepthConfig, train_mono, train_mvs
+
+    if args.out.suffix != ".safetensors":
+        raise UserError(f"--out must end in .safetensors, got {args.out}")
+    if args.steps < 1 or args.batch < 1:
+        raise UserError("--steps and --batch must be at least 1")
+    if args.height % 32:
+        raise UserError(f"--height must be a multiple of 32, got {args.height}")
+    if (
+        args.stage == "mvs"
+        and args.preset == "full"
+        and (args.mono is None or not args.mono.exists())
+    ):
+        raise UserError("--stage mvs --preset full needs --mono PATH to trained mono weights")
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    log_file = None
+    if args.log:
+        args.log.parent.mkdir(parents=True, exist_ok=True)
+        log_file = args.log.open("a", encoding="utf-8")
+
+    def log(line: str) -> None:
+        print(line, flush=True)
+        if log_file:
+            log_file.write(line + "\n")
+            log_file.flush()
+
+    cfg = TrainDepthConfig(
+        data=args.data,
+        stage=args.stage,
+        out=args.out,
+        steps=args.steps,
+        batch=args.batch,
+        lr=args.lr,
+        height=args.height,
+        seed=args.seed,
+        mono_weights=args.mono,
+        mvs_preset=args.preset,
+        limit_scenes=args.limit_scenes,
+    )
+    try:
+        (train_mono if args.stage == "mono" else train_mvs)(cfg, log=log)
+    finally:
+        if log_file:
+            log_file.close()
+    return 0

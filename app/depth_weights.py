@@ -1,0 +1,58 @@
+"""Loading the shipped depth networks from `assets/` (safetensors) into a `DepthEstimator`."""
+
+from __future__ import annotations
+
+import json
+from functools import lru_cache
+from pathlib import Path
+
+import torch
+from safetensors import safe_open
+from safetensors.torch import load_file
+
+from panogrf.app.errors import UserError
+from panogrf.assets import path as asset_path
+from panogrf.model.depth import DepthEstimator
+from panogrf.model.mono import MonoDepthConfig, MonoDepthNet
+from panogrf.model.mvs import PRESETS, MVSNet
+
+WEIGHTS = {
+    "mono": "depth_mono.safetensors",
+    "full": "depth_mvs_full.safetensors",
+    "mvs": "depth_mvs_only.safetensors",
+}
+
+
+def _metadata(path: Path) -> dict:
+    with safe_open(str(path), framework="pt") as f:
+        return f.metadata() or {}
+
+
+def _load(module: torch.nn.Module, path: Path, expected_config: dict) -> None:
+    if not path.exists():
+        raise UserError(
+            f"missing weights {path}: reproduce them with `panogrf train depth` (see README)"
+        )
+    stored = json.loads(_metadata(path).get("config", "{}"))
+    # Tuples become lists in JSON; compare as JSON.
+    if stored and json.loads(json.dumps(expected_config)) != stored:
+        raise UserError(f"{path}: trained with config {stored}, the code expects {expected_config}")
+    module.load_state_dict(load_file(str(path)))
+    module.eval().requires_grad_(False)
+
+
+@lru_cache(maxsize=4)
+def load_depth_estimator(
+    modes: tuple[str, ...] = ("full", "mvs"), device: str = "cpu"
+) -> DepthEstimator:
+    """The depth estimator with the monocular network and the MVS networks of ``modes``."""
+    from dataclasses import asdict
+
+    mono = MonoDepthNet(MonoDepthConfig())
+    _load(mono, asset_path(WEIGHTS["mono"]), asdict(mono.config))
+    mvs = {}
+    for mode in modes:
+        net = MVSNet(PRESETS[mode])
+        _load(net, asset_path(WEIGHTS[mode]), asdict(net.config))
+        mvs[mode] = net
+    return DepthEstimator(mono, mvs).to(device).eval()

@@ -1,0 +1,290 @@
+"""Training of the depth networks on the synthetic train split (`panogrf train depth`).
+
+Stage ``mono`` trains `MonoDepthNet`; stage ``mvs`` trains `MVSNet` with the monocular network
+frozen (as in PanoGRF). Both use the L1 loss weighted by cos(latitude) on pixels whose ground
+truth lies inside the depth range. A slice of the *train* split is held back for validation;
+the test split is never read here. Weights go to safetensors with their config, the command
+line and the final figures in the metadata.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import sys
+import tempfile
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import torch
+from safetensors.torch import save_file
+from torch import Tensor
+
+from panogrf.app.train.data import TripletSet, load_triplets, yaw_roll
+from panogrf.model.erp import latitude_weights
+from panogrf.model.mono import MonoDepthConfig, MonoDepthNet
+
+
+@dataclass(frozen=True)
+class TrainDepthConfig:
+    """One training run."""
+
+    data: Path
+    """Dataset folder of the train split (made by `panogrf dataset make --split train`)."""
+    stage: str
+    """"mono" or "mvs"."""
+    out: Path
+    """Where the weights go (safetensors)."""
+    steps: int = 2500
+    """Optimiser steps."""
+    batch: int = 8
+    """Panoramas (mono) or reference/source pairs (mvs) per step."""
+    lr: float = 1e-3
+    """Adam learning rate at the start (cosine decay to 1 % of it)."""
+    height: int = 128
+    """Working resolution (height; width is twice this)."""
+    val_scenes: int = 24
+    """Scenes of the train split held back for validation."""
+    seed: int = 0
+    """Seed of the initialisation and of the batches."""
+    mono_weights: Path | None = None
+    """Stage mvs: the trained monocular network (frozen)."""
+    mvs_preset: str = "full"
+    """Stage mvs: "full" (mono-guided) or "mvs" (no mono guidance, N_mono = 0, N_uni = 64)."""
+    log_every: int = 50
+    """Steps between log lines."""
+    limit_scenes: int | None = None
+    """Load only this many scenes (smoke tests)."""
+    extra: dict = field(default_factory=dict)
+    """Free-form notes stored with the weights."""
+
+
+def weighted_l1(pred: Tensor, gt: Tensor, d_max: float) -> Tensor:
+    """cos(latitude)-weighted L1 over pixels with 0 < gt <= d_max; [B, 1, H, W] inputs."""
+    w = latitude_weights(*gt.shape[-2:], device=gt.device, dtype=gt.dtype)
+    valid = ((gt > 0) & (gt <= d_max)).to(gt.dtype) * w
+    return ((pred - gt).abs() * valid).sum() / valid.sum().clamp(min=1.0)
+
+
+def _mono_batch(data: TripletSet, gen: torch.Generator, batch: int) -> tuple[Tensor, Tensor]:
+    n = len(data)
+    scene = torch.randint(n, (batch,), generator=gen)
+    view = torch.randint(3, (batch,), generator=gen)
+    img = data.images[scene, view].float() / 255.0
+    dep = data.depths[scene, view][:, None]
+    width = img.shape[-1]
+    shift = int(torch.randint(width, (1,), generator=gen))
+    img, dep = torch.roll(img, shift, -1), torch.roll(dep, shift, -1)
+    if torch.rand(1, generator=gen) < 0.5:
+        img, dep = img.flip(-1), dep.flip(-1)
+    # Mild photometric jitter: exposure and white balance.
+    gain = 1.0 + 0.2 * (torch.rand(batch, 3, 1, 1, generator=gen) - 0.5)
+    img = (img * gain * (0.8 + 0.4 * torch.rand(batch, 1, 1, 1, generator=gen))).clamp(0, 1)
+    return img, dep
+
+
+def _split(data: TripletSet, val_scenes: int) -> tuple[TripletSet, TripletSet]:
+    n = len(data)
+    k = min(val_scenes, max(1, n // 5))
+    return data.subset(range(n - k)), data.subset(range(n - k, n))
+
+
+@torch.no_grad()
+def _validate_mono(net: MonoDepthNet, val: TripletSet) -> dict:
+    net.eval()
+    d_max = net.config.d_max
+    errs, sq, total = 0.0, 0.0, 0.0
+    for i in range(len(val)):
+        img = val.images[i].float() / 255.0
+        gt = val.depths[i][:, None]
+        pred = net(img).depth
+        valid = (gt > 0) & (gt <= d_max)
+        errs += float((pred - gt).abs()[valid].sum())
+        sq += float(((pred - gt) ** 2)[valid].sum())
+        total += float(valid.sum())
+    net.train()
+    return {"val_l1": errs / total, "val_rmse": math.sqrt(sq / total)}
+
+
+def _lr_at(step: int, steps: int, lr: float) -> float:
+    return lr * (0.01 + 0.99 * 0.5 * (1 + math.cos(math.pi * step / steps)))
+
+
+def save_weights(module: torch.nn.Module, path: Path, metadata: dict) -> None:
+    """Write a module's state dict as safetensors, atomically, with JSON metadata."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    state = {k: v.detach().contiguous().cpu() for k, v in module.state_dict().items()}
+    meta = {k: v if isinstance(v, str) else json.dumps(v) for k, v in metadata.items()}
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    os.close(fd)
+    try:
+        save_file(state, tmp, metadata=meta)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+
+
+def train_mono(cfg: TrainDepthConfig, log=print) -> dict:
+    """Train the 360-degree monocular depth network; returns the final figures."""
+    torch.manual_seed(cfg.seed)
+    data = load_triplets(cfg.data, cfg.height, cfg.limit_scenes)
+    train, val = _split(data, cfg.val_scenes)
+    log(f"mono: {len(train)} train scenes ({3 * len(train)} panoramas), {len(val)} validation")
+    net = MonoDepthNet(MonoDepthConfig())
+    opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
+    gen = torch.Generator().manual_seed(cfg.seed)
+    start, running = time.perf_counter(), 0.0
+    for step in range(1, cfg.steps + 1):
+        for group in opt.param_groups:
+            group["lr"] = _lr_at(step, cfg.steps, cfg.lr)
+        img, gt = _mono_batch(train, gen, cfg.batch)
+        loss = weighted_l1(net(img).depth, gt, net.config.d_max)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        running += loss.item()
+        if step % cfg.log_every == 0 or step == cfg.steps:
+            k = cfg.log_every if step % cfg.log_every == 0 else step % cfg.log_every
+            log(
+                f"step {step:5d}  loss {running / k:.4f}  lr {opt.param_groups[0]['lr']:.2e}  "
+                f"{time.perf_counter() - start:7.1f} s"
+            )
+            running = 0.0
+    figures = _validate_mono(net, val)
+    figures.update({"steps": cfg.steps, "seconds": round(time.perf_counter() - start, 1)})
+    log(f"final (validation scenes of the train split): {json.dumps(figures)}")
+    save_weights(
+        net,
+        cfg.out,
+        {
+            "network": "MonoDepthNet",
+            "config": asdict(net.config),
+            "train": {k: str(v) for k, v in asdict(cfg).items()},
+            "command": " ".join(["panogrf"] + sys.argv[1:]),
+            "final": figures,
+        },
+    )
+    return figures
+
+
+def _mvs_batch(data: TripletSet, gen: torch.Generator, batch: int):
+    """Random reference/source pairs of the same scene, each view turned by its own yaw, the
+    whole world mirrored half of the time, and mild photometric jitter per view."""
+    n = len(data)
+    scene = torch.randint(n, (batch,), generator=gen)
+    ref = torch.randint(3, (batch,), generator=gen)
+    src = (ref + torch.randint(1, 3, (batch,), generator=gen)) % 3
+    imgs, deps, poses = [], [], []
+    for view in (ref, src):
+        img = data.images[scene, view].float() / 255.0
+        dep = data.depths[scene, view]
+        c2w = data.c2w[scene, view]
+        shift = int(torch.randint(img.shape[-1], (1,), generator=gen))
+        img, dep, c2w = yaw_roll(img, dep, c2w, shift)
+        gain = 1.0 + 0.2 * (torch.rand(batch, 3, 1, 1, generator=gen) - 0.5)
+        imgs.append((img * gain).clamp(0, 1))
+        deps.append(dep[:, None])
+        poses.append(c2w)
+    if torch.rand(1, generator=gen) < 0.5:
+        # Mirror the world in x: images flip left-right and c2w -> M c2w M, M = diag(-1, 1, 1, 1).
+        m = torch.diag(torch.tensor([-1.0, 1.0, 1.0, 1.0]))
+        imgs = [i.flip(-1) for i in imgs]
+        deps = [d.flip(-1) for d in deps]
+        poses = [m @ p @ m for p in poses]
+    return imgs[0], imgs[1][:, None], poses[0], poses[1][:, None], deps[0]
+
+
+def load_mono(path: Path) -> MonoDepthNet:
+    """The trained monocular network from safetensors, frozen, in eval mode."""
+    from safetensors.torch import load_file
+
+    net = MonoDepthNet(MonoDepthConfig())
+    net.load_state_dict(load_file(str(path)))
+    net.eval().requires_grad_(False)
+    return net
+
+
+@torch.no_grad()
+def _validate_mvs(net, mono, val: TripletSet) -> dict:
+    net.eval()
+    d_max = net.config.d_max
+    errs, sq, total = 0.0, 0.0, 0.0
+    for i in range(len(val)):
+        img, c2w, gt = val.images[i].float() / 255.0, val.c2w[i], val.depths[i][:, None]
+        for r, s in ((0, 2), (2, 0)):
+            kw = {}
+            if net.config.use_mono or net.config.n_mono:
+                m = mono(img[r : r + 1])
+                kw = {"mono_depth": m.depth, "mono_features": m.features}
+            out = net(
+                img[r : r + 1], img[s : s + 1][None], c2w[r : r + 1], c2w[s : s + 1][None], **kw
+            )
+            valid = (gt[r] > 0) & (gt[r] <= d_max)
+            diff = (out.depth[0] - gt[r])[valid]
+            errs += float(diff.abs().sum())
+            sq += float((diff**2).sum())
+            total += float(valid.sum())
+    net.train()
+    return {"val_l1": errs / total, "val_rmse": math.sqrt(sq / total)}
+
+
+def train_mvs(cfg: TrainDepthConfig, log=print) -> dict:
+    """Train the 360-degree MVS (preset cfg.mvs_preset) with the monocular network frozen."""
+    from panogrf.model.mvs import PRESETS, MVSNet
+
+    torch.manual_seed(cfg.seed)
+    data = load_triplets(cfg.data, cfg.height, cfg.limit_scenes)
+    train, val = _split(data, cfg.val_scenes)
+    mvs_cfg = PRESETS[cfg.mvs_preset]
+    needs_mono = mvs_cfg.use_mono or mvs_cfg.n_mono > 0
+    mono = load_mono(cfg.mono_weights) if needs_mono else None
+    log(
+        f"mvs ({cfg.mvs_preset}: N_mono={mvs_cfg.n_mono}, N_uni={mvs_cfg.n_uni}, "
+        f"mono input={mvs_cfg.use_mono}): {len(train)} train scenes, {len(val)} validation"
+    )
+    net = MVSNet(mvs_cfg)
+    opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
+    gen = torch.Generator().manual_seed(cfg.seed)
+    start, running = time.perf_counter(), 0.0
+    for step in range(1, cfg.steps + 1):
+        for group in opt.param_groups:
+            group["lr"] = _lr_at(step, cfg.steps, cfg.lr)
+        ref, src, ref_c2w, src_c2w, gt = _mvs_batch(train, gen, cfg.batch)
+        kw = {}
+        if mono is not None:
+            with torch.no_grad():
+                m = mono(ref)
+            kw = {"mono_depth": m.depth, "mono_features": m.features}
+        out = net(ref, src, ref_c2w, src_c2w, **kw)
+        d_max = mvs_cfg.d_max
+        loss = weighted_l1(out.depth, gt, d_max) + 0.5 * weighted_l1(out.expected, gt, d_max)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        running += loss.item()
+        if step % cfg.log_every == 0 or step == cfg.steps:
+            k = cfg.log_every if step % cfg.log_every == 0 else step % cfg.log_every
+            log(
+                f"step {step:5d}  loss {running / k:.4f}  lr {opt.param_groups[0]['lr']:.2e}  "
+                f"{time.perf_counter() - start:7.1f} s"
+            )
+            running = 0.0
+    figures = _validate_mvs(net, mono, val)
+    figures.update({"steps": cfg.steps, "seconds": round(time.perf_counter() - start, 1)})
+    log(f"final (validation scenes of the train split): {json.dumps(figures)}")
+    save_weights(
+        net,
+        cfg.out,
+        {
+            "network": "MVSNet",
+            "preset": cfg.mvs_preset,
+            "config": asdict(mvs_cfg),
+            "train": {k: str(v) for k, v in asdict(cfg).items()},
+            "command": " ".join(["panogrf"] + sys.argv[1:]),
+            "final": figures,
+        },
+    )
+    return figures

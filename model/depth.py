@@ -1,0 +1,114 @@
+"""Spherical depth for every view of a scene: monocular, MVS-only or mono-guided MVS.
+
+Every view is the reference once, with all other views as sources (cost volumes averaged).
+Panoramas of any 2:1 size are resized to the networks' working resolution and the depth is
+resized back. Degenerate input never yields NaN:
+- one view: monocular depth, with a warning;
+- a source at (nearly) the reference's position: that pair is dropped; with no pair left the
+  view falls back to monocular depth, with a warning;
+- depth at the top of the range (outdoor, or beyond ``d_max``): clamped, and flagged per pixel.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from panogrf.model.mono import MonoDepthNet
+from panogrf.model.mvs import MVSNet
+
+MODES = ("full", "mono", "mvs")
+
+
+@dataclass
+class DepthEstimate:
+    depth: Tensor  # [V, 1, H, W] spherical depth, metres
+    mono: Tensor  # [V, 1, H, W] the monocular depth
+    out_of_range: Tensor  # [V, 1, H, W] bool: clamped at the top of the depth range
+    sources: list[list[int]]  # views used as sources, per reference view
+    warnings: list[str] = field(default_factory=list)
+
+
+class DepthEstimator(nn.Module):
+    """Mono network plus the MVS networks by mode ("full": mono-guided, "mvs": MVS only)."""
+
+    def __init__(
+        self,
+        mono: MonoDepthNet,
+        mvs: dict[str, MVSNet],
+        working_height: int = 128,
+        min_baseline: float = 0.05,
+    ) -> None:
+        super().__init__()
+        self.mono = mono
+        self.mvs = nn.ModuleDict(mvs)
+        self.working_height = working_height
+        self.min_baseline = min_baseline
+        """Sources closer than this to the reference (metres) carry no parallax: dropped."""
+
+    @property
+    def d_max(self) -> float:
+        return self.mono.config.d_max
+
+    @torch.no_grad()
+    def forward(self, images: Tensor, c2w: Tensor, mode: str = "full") -> DepthEstimate:
+        """images [V, 3, H, W] in [0, 1] (W = 2H), c2w [V, 4, 4] -> `DepthEstimate`."""
+        if mode not in MODES:
+            raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+        if mode != "mono" and mode not in self.mvs:
+            raise ValueError(f"no weights loaded for mode {mode!r}")
+        v, _, h, w = images.shape
+        if w != 2 * h:
+            raise ValueError(f"panoramas must be 2:1, got {h}x{w}")
+        hw = (self.working_height, 2 * self.working_height)
+        small = F.interpolate(images, size=hw, mode="area") if (h, w) != hw else images
+        mono = self.mono(small)
+        warnings: list[str] = []
+        sources: list[list[int]] = [[] for _ in range(v)]
+        depth = mono.depth.clone()
+        if mode != "mono":
+            if v == 1:
+                warnings.append("one view only: monocular depth (no multi-view stereo)")
+            centres = c2w[:, :3, 3]
+            net = self.mvs[mode]
+            for ref in range(v):
+                dist = torch.linalg.vector_norm(centres - centres[ref], dim=-1)
+                src = [j for j in range(v) if j != ref and float(dist[j]) >= self.min_baseline]
+                close = [j for j in range(v) if j != ref and float(dist[j]) < self.min_baseline]
+                if close:
+                    warnings.append(
+                        f"view {ref}: views {close} are within {self.min_baseline} m of it "
+                        "(no parallax): not used as sources"
+                    )
+                if not src:
+                    if v > 1:
+                        warnings.append(f"view {ref}: no usable source, monocular depth")
+                    continue
+                sources[ref] = src
+                cfg = net.config
+                mono_kw = {}
+                if cfg.use_mono or cfg.n_mono > 0:
+                    mono_kw = {
+                        "mono_depth": mono.depth[ref : ref + 1],
+                        "mono_features": mono.features[ref : ref + 1],
+                    }
+                out = net(
+                    small[ref : ref + 1],
+                    small[src][None],
+                    c2w[ref : ref + 1],
+                    c2w[src][None],
+                    **mono_kw,
+                )
+                depth[ref] = out.depth[0]
+        depth = torch.nan_to_num(depth, nan=self.d_max, posinf=self.d_max).clamp(0.05, self.d_max)
+        mono_depth = mono.depth
+        if (h, w) != hw:
+            depth = F.interpolate(depth, size=(h, w), mode="bilinear", align_corners=False)
+            mono_depth = F.interpolate(
+                mono_depth, size=(h, w), mode="bilinear", align_corners=False
+            )
+        out_of_range = depth >= 0.98 * self.d_max
+        return DepthEstimate(depth, mono_depth, out_of_range, sources, warnings)

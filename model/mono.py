@@ -1,0 +1,201 @@
+"""360-degree monocular depth: an ERP branch and a cubemap branch fused at every scale (UniFuse).
+
+The ERP branch sees the whole panorama with circular padding in width; the cubemap branch sees
+six undistorted 90-degree faces. At each encoder scale the cube features are resampled to the
+ERP grid and fused into the ERP branch (unidirectional: cube -> ERP), as in UniFuse. A U-Net
+decoder turns the fused features into spherical depth ``d_max * sigmoid(x)``; its mid-level
+feature map is what the MVS decoder also reads (PanoGRF code).
+
+Sized for a 2-core CPU: a few hundred thousand parameters at 128 x 256.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from panogrf.model.cubemap import face_directions
+from panogrf.model.erp import direction_to_pixel, erp_directions
+from panogrf.model.layers import CircularConv2d
+
+
+@dataclass(frozen=True)
+class MonoDepthConfig:
+    """Size of the monocular depth network."""
+
+    channels: tuple[int, ...] = (16, 32, 48, 80)
+    """Encoder widths at 1/2 (stem), 1/4, 1/8, 1/16 of the input."""
+    d_max: float = 10.0
+    """Largest depth the network can output (metres)."""
+    feature_channels: int = 24
+    """Channels of the mid-level decoder feature map handed to the MVS decoder (at 1/2)."""
+
+
+def _block(cin: int, cout: int, stride: int, circular: bool) -> nn.Sequential:
+    conv = CircularConv2d if circular else nn.Conv2d
+    return nn.Sequential(
+        conv(cin, cout, 3, stride=stride, padding=1, bias=False),
+        nn.BatchNorm2d(cout),
+        nn.ReLU(inplace=True),
+        conv(cout, cout, 3, padding=1, bias=False),
+        nn.BatchNorm2d(cout),
+        nn.ReLU(inplace=True),
+    )
+
+
+class _Encoder(nn.Module):
+    def __init__(self, channels: tuple[int, ...], circular: bool) -> None:
+        super().__init__()
+        stages = [_block(3, channels[0], 2, circular)]  # full resolution is too dear on a CPU
+        stages += [
+            _block(a, b, 2, circular) for a, b in zip(channels[:-1], channels[1:], strict=True)
+        ]
+        self.stages = nn.ModuleList(stages)
+
+    def forward(self, x: Tensor) -> list[Tensor]:
+        feats = []
+        for stage in self.stages:
+            x = stage(x)
+            feats.append(x)
+        return feats
+
+
+class CubeToErp(nn.Module):
+    """Resample cube-face feature maps [B*6, C, F, F] onto an H x W ERP grid -> [B, C, H, W].
+
+    The six faces are laid side by side and one `grid_sample` reads them; the sampling grid
+    depends only on (F, H, W) and is cached.
+    """
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._grids: dict[tuple, Tensor] = {}
+
+    def _grid(self, face: int, height: int, width: int, device, dtype) -> Tensor:
+        key = (face, height, width, str(device), dtype)
+        if key not in self._grids:
+            from panogrf.model.cubemap import face_rotations
+
+            dirs = erp_directions(height, width, dtype=torch.float64)  # [H, W, 3]
+            local = torch.einsum("kji,hwj->khwi", face_rotations(torch.float64), dirs)
+            fwd = -local[..., 2]
+            k = fwd.argmax(0)  # [H, W]
+            loc = local.gather(0, k[None, ..., None].expand(1, height, width, 3))[0]
+            fx = loc[..., 0] / -loc[..., 2]
+            fy = -loc[..., 1] / -loc[..., 2]
+            # x in the 6-face atlas: face k occupies [k, k+1) of 6 equal parts; stay inside it.
+            half_texel = 1.0 / face
+            fx = fx.clamp(-1 + half_texel, 1 - half_texel)
+            fy = fy.clamp(-1 + half_texel, 1 - half_texel)
+            gx = (k.double() + (fx + 1) / 2) / 6 * 2 - 1
+            self._grids[key] = torch.stack((gx, fy), -1)[None].to(device, dtype)
+        return self._grids[key]
+
+    def forward(self, cube: Tensor, height: int, width: int) -> Tensor:
+        bk, c, f, _ = cube.shape
+        b = bk // 6
+        atlas = cube.reshape(b, 6, c, f, f).permute(0, 2, 3, 1, 4).reshape(b, c, f, 6 * f)
+        grid = self._grid(f, height, width, cube.device, cube.dtype).expand(b, -1, -1, -1)
+        return F.grid_sample(
+            atlas, grid, mode="bilinear", padding_mode="border", align_corners=False
+        )
+
+
+class ErpToCube(nn.Module):
+    """Resample panoramas [B, C, H, W] to cube faces [B*6, C, F, F] (grid cached per size)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._grids: dict[tuple, Tensor] = {}
+
+    def forward(self, erp: Tensor, face: int) -> Tensor:
+        b, c, h, w = erp.shape
+        key = (face, h, w, str(erp.device), erp.dtype)
+        if key not in self._grids:
+            uv = direction_to_pixel(face_directions(face, dtype=torch.float64), h, w)  # [6,F,F,2]
+            gx = (uv[..., 0] + 0.5) / w * 2 - 1
+            gy = (uv[..., 1] + 0.5) / h * 2 - 1
+            self._grids[key] = (
+                torch.stack((gx, gy), -1).reshape(1, 6 * face, face, 2).to(erp.device, erp.dtype)
+            )
+        grid = self._grids[key].expand(b, -1, -1, -1)
+        # Face pixels never sit exactly on the seam, so "border" padding loses nothing here.
+        out = F.grid_sample(erp, grid, mode="bilinear", padding_mode="border", align_corners=False)
+        return out.reshape(b, c, 6, face, face).permute(0, 2, 1, 3, 4).reshape(b * 6, c, face, face)
+
+
+class _Fuse(nn.Module):
+    """ERP <- cube fusion at one scale: the ERP feature plus a gated projection of both."""
+
+    def __init__(self, ch: int) -> None:
+        super().__init__()
+        self.mix = nn.Sequential(
+            CircularConv2d(2 * ch, ch, 3, padding=1, bias=False),
+            nn.BatchNorm2d(ch),
+            nn.ReLU(inplace=True),
+        )
+        self.gate = nn.Sequential(CircularConv2d(2 * ch, ch, 1), nn.Sigmoid())
+
+    def forward(self, erp: Tensor, cube_on_erp: Tensor) -> Tensor:
+        both = torch.cat((erp, cube_on_erp), 1)
+        return erp + self.gate(both) * self.mix(both)
+
+
+class _Up(nn.Module):
+    def __init__(self, cin: int, skip: int, cout: int) -> None:
+        super().__init__()
+        self.conv = _block(cin + skip, cout, 1, circular=True)
+
+    def forward(self, x: Tensor, skip: Tensor) -> Tensor:
+        x = F.interpolate(x, size=skip.shape[-2:], mode="bilinear", align_corners=False)
+        return self.conv(torch.cat((x, skip), 1))
+
+
+@dataclass
+class MonoOutput:
+    depth: Tensor  # [B, 1, H, W] spherical depth, metres, in (0, d_max)
+    features: Tensor  # [B, feature_channels, H/2, W/2] last decoder features (at 1/2)
+
+
+class MonoDepthNet(nn.Module):
+    """ERP image [B, 3, H, W] in [0, 1] (W = 2H, H divisible by 32) -> `MonoOutput`."""
+
+    def __init__(self, config: MonoDepthConfig = MonoDepthConfig()) -> None:
+        super().__init__()
+        self.config = config
+        ch = config.channels
+        self.erp_encoder = _Encoder(ch, circular=True)
+        self.cube_encoder = _Encoder(ch, circular=False)
+        self.fuse = nn.ModuleList(_Fuse(c) for c in ch)
+        self.to_cube = ErpToCube()
+        self.to_erp = CubeToErp()
+        ups = []
+        for i in range(len(ch) - 1, 0, -1):
+            ups.append(_Up(ch[i], ch[i - 1], ch[i - 1]))
+        self.ups = nn.ModuleList(ups)
+        self.feature_head = CircularConv2d(ch[0], config.feature_channels, 1)
+        self.head = CircularConv2d(ch[0], 1, 3, padding=1)
+        mean = torch.tensor([0.485, 0.456, 0.406]).view(1, 3, 1, 1)
+        std = torch.tensor([0.229, 0.224, 0.225]).view(1, 3, 1, 1)
+        self.register_buffer("mean", mean, persistent=False)
+        self.register_buffer("std", std, persistent=False)
+
+    def forward(self, image: Tensor) -> MonoOutput:
+        b, _, h, w = image.shape
+        if w != 2 * h or h % 32:
+            raise ValueError(f"expected W = 2H with H divisible by 32, got {h}x{w}")
+        x = (image - self.mean) / self.std
+        erp_feats = self.erp_encoder(x)
+        cube_feats = self.cube_encoder(self.to_cube(x, h // 2))  # faces of H/2: same sampling
+        fused = []
+        for erp_f, cube_f, fuse in zip(erp_feats, cube_feats, self.fuse, strict=True):
+            fused.append(fuse(erp_f, self.to_erp(cube_f, *erp_f.shape[-2:])))
+        y = fused[-1]
+        for up, skip in zip(self.ups, reversed(fused[:-1]), strict=True):
+            y = up(y, skip)
+        logits = F.interpolate(self.head(y), size=(h, w), mode="bilinear", align_corners=False)
+        depth = self.config.d_max * torch.sigmoid(logits)
+        return MonoOutput(depth=depth, features=self.feature_head(y))
