@@ -78,16 +78,23 @@ def mono_offsets(n_mono: int, beta: float = 3.0, dtype=torch.float64) -> Tensor:
 
 
 def depth_candidates(
-    mu: Tensor | None, config: MVSConfig, size: tuple[int, int] | None = None
+    mu: Tensor | None,
+    config: MVSConfig,
+    size: tuple[int, int] | None = None,
+    *,
+    device: torch.device | str | None = None,
+    dtype: torch.dtype = torch.float32,
 ) -> Tensor:
     """Per-pixel sorted candidate depths [B, D, h, w] (metres).
 
-    mu: monocular depth [B, 1, h, w] (needed when n_mono > 0); ``size`` (h, w) and a batch of 1
-    are used when mu is None.
+    mu: monocular depth [B, 1, h, w] (needed when n_mono > 0); ``size`` (h, w), ``device``,
+    ``dtype`` and a batch of 1 are used when mu is None.
     """
     if config.n_mono > 0 and mu is None:
         raise ValueError("mono-guided candidates need the monocular depth mu")
-    ref = mu if mu is not None else torch.zeros(1, 1, *size)
+    if mu is None and size is None:
+        raise ValueError("depth_candidates needs mu or size")
+    ref = mu if mu is not None else torch.zeros(1, 1, *size, device=device, dtype=dtype)
     b, _, h, w = ref.shape
     uni = torch.linspace(
         config.d_min, config.d_max, config.n_uni, device=ref.device, dtype=ref.dtype
@@ -120,6 +127,8 @@ def cost_volume(
     pts = candidates[..., None] * dirs  # [B, D, h, w, 3] reference camera frame
     pts = pts.reshape(b, -1, 3)
     g = groups or c
+    if c % g:
+        raise ValueError(f"groups={g} must divide the {c} feature channels")
     total = ref_feat.new_zeros(b, g, d, h, w)
     for j in range(s):
         rel = invert_rigid(src_c2w[:, j]) @ ref_c2w  # reference camera -> source camera
@@ -257,7 +266,13 @@ class MVSNet(nn.Module):
         mu_q = None
         if mono_depth is not None:
             mu_q = F.interpolate(mono_depth, size=(hq, wq), mode="area")
-        cands = depth_candidates(mu_q if cfg.n_mono > 0 else None, cfg, (hq, wq))
+        cands = depth_candidates(
+            mu_q if cfg.n_mono > 0 else None,
+            cfg,
+            (hq, wq),
+            device=ref_image.device,
+            dtype=ref_image.dtype,
+        )
         cands = cands.expand(b, -1, -1, -1)
         volume = cost_volume(
             feats_q[:, 0], feats_q[:, 1:], ref_c2w, src_c2w, cands, src_weight, cfg.cost_groups

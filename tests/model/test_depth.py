@@ -1,0 +1,148 @@
+"""Depth for every view of a scene (`DepthEstimator`): sizes, modes and degenerate input.
+
+Small randomly initialised networks (seeded): these tests check plumbing, never accuracy.
+"""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from panogrf.model.depth import DepthEstimator
+from panogrf.model.erp import rotation_about
+from panogrf.model.mono import MonoDepthConfig, MonoDepthNet
+from panogrf.model.mvs import PRESETS, MVSNet
+
+WORKING = 64  # working height of the estimator in these tests (the default is 128)
+
+
+@pytest.fixture(autouse=True)
+def _one_thread():
+    # Training jobs share this machine: keep the tests on one core.
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+@pytest.fixture(scope="module")
+def estimator() -> DepthEstimator:
+    torch.manual_seed(0)
+    mono = MonoDepthNet(MonoDepthConfig())
+    mvs = {name: MVSNet(PRESETS[name]) for name in ("full", "mvs")}
+    return DepthEstimator(mono, mvs, working_height=WORKING).eval()
+
+
+def _images(v: int, h: int, seed: int = 0) -> torch.Tensor:
+    return torch.rand(v, 3, h, 2 * h, generator=torch.Generator().manual_seed(seed))
+
+
+def _poses(*centres: tuple[float, float, float]) -> torch.Tensor:
+    c2w = torch.eye(4).repeat(len(centres), 1, 1)
+    for i, c in enumerate(centres):
+        c2w[i, :3, :3] = rotation_about("y", math.radians(20.0 * i)).float()
+        c2w[i, :3, 3] = torch.tensor(c)
+    return c2w
+
+
+def _check_finite(est, v: int, h: int) -> None:
+    for t in (est.depth, est.mono, est.out_of_range):
+        assert t.shape == (v, 1, h, 2 * h)
+    assert est.out_of_range.dtype == torch.bool
+    assert bool(torch.isfinite(est.depth).all()) and bool(torch.isfinite(est.mono).all())
+    assert float(est.depth.min()) > 0 and float(est.depth.max()) <= 10.0
+
+
+@pytest.mark.parametrize("h", [64, 96, 50])
+@pytest.mark.parametrize("mode", ["mono", "full", "mvs"])
+def test_output_at_the_input_size(estimator, mode, h):
+    est = estimator(_images(2, h), _poses((0, 0, 0), (1.0, 0, 0)), mode=mode)
+    _check_finite(est, 2, h)
+    if mode == "mono":
+        assert est.sources == [[], []] and est.warnings == []
+        torch.testing.assert_close(est.depth, est.mono)
+    else:
+        assert est.sources == [[1], [0]] and est.warnings == []
+        assert not torch.allclose(est.depth, est.mono)  # the MVS network was used
+
+
+@pytest.mark.parametrize("mode", ["full", "mvs"])
+def test_depth_is_the_mvs_networks_output(estimator, mode):
+    """At the working size, a view's depth is its MVS output with the other views as sources."""
+    images = _images(3, WORKING, seed=1)
+    c2w = _poses((0, 0, 0), (0.5, 0, 0), (1.0, 0.1, 0))
+    est = estimator(images, c2w, mode=mode)
+    assert est.sources == [[1, 2], [0, 2], [0, 1]]
+    net = estimator.mvs[mode]
+    with torch.no_grad():
+        mono = estimator.mono(images[2:3])
+        kw = {}
+        if net.config.use_mono:
+            kw = {"mono_depth": mono.depth, "mono_features": mono.features}
+        out = net(images[2:3], images[None, :2], c2w[2:3], c2w[None, :2], **kw)
+    torch.testing.assert_close(est.depth[2:3], out.depth, atol=1e-5, rtol=1e-5)
+
+
+def test_one_view_falls_back_to_mono(estimator):
+    est = estimator(_images(1, 64), _poses((0, 0, 0)), mode="full")
+    _check_finite(est, 1, 64)
+    assert est.sources == [[]]
+    assert any("one view" in w for w in est.warnings)
+    torch.testing.assert_close(est.depth, est.mono)
+
+
+@pytest.mark.parametrize("mode", ["full", "mvs"])
+def test_a_source_at_the_same_position_is_dropped(estimator, mode):
+    est = estimator(_images(2, 64), _poses((0, 0, 0), (0.01, 0, 0)), mode=mode)
+    _check_finite(est, 2, 64)
+    assert est.sources == [[], []]
+    assert any("views [1]" in w and "not used" in w for w in est.warnings)
+    assert any("view 1: no usable source" in w for w in est.warnings)
+    torch.testing.assert_close(est.depth, est.mono)
+
+
+def test_a_duplicate_position_leaves_only_the_far_source(estimator):
+    c2w = _poses((0, 0, 0), (0, 0, 0), (1.0, 0, 0.2))
+    est = estimator(_images(3, 64), c2w, mode="full")
+    _check_finite(est, 3, 64)
+    assert est.sources == [[2], [2], [0, 1]]
+    assert any(w.startswith("view 0: views [1]") for w in est.warnings)
+    assert any(w.startswith("view 1: views [0]") for w in est.warnings)
+    assert not any("no usable source" in w for w in est.warnings)
+
+
+def test_out_of_range_flags_the_clamped_pixels():
+    torch.manual_seed(0)
+    mono = MonoDepthNet(MonoDepthConfig())
+    est_net = DepthEstimator(mono, {"mvs": MVSNet(PRESETS["mvs"])}, working_height=WORKING).eval()
+    images, c2w = _images(2, 64), _poses((0, 0, 0), (1.0, 0, 0))
+    # Whatever the depth, the mask is "at the top of the range".
+    for mode in ("mono", "mvs"):
+        est = est_net(images, c2w, mode=mode)
+        torch.testing.assert_close(est.out_of_range, est.depth >= 0.98 * est_net.d_max)
+    # A saturated monocular head: every pixel at d_max, all flagged; the opposite, none.
+    with torch.no_grad():
+        mono.head.bias.fill_(50.0)
+    est = est_net(images, c2w, mode="mono")
+    assert bool(est.out_of_range.all())
+    torch.testing.assert_close(est.depth, torch.full_like(est.depth, 10.0))
+    with torch.no_grad():
+        mono.head.bias.fill_(-50.0)
+    est = est_net(images, c2w, mode="mono")
+    assert not bool(est.out_of_range.any())
+    assert float(est.depth.min()) >= 0.05  # clamped away from zero, no NaN
+    assert bool(torch.isfinite(est.depth).all())
+
+
+def test_bad_input(estimator):
+    images, c2w = _images(2, 64), _poses((0, 0, 0), (1.0, 0, 0))
+    with pytest.raises(ValueError, match="mode"):
+        estimator(images, c2w, mode="stereo")
+    with pytest.raises(ValueError, match="2:1"):
+        estimator(torch.rand(2, 3, 64, 64), c2w)
+    mono_only = DepthEstimator(estimator.mono, {}, working_height=WORKING).eval()
+    with pytest.raises(ValueError, match="no weights"):
+        mono_only(images, c2w, mode="full")
+    assert mono_only(images, c2w, mode="mono").depth.shape == (2, 1, 64, 128)
