@@ -1,4 +1,4 @@
-"""Loading the shipped depth networks from `assets/` (safetensors) into a `DepthEstimator`."""
+"""Loading the shipped networks (safetensors in `assets/`): depth estimator and renderer."""
 
 from __future__ import annotations
 
@@ -15,11 +15,19 @@ from panogrf.assets import path as asset_path
 from panogrf.model.depth import DepthEstimator
 from panogrf.model.mono import MonoDepthConfig, MonoDepthNet
 from panogrf.model.mvs import PRESETS, MVSNet
+from panogrf.model.render_net import PRESETS as RENDERER_PRESETS
+from panogrf.model.render_net import RendererNet
 
 WEIGHTS = {
     "mono": "depth_mono.safetensors",
     "full": "depth_mvs_full.safetensors",
     "mvs": "depth_mvs_only.safetensors",
+}
+
+
+RENDERER_WEIGHTS = {
+    "panogrf": "renderer_panogrf.safetensors",
+    "no_geometry": "renderer_no_geometry.safetensors",
 }
 
 
@@ -30,9 +38,7 @@ def _metadata(path: Path) -> dict:
 
 def _load(module: torch.nn.Module, path: Path, expected_config: dict) -> None:
     if not path.exists():
-        raise UserError(
-            f"missing weights {path}: reproduce them with `panogrf train depth` (see README)"
-        )
+        raise UserError(f"missing weights {path}: reproduce them with `panogrf train` (see README)")
     stored = json.loads(_metadata(path).get("config", "{}"))
     # Tuples become lists in JSON; compare as JSON.
     if stored and json.loads(json.dumps(expected_config)) != stored:
@@ -56,3 +62,15 @@ def load_depth_estimator(
         _load(net, asset_path(WEIGHTS[mode]), asdict(net.config))
         mvs[mode] = net
     return DepthEstimator(mono, mvs).to(device).eval()
+
+
+@lru_cache(maxsize=4)
+def load_renderer(preset: str = "panogrf", device: str = "cpu") -> RendererNet:
+    """The renderer networks of ``preset`` ("panogrf" or the "no_geometry" ablation)."""
+    from dataclasses import asdict
+
+    if preset not in RENDERER_WEIGHTS:
+        raise UserError(f"unknown renderer preset {preset!r}: one of {sorted(RENDERER_WEIGHTS)}")
+    net = RendererNet(RENDERER_PRESETS[preset])
+    _load(net, asset_path(RENDERER_WEIGHTS[preset]), asdict(net.config))
+    return net.to(device).eval()

@@ -48,6 +48,85 @@ def register(subparsers) -> None:
     depth.add_argument("--limit-scenes", type=int, default=None, help="load only N scenes")
     depth.set_defaults(func=run_depth)
 
+    renderer = sub.add_parser(
+        "renderer",
+        help="train the spherical radiance field renderer (depth networks frozen)",
+        description=(
+            "Train the generalizable spherical radiance field renderer on the synthetic train "
+            "split with the shipped depth networks frozen (their estimates for every training "
+            "pair are computed once and cached beside the data). Logs the loss curve and "
+            "writes safetensors weights with the command and final figures in the metadata."
+        ),
+        epilog=(
+            "example: panogrf train renderer --data data/train "
+            "--out assets/renderer_panogrf.safetensors --log docs/training/renderer.log"
+        ),
+    )
+    renderer.add_argument("--data", type=Path, required=True, help="train-split dataset folder")
+    renderer.add_argument("--out", type=Path, required=True, help="output weights (.safetensors)")
+    renderer.add_argument(
+        "--preset",
+        choices=("panogrf", "no_geometry"),
+        default="panogrf",
+        help="panogrf (default) or no_geometry (ablation: no depth-derived visibility)",
+    )
+    renderer.add_argument("--steps", type=int, default=2000, help="optimiser steps (default 2000)")
+    renderer.add_argument("--scenes", type=int, default=2, help="scenes per step (default 2)")
+    renderer.add_argument("--rays", type=int, default=256, help="rays per scene (default 256)")
+    renderer.add_argument("--lr", type=float, default=1e-3, help="initial learning rate")
+    renderer.add_argument("--seed", type=int, default=0, help="seed (default 0)")
+    renderer.add_argument("--threads", type=int, default=0, help="torch threads (default: all)")
+    renderer.add_argument("--log", type=Path, default=None, help="also append log lines here")
+    renderer.add_argument("--limit-scenes", type=int, default=None, help="load only N scenes")
+    renderer.set_defaults(func=run_renderer)
+
+
+def _logger(path: Path | None):
+    """A function that prints a line and appends it to ``path``, and a closer."""
+    log_file = None
+    if path:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        log_file = path.open("a", encoding="utf-8")
+
+    def log(line: str) -> None:
+        print(line, flush=True)
+        if log_file:
+            log_file.write(line + "\n")
+            log_file.flush()
+
+    return log, (log_file.close if log_file else lambda: None)
+
+
+def run_renderer(args: argparse.Namespace) -> int:
+    import torch
+
+    from panogrf.app.depth_weights import load_depth_estimator
+    from panogrf.app.train.renderer import TrainRendererConfig, train_renderer
+
+    if args.out.suffix != ".safetensors":
+        raise UserError(f"--out must end in .safetensors, got {args.out}")
+    if args.steps < 1 or args.scenes < 1 or args.rays < 1:
+        raise UserError("--steps, --scenes and --rays must be at least 1")
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    log, close = _logger(args.log)
+    cfg = TrainRendererConfig(
+        data=args.data,
+        out=args.out,
+        preset=args.preset,
+        steps=args.steps,
+        scenes_per_step=args.scenes,
+        rays=args.rays,
+        lr=args.lr,
+        seed=args.seed,
+        limit_scenes=args.limit_scenes,
+    )
+    try:
+        train_renderer(cfg, load_depth_estimator(("full",)), log=log)
+    finally:
+        close()
+    return 0
+
 
 def run_depth(args: argparse.Namespace) -> int:
     import torch
@@ -68,17 +147,7 @@ def run_depth(args: argparse.Namespace) -> int:
         raise UserError("--stage mvs --preset full needs --mono PATH to trained mono weights")
     if args.threads:
         torch.set_num_threads(args.threads)
-    log_file = None
-    if args.log:
-        args.log.parent.mkdir(parents=True, exist_ok=True)
-        log_file = args.log.open("a", encoding="utf-8")
-
-    def log(line: str) -> None:
-        print(line, flush=True)
-        if log_file:
-            log_file.write(line + "\n")
-            log_file.flush()
-
+    log, close = _logger(args.log)
     cfg = TrainDepthConfig(
         data=args.data,
         stage=args.stage,
@@ -95,6 +164,5 @@ def run_depth(args: argparse.Namespace) -> int:
     try:
         (train_mono if args.stage == "mono" else train_mvs)(cfg, log=log)
     finally:
-        if log_file:
-            log_file.close()
+        close()
     return 0

@@ -1,0 +1,209 @@
+"""`panogrf eval DATASET`: novel-view quality and speed of every method on a test split.
+
+For every scene (three panoramas on a line) the middle view is rendered from the first and the
+last (the paper's protocol) by each method and scored against the real middle view: PSNR,
+WS-PSNR, SSIM and LPIPS, averaged per baseline (first-to-last distance). Timing per method:
+the pose-independent preparation once per scene (depth estimation, feature caches, per-scene
+fits) and the render itself, in milliseconds per panorama (median over scenes).
+
+A method is a name from `panogrf.renderer.methods.METHODS`, optionally with a sampling for the
+neural ones: ``panogrf:paper`` (64 + 64 samples) or ``panogrf:fast`` (depth-guided, the
+default). Slow methods can run on the first N scenes of every baseline only (``--subset``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import statistics
+import time
+from pathlib import Path
+
+import torch
+
+from panogrf.app.errors import UserError
+from panogrf.renderer.methods import METHODS
+from panogrf.renderer.render import QUALITY
+
+METRICS = ("psnr", "ws_psnr", "ssim", "lpips")
+
+
+def parse_methods(text: str) -> list[tuple[str, str]]:
+    """ "panogrf,panogrf:paper,nearest" -> [(method, quality), ...]."""
+    out = []
+    for item in (x.strip() for x in text.split(",")):
+        if not item:
+            continue
+        name, _, quality = item.partition(":")
+        quality = quality or "fast"
+        if name not in METHODS:
+            raise UserError(f"--methods: unknown method {name!r}; choose from {sorted(METHODS)}")
+        if quality not in QUALITY:
+            raise UserError(f"--methods: unknown sampling {quality!r} in {item!r}")
+        if quality != "fast" and METHODS[name].kind != "neural":
+            raise UserError(f"--methods: {name} has no sampling choice ({item!r})")
+        out.append((name, quality))
+    if not out:
+        raise UserError("--methods lists no method")
+    return out
+
+
+def label(method: str, quality: str) -> str:
+    if quality == "fast" or METHODS[method].kind != "neural":
+        return method
+    return f"{method}:{quality}"
+
+
+def register(subparsers) -> None:
+    parser = subparsers.add_parser(
+        "eval",
+        help="score methods on a test split (quality per baseline, ms per panorama)",
+        description=__doc__.split("\n\n")[1],
+        epilog=(
+            "example: panogrf eval data/test --methods panogrf,meshwarp,nearest --out results.json"
+        ),
+    )
+    parser.add_argument("dataset", type=Path, metavar="DATASET", help="dataset folder")
+    parser.add_argument(
+        "--methods",
+        default="panogrf,meshwarp,nearest",
+        help="comma-separated methods, e.g. panogrf,panogrf:paper,no_mvs,snerf",
+    )
+    parser.add_argument("--out", type=Path, required=True, help="results JSON")
+    parser.add_argument("--height", type=int, default=None, help="render height (default: data)")
+    parser.add_argument(
+        "--baselines", default="1.0,1.5,2.0", help="baselines (m) to score (default 1.0,1.5,2.0)"
+    )
+    parser.add_argument(
+        "--subset", default="", help="methods run only on the first --subset-size scenes"
+    )
+    parser.add_argument("--subset-size", type=int, default=5, help="scenes per baseline")
+    parser.add_argument("--limit", type=int, default=None, help="at most N scenes per baseline")
+    parser.add_argument("--threads", type=int, default=0, help="torch threads (default: all)")
+    parser.set_defaults(func=run)
+
+
+def _scenes(root: Path, baselines: list[float], limit: int | None) -> list[tuple[float, Path]]:
+    index_path = root / "dataset.json"
+    if not index_path.exists():
+        raise UserError(f"{root}: no dataset.json (make one with `panogrf dataset make`)")
+    try:
+        entries = json.loads(index_path.read_text())["scenes"]
+    except (json.JSONDecodeError, KeyError, TypeError) as exc:
+        raise UserError(f"{index_path}: not a dataset index ({exc})") from None
+    from panogrf.app.scene import load_scene
+
+    out, counts = [], {b: 0 for b in baselines}
+    for entry in entries:
+        folder = root / entry["folder"]
+        scene = load_scene(folder)
+        if scene.num_views != 3:
+            raise UserError(f"{folder}: expected three views on a line, found {scene.num_views}")
+        c = scene.c2w[:, :3, 3]
+        b = round(float(((c[2] - c[0]) ** 2).sum() ** 0.5), 1)
+        if b in counts and (limit is None or counts[b] < limit):
+            counts[b] += 1
+            out.append((b, folder))
+    missing = [b for b, n in counts.items() if n == 0]
+    if missing:
+        raise UserError(f"{root}: no scene with baseline {missing} m")
+    return out
+
+
+def run(args: argparse.Namespace) -> int:
+    from panogrf.app.commands.render import default_models
+    from panogrf.app.images import write_json_atomic
+    from panogrf.app.scene import load_scene
+    from panogrf.app.scoring import image_scores
+    from panogrf.renderer.methods import SourceViews, prepare, render_view
+
+    methods = parse_methods(args.methods)
+    subset = {x.strip() for x in args.subset.split(",") if x.strip()}
+    try:
+        baselines = [round(float(x), 1) for x in args.baselines.split(",") if x.strip()]
+    except ValueError:
+        raise UserError(f"--baselines: expected metres, got {args.baselines!r}") from None
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    if args.out.parent and not args.out.parent.exists():
+        raise UserError(f"--out: folder {args.out.parent} does not exist")
+    scenes = _scenes(args.dataset, baselines, args.limit)
+    models = default_models()
+    rows = {label(*m): {b: [] for b in baselines} for m in methods}
+    seen: dict[float, int] = {b: 0 for b in baselines}
+    start_all = time.perf_counter()
+    for n, (b, folder) in enumerate(scenes, 1):
+        scene = load_scene(folder, load_images=True)
+        data = scene.images
+        height = args.height or scene.height
+        views = SourceViews(data.images[[0, 2]], data.c2w[[0, 2]])
+        index = seen[b]
+        seen[b] += 1
+        line = [f"[{n}/{len(scenes)}] {folder.name} ({b} m)"]
+        for method, quality in methods:
+            name = label(method, quality)
+            if (name in subset or method in subset) and index >= args.subset_size:
+                continue
+            before = dict(views.seconds)
+            t0 = time.perf_counter()
+            prepare(method, views, models)
+            prep = time.perf_counter() - t0
+            t0 = time.perf_counter()
+            rgb = render_view(method, views, data.c2w[1], height, models, quality)
+            ms = 1000 * (time.perf_counter() - t0)
+            scores = image_scores(rgb, data.images[1:2])
+            new = {k: v for k, v in views.seconds.items() if k not in before}
+            rows[name][b].append(
+                scores | {"render_ms": ms, "prepare_s": prep, "prepared": new, "scene": folder.name}
+            )
+            line.append(f"{name} {scores['ws_psnr']:.2f}")
+        print("  ".join(line), flush=True)
+    results = {}
+    for name, per_b in rows.items():
+        results[name] = {}
+        for b, items in per_b.items():
+            if not items:
+                continue
+            results[name][str(b)] = {m: statistics.fmean(x[m] for x in items) for m in METRICS}
+            results[name][str(b)]["scenes"] = len(items)
+            results[name][str(b)]["render_ms_median"] = statistics.median(
+                x["render_ms"] for x in items
+            )
+            results[name][str(b)]["prepare_s_median"] = statistics.median(
+                x["prepare_s"] for x in items
+            )
+    report = {
+        "what": "middle view of each test triplet rendered from the first and last views",
+        "dataset": str(args.dataset),
+        "height": args.height or "dataset's",
+        "methods": [label(*m) for m in methods],
+        "subset": {"methods": sorted(subset), "scenes_per_baseline": args.subset_size},
+        "results": results,
+        "per_scene": {k: {str(b): v for b, v in per_b.items()} for k, per_b in rows.items()},
+        "machine": f"{platform.machine()}, {torch.get_num_threads()} torch threads, CPU",
+        "seconds": round(time.perf_counter() - start_all, 1),
+    }
+    write_json_atomic(args.out, report)
+    print(format_table(results, baselines))
+    print(f"wrote {args.out}")
+    return 0
+
+
+def format_table(results: dict, baselines: list[float]) -> str:
+    """The results as a text table: a row per baseline and method."""
+    head = (
+        f"{'baseline':>8}  {'method':<16} {'n':>3} {'PSNR':>7} {'WS-PSNR':>8} {'SSIM':>7} "
+        f"{'LPIPS':>7} {'ms/pano':>9}"
+    )
+    lines = [head, "-" * len(head)]
+    for b in baselines:
+        for name, per_b in results.items():
+            r = per_b.get(str(b))
+            if r is None:
+                continue
+            lines.append(
+                f"{b:8.1f}  {name:<16} {r['scenes']:3d} {r['psnr']:7.2f} {r['ws_psnr']:8.2f} "
+                f"{r['ssim']:7.4f} {r['lpips']:7.4f} {r['render_ms_median']:9.0f}"
+            )
+    return "\n".join(lines)

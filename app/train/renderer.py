@@ -1,0 +1,273 @@
+"""Training of the spherical radiance field renderer (`panogrf train renderer`).
+
+The depth networks are frozen (PanoGRF): the estimated depth of every view of every training
+scene, for each ordered pair of its views, is computed once and cached beside the dataset,
+keyed by the depth weights. Each step takes a few scenes; per scene a target view and two
+sources (mostly the middle view from the outer two, as in the evaluation; sometimes an outer
+view from the other two, and sometimes a source itself, which teaches reproducing the input),
+each view turned by its own random yaw (exact augmentation). Rays of the target are drawn with
+probability proportional to cos(latitude) (the panorama's solid angle, as WS-PSNR weighs) and
+rendered with both samplings the renderer offers: coarse-to-fine and depth-guided. The loss is
+the photometric MSE of the coarse, fine and guided composites.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import sys
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import torch
+from safetensors.torch import load_file, save_file
+from torch import Tensor
+from tqdm import tqdm
+
+from panogrf.app.train.data import TripletSet, load_triplets, yaw_roll
+from panogrf.app.train.depth import _lr_at, save_weights
+from panogrf.model.depth import DepthEstimator
+from panogrf.model.erp import latitude_weights
+from panogrf.model.metrics import ws_psnr
+from panogrf.model.render_net import PRESETS, RendererNet
+from panogrf.model.splat import proxy_depth
+from panogrf.renderer.cache import build_cache
+from panogrf.renderer.render import QUALITY, Sampling, render_panorama, render_rays, target_rays
+
+PAIRS = ((0, 1), (0, 2), (1, 2))
+
+
+@dataclass(frozen=True)
+class TrainRendererConfig:
+    """One training run of the renderer."""
+
+    data: Path
+    """Train-split dataset folder (`panogrf dataset make --split train`)."""
+    out: Path
+    """Where the weights go (safetensors)."""
+    preset: str = "panogrf"
+    """Renderer preset: "panogrf" or "no_geometry" (the ablation)."""
+    steps: int = 2000
+    """Optimiser steps."""
+    scenes_per_step: int = 2
+    """Scenes (target views) per step."""
+    rays: int = 256
+    """Rays per scene per step."""
+    lr: float = 1e-3
+    """Adam learning rate at the start (cosine decay to 1 % of it)."""
+    height: int = 256
+    """Height of the panoramas (and of the target rays)."""
+    depth_height: int = 128
+    """Working height of the depth networks."""
+    coarse: int = 32
+    """Stratified coarse samples per ray while training."""
+    fine: int = 32
+    """Importance samples per ray while training."""
+    val_scenes: int = 24
+    """Scenes of the train split held back for validation."""
+    seed: int = 0
+    """Seed of initialisation, batches and samples."""
+    log_every: int = 50
+    """Steps between log lines."""
+    limit_scenes: int | None = None
+    """Load only this many scenes (smoke tests)."""
+    extra: dict = field(default_factory=dict)
+    """Free-form notes stored with the weights."""
+
+
+def _weights_key(estimator: DepthEstimator) -> str:
+    h = hashlib.sha256()
+    for name, t in sorted(estimator.state_dict().items()):
+        h.update(name.encode())
+        h.update(t.detach().cpu().float().numpy().tobytes())
+    return h.hexdigest()[:16]
+
+
+@torch.no_grad()
+def pair_depths(
+    estimator: DepthEstimator, data: TripletSet, root: Path, log=print
+) -> dict[str, Tensor]:
+    """Estimated depth of view r with view s as its only source, for every scene and ordered
+    pair: {"r{r}s{s}": [N, 1, h, w] float16}. Cached in ``root`` keyed by the depth weights and
+    the scenes; the cache is written to a temporary file and renamed."""
+    key = _weights_key(estimator)
+    names = hashlib.sha256("\n".join(data.names).encode()).hexdigest()[:8]
+    path = root / f".depth_full_{key}_{names}_{estimator.working_height}.safetensors"
+    if path.exists():
+        try:
+            cached = load_file(str(path))
+            if all(f"r{r}s{s}" in cached for a, b in PAIRS for r, s in ((a, b), (b, a))):
+                return cached
+        except Exception as exc:  # a broken cache is rebuilt, never trusted
+            log(f"depth cache {path.name} unreadable ({exc}): rebuilding")
+    out: dict[str, list[Tensor]] = {}
+    n = len(data)
+    for i in tqdm(range(n), desc="estimating depth of the training pairs", unit="scene"):
+        imgs = data.images[i].float() / 255.0
+        for a, b in PAIRS:
+            est = estimator(imgs[[a, b]], data.c2w[i, [a, b]], "full")
+            out.setdefault(f"r{a}s{b}", []).append(est.depth[0:1].half())
+            out.setdefault(f"r{b}s{a}", []).append(est.depth[1:2].half())
+    result = {k: torch.cat(v) for k, v in out.items()}
+    tmp = path.with_suffix(".tmp")
+    save_file(result, str(tmp))
+    tmp.replace(path)
+    return result
+
+
+def _row_sampler(height: int, width: int) -> Tensor:
+    """Probabilities [H*W] of the target pixels: proportional to cos(latitude)."""
+    w = latitude_weights(height, width).reshape(-1)
+    return w / w.sum()
+
+
+def _configuration(gen: torch.Generator) -> tuple[int, list[int]]:
+    """(target view, source views) of one training sample."""
+    p = float(torch.rand(1, generator=gen))
+    if p < 0.7:
+        return 1, [0, 2]
+    end = int(torch.randint(2, (1,), generator=gen)) * 2
+    if p < 0.9:
+        return end, [v for v in range(3) if v != end]
+    return end, [0, 2]
+
+
+def _scene_sample(data: TripletSet, depths: dict[str, Tensor], i: int, gen: torch.Generator):
+    """Target image [3, H, W] and pose, sources' images [2, 3, H, W], poses and depths
+    [2, 1, h, w] of scene i, each view turned by its own random yaw."""
+    target, sources = _configuration(gen)
+    imgs = data.images[i].float() / 255.0  # [3, 3, H, W]
+    dep = [depths[f"r{s}s{sources[1 - k]}"][i].float() for k, s in enumerate(sources)]
+    ratio = imgs.shape[-1] // dep[0].shape[-1]
+    out_imgs, out_c2w, out_dep = [], [], []
+    for k, v in enumerate([target, *sources]):
+        # A whole number of depth columns, so the image and its depth turn by the same angle.
+        small = int(torch.randint(dep[0].shape[-1], (1,), generator=gen))
+        img, _, pose = yaw_roll(imgs[v], imgs[v, 0], data.c2w[i, v], small * ratio)
+        out_imgs.append(img)
+        out_c2w.append(pose)
+        if k:
+            out_dep.append(torch.roll(dep[k - 1], small, -1))
+    return (
+        out_imgs[0],
+        out_c2w[0],
+        torch.stack(out_imgs[1:]),
+        torch.stack(out_c2w[1:]),
+        torch.stack(out_dep),
+    )
+
+
+@torch.no_grad()
+def validate(net: RendererNet, data: TripletSet, depths: dict[str, Tensor], height: int) -> dict:
+    """WS-PSNR of the middle view rendered from the outer two: depth-guided sampling on every
+    scene, 64 + 64 samples on the first four (slow on a CPU)."""
+    net.eval()
+    scores: dict[str, list[float]] = {"fast": [], "paper": []}
+    for i in range(len(data)):
+        imgs = data.images[i].float() / 255.0
+        dep = torch.stack((depths["r0s2"][i], depths["r2s0"][i])).float()
+        cache = build_cache(net, imgs[[0, 2]], data.c2w[i, [0, 2]], dep)
+        for q in scores if i < 4 else ("fast",):
+            out = render_panorama(net, cache, data.c2w[i, 1], height, q)
+            gt = torch.nn.functional.interpolate(imgs[1:2], size=(height, 2 * height), mode="area")
+            scores[q].append(float(ws_psnr(out.rgb[None], gt)))
+    net.train()
+    return {f"val_ws_psnr_{q}": sum(v) / len(v) for q, v in scores.items()}
+
+
+def train_renderer(cfg: TrainRendererConfig, estimator: DepthEstimator, log=print) -> dict:
+    """Train the renderer (preset cfg.preset) with the depth networks frozen."""
+    torch.manual_seed(cfg.seed)
+    data = load_triplets(cfg.data, cfg.height, cfg.limit_scenes)
+    depths = pair_depths(estimator, _at_height(data, cfg.depth_height), Path(cfg.data), log)
+    train_idx, val_idx = _split_indices(len(data), cfg.val_scenes)
+    net = RendererNet(PRESETS[cfg.preset])
+    log(
+        f"renderer ({cfg.preset}, {sum(p.numel() for p in net.parameters())} parameters): "
+        f"{len(train_idx)} train scenes, {len(val_idx)} validation"
+    )
+    opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
+    gen = torch.Generator().manual_seed(cfg.seed)
+    probs = _row_sampler(cfg.height, 2 * cfg.height)
+    train_sampling = Sampling(n_coarse=cfg.coarse, n_fine=cfg.fine)
+    fast = QUALITY["fast"]
+    start, running = time.perf_counter(), torch.zeros(3)
+    for step in range(1, cfg.steps + 1):
+        for group in opt.param_groups:
+            group["lr"] = _lr_at(step, cfg.steps, cfg.lr)
+        losses = torch.zeros(3)
+        total = 0.0
+        for _ in range(cfg.scenes_per_step):
+            i = int(train_idx[int(torch.randint(len(train_idx), (1,), generator=gen))])
+            tgt, tgt_c2w, src, src_c2w, src_dep = _scene_sample(data, depths, i, gen)
+            cache = build_cache(net, src, src_c2w, src_dep)
+            pix = torch.multinomial(probs, cfg.rays, replacement=False, generator=gen)
+            o, d = target_rays(tgt_c2w, cfg.height, 2 * cfg.height)
+            o, d = o[pix], d[pix]
+            gt = tgt.reshape(3, -1)[:, pix].T  # [R, 3]
+            px = proxy_depth(src_dep, src_c2w, tgt_c2w, cfg.height, 2 * cfg.height)
+            paper = render_rays(net, cache, o, d, train_sampling, generator=gen)
+            guided = render_rays(
+                net, cache, o, d, fast, (px.near.reshape(-1)[pix], px.far.reshape(-1)[pix])
+            )
+            parts = torch.stack(
+                [
+                    ((paper.coarse.rgb - gt) ** 2).mean(),
+                    ((paper.final.rgb - gt) ** 2).mean(),
+                    ((guided.final.rgb - gt) ** 2).mean(),
+                ]
+            )
+            total = total + parts.sum() / cfg.scenes_per_step
+            losses += parts.detach() / cfg.scenes_per_step
+        opt.zero_grad(set_to_none=True)
+        total.backward()
+        torch.nn.utils.clip_grad_norm_(net.parameters(), 1.0)
+        opt.step()
+        running += losses
+        if step % cfg.log_every == 0 or step == cfg.steps:
+            k = cfg.log_every if step % cfg.log_every == 0 else step % cfg.log_every
+            c, f, g = (running / k).tolist()
+            psnr = [-10 * math.log10(max(x, 1e-10)) for x in (c, f, g)]
+            log(
+                f"step {step:5d}  mse coarse {c:.5f} fine {f:.5f} guided {g:.5f}  "
+                f"(PSNR {psnr[0]:.2f}/{psnr[1]:.2f}/{psnr[2]:.2f})  "
+                f"lr {opt.param_groups[0]['lr']:.2e}  {time.perf_counter() - start:7.1f} s"
+            )
+            running.zero_()
+    val = data.subset(val_idx)
+    val_depths = {k: v[val_idx] for k, v in depths.items()}
+    figures = validate(net, val, val_depths, cfg.depth_height)
+    figures.update({"steps": cfg.steps, "seconds": round(time.perf_counter() - start, 1)})
+    rows = cfg.depth_height
+    log(f"final (validation scenes of the train split, {rows} rows): {json.dumps(figures)}")
+    save_weights(
+        net,
+        cfg.out,
+        {
+            "network": "RendererNet",
+            "preset": cfg.preset,
+            "config": asdict(net.config),
+            "train": {k: str(v) for k, v in asdict(cfg).items()},
+            "command": " ".join(["panogrf"] + sys.argv[1:]),
+            "final": figures,
+        },
+    )
+    return figures
+
+
+def _split_indices(n: int, val_scenes: int) -> tuple[Tensor, Tensor]:
+    k = min(val_scenes, max(1, n // 5))
+    return torch.arange(n - k), torch.arange(n - k, n)
+
+
+def _at_height(data: TripletSet, height: int) -> TripletSet:
+    """The same scenes with images area-resized to ``height`` (for the depth networks)."""
+    if data.images.shape[-2] == height:
+        return data
+    n, v = data.images.shape[:2]
+    imgs = data.images.flatten(0, 1).float()
+    small = torch.nn.functional.interpolate(imgs, size=(height, 2 * height), mode="area")
+    small = small.round().clamp(0, 255).to(torch.uint8).unflatten(0, (n, v))
+    return TripletSet(small, data.depths, data.c2w, data.baselines, data.names)

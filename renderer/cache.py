@@ -1,0 +1,103 @@
+"""The scene cache: everything about the source views that does not depend on the target pose.
+
+Built once per scene (depth estimation happens before, see `panogrf.model.depth`): the source
+panoramas for colour, their poses, estimated depths, appearance features and visibility
+parameters, the last three stacked in one map so a sample point costs one `grid_sample` per
+view. Shapes: V views, H W the source panoramas, h w the feature grid (the depth's grid).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from panogrf.model.erp import invert_rigid
+from panogrf.model.render_net import RendererNet
+
+
+@dataclass
+class SceneCache:
+    """Pose-independent inputs of the renderer for V source views."""
+
+    images: Tensor  # [V, 3, H, W] colours in [0, 1], the input's full resolution
+    c2w: Tensor  # [V, 4, 4] camera-to-world
+    depth: Tensor  # [V, 1, h, w] estimated spherical depth (metres)
+    maps: Tensor  # [V, C + 6 + 1, h, w] appearance features | visibility params | depth
+    feature_channels: int
+
+    @property
+    def num_views(self) -> int:
+        return self.images.shape[0]
+
+    @property
+    def w2c(self) -> Tensor:
+        return invert_rigid(self.c2w)
+
+    @property
+    def centres(self) -> Tensor:
+        return self.c2w[:, :3, 3]
+
+    def to(self, device: torch.device | str) -> SceneCache:
+        return SceneCache(
+            self.images.to(device),
+            self.c2w.to(device),
+            self.depth.to(device),
+            self.maps.to(device),
+            self.feature_channels,
+        )
+
+    def select(self, views: list[int]) -> SceneCache:
+        """The cache of a subset of the views."""
+        return SceneCache(
+            self.images[views],
+            self.c2w[views],
+            self.depth[views],
+            self.maps[views],
+            self.feature_channels,
+        )
+
+    def nbytes(self) -> int:
+        return sum(t.numel() * t.element_size() for t in (self.images, self.depth, self.maps))
+
+
+def _check(images: Tensor, c2w: Tensor, depth: Tensor) -> None:
+    if images.ndim != 4 or images.shape[1] != 3 or images.shape[-1] != 2 * images.shape[-2]:
+        raise ValueError(f"images must be [V, 3, H, 2H], got {tuple(images.shape)}")
+    v = images.shape[0]
+    if c2w.shape != (v, 4, 4):
+        raise ValueError(f"c2w must be [{v}, 4, 4], got {tuple(c2w.shape)}")
+    if depth.ndim != 4 or depth.shape[:2] != (v, 1) or depth.shape[-1] != 2 * depth.shape[-2]:
+        raise ValueError(f"depth must be [{v}, 1, h, 2h], got {tuple(depth.shape)}")
+
+
+def resize_erp(x: Tensor, height: int) -> Tensor:
+    """Resize panoramas [B, C, H, 2H] to height x 2 height (area when shrinking)."""
+    if x.shape[-2] == height:
+        return x
+    if x.shape[-2] > height:
+        return F.interpolate(x, size=(height, 2 * height), mode="area")
+    return F.interpolate(x, size=(height, 2 * height), mode="bilinear", align_corners=False)
+
+
+def build_cache(net: RendererNet, images: Tensor, c2w: Tensor, depth: Tensor) -> SceneCache:
+    """Encode V posed panoramas with their estimated depth: [V, 3, H, W], [V, 4, 4], [V, 1, h, w].
+
+    Differentiable (training calls it under autograd); wrap in ``torch.no_grad()`` otherwise.
+    """
+    _check(images, c2w, depth)
+    cfg = net.config
+    he = cfg.encoder_height
+    features = net.appearance(resize_erp(images, he))
+    h, w = depth.shape[-2:]
+    if features.shape[-2:] != (h, w):
+        features = F.interpolate(features, size=(h, w), mode="bilinear", align_corners=False)
+    if net.geometry is not None:
+        small = resize_erp(images, h)
+        params = net.geometry(small, depth)
+    else:
+        params = depth.new_zeros(depth.shape[0], 6, h, w)
+    maps = torch.cat((features, params, depth), 1)
+    return SceneCache(images, c2w, depth, maps, cfg.feature_channels)

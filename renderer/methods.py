@@ -1,0 +1,142 @@
+"""Every way this project renders a novel view, behind one interface (CLI, eval, benchmarks).
+
+A `SourceViews` holds the posed source panoramas of one scene and memoises what does not depend
+on the target pose: estimated depth per depth mode and the renderer's `SceneCache` per
+(renderer preset, depth mode). `render_view` renders a target pose with a named method:
+
+| method      | depth | renderer    | what it is                                             |
+|-------------|-------|-------------|--------------------------------------------------------|
+| panogrf     | full  | panogrf     | the method                                             |
+| no_mono     | mvs   | panogrf     | ablation: MVS depth without mono guidance              |
+| no_mvs      | mono  | panogrf     | ablation: monocular depth only                         |
+| no_geometry | full  | no_geometry | ablation: no visibility / depth features (retrained)   |
+| meshwarp    | full  | -           | baseline: depth-warped blend of the sources            |
+| nearest     | -     | -           | baseline: nearest source, rotated                      |
+| snerf       | -     | -           | baseline: radiance field fitted to the sources         |
+
+Networks come from injected loaders, so this module reads no files.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import torch
+from torch import Tensor
+
+from panogrf.model.depth import DepthEstimator
+from panogrf.model.render_net import RendererNet
+from panogrf.renderer.baselines import render_meshwarp, render_nearest
+from panogrf.renderer.cache import SceneCache, build_cache
+from panogrf.renderer.render import render_panorama
+
+
+@dataclass(frozen=True)
+class MethodSpec:
+    depth_mode: str | None
+    renderer: str | None
+    kind: str  # "neural", "meshwarp", "nearest" or "snerf"
+
+
+METHODS: dict[str, MethodSpec] = {
+    "panogrf": MethodSpec("full", "panogrf", "neural"),
+    "no_mono": MethodSpec("mvs", "panogrf", "neural"),
+    "no_mvs": MethodSpec("mono", "panogrf", "neural"),
+    "no_geometry": MethodSpec("full", "no_geometry", "neural"),
+    "meshwarp": MethodSpec("full", None, "meshwarp"),
+    "nearest": MethodSpec(None, None, "nearest"),
+    "snerf": MethodSpec(None, None, "snerf"),
+}
+
+
+@dataclass
+class Models:
+    """Loaders of the shared networks: ``estimator(mode)`` and ``renderer(preset)``."""
+
+    estimator: Callable[[str], DepthEstimator]
+    renderer: Callable[[str], RendererNet]
+
+
+@dataclass
+class SourceViews:
+    """Posed source panoramas of one scene and what is derived from them, memoised."""
+
+    images: Tensor  # [V, 3, H, W] in [0, 1]
+    c2w: Tensor  # [V, 4, 4]
+    depth: dict[str, Tensor] = field(default_factory=dict)  # mode -> [V, 1, h, w]
+    caches: dict[tuple[str, str], SceneCache] = field(default_factory=dict)
+    fitted: dict[str, object] = field(default_factory=dict)  # per-scene models (snerf)
+    seconds: dict[str, float] = field(default_factory=dict)  # preparation time per item
+
+    def depth_for(self, mode: str, models: Models) -> Tensor:
+        if mode not in self.depth:
+            start = time.perf_counter()
+            est = models.estimator(mode)
+            small = est.working_height
+            with torch.no_grad():
+                out = est(_resize(self.images, small), self.c2w, mode)
+            self.depth[mode] = out.depth
+            self.seconds[f"depth:{mode}"] = time.perf_counter() - start
+        return self.depth[mode]
+
+    def cache_for(self, preset: str, mode: str, models: Models) -> SceneCache:
+        key = (preset, mode)
+        if key not in self.caches:
+            depth = self.depth_for(mode, models)
+            start = time.perf_counter()
+            net = models.renderer(preset)
+            with torch.no_grad():
+                self.caches[key] = build_cache(net, self.images, self.c2w, depth)
+            self.seconds[f"cache:{preset}:{mode}"] = time.perf_counter() - start
+        return self.caches[key]
+
+
+def _resize(images: Tensor, height: int) -> Tensor:
+    from panogrf.renderer.cache import resize_erp
+
+    return resize_erp(images, height)
+
+
+def prepare(method: str, views: SourceViews, models: Models) -> None:
+    """Compute (once) everything ``method`` needs that does not depend on the target pose."""
+    spec = METHODS[method]
+    if spec.kind == "neural":
+        views.cache_for(spec.renderer, spec.depth_mode, models)
+    elif spec.depth_mode is not None:
+        views.depth_for(spec.depth_mode, models)
+    elif spec.kind == "snerf" and "snerf" not in views.fitted:
+        from panogrf.renderer.snerf import fit_snerf
+
+        start = time.perf_counter()
+        views.fitted["snerf"] = fit_snerf(views.images, views.c2w)
+        views.seconds["fit:snerf"] = time.perf_counter() - start
+
+
+def render_view(
+    method: str,
+    views: SourceViews,
+    tgt_c2w: Tensor,
+    height: int,
+    models: Models,
+    quality: str = "fast",
+) -> Tensor:
+    """The panorama [3, H, 2H] seen from ``tgt_c2w`` [4, 4], rendered by ``method``."""
+    if method not in METHODS:
+        raise ValueError(f"unknown method {method!r}: one of {sorted(METHODS)}")
+    spec = METHODS[method]
+    prepare(method, views, models)
+    tgt_c2w = tgt_c2w.to(views.c2w.dtype)
+    if spec.kind == "nearest":
+        return render_nearest(views.images, views.c2w, tgt_c2w, height)
+    if spec.kind == "meshwarp":
+        depth = views.depth[spec.depth_mode]
+        return render_meshwarp(views.images, views.c2w, depth, tgt_c2w, height)[0]
+    if spec.kind == "snerf":
+        from panogrf.renderer.snerf import render_snerf
+
+        return render_snerf(views.fitted["snerf"], tgt_c2w, height)
+    net = models.renderer(spec.renderer)
+    cache = views.cache_for(spec.renderer, spec.depth_mode, models)
+    return render_panorama(net, cache, tgt_c2w, height, quality).rgb

@@ -1,0 +1,217 @@
+"""Rendering a target panorama from a `SceneCache`: the one chunked render function.
+
+Spherical ray casting from the target centre; every sample point is projected into every source
+view (ERP, wrapping at the seam), where the cached maps give its appearance feature, visibility
+and depth residual, and the source panorama its colour; the `Aggregator` turns those into a
+density and a colour; volume compositing gives the pixel. Two samplings:
+
+- ``paper``: 64 samples uniform in inverse depth over [0.5, 15] m, then 64 importance samples
+  from their weights (PanoGRF's 64 + 64);
+- ``fast``: depth-guided. The cached depths, splatted into the target (`panogrf.model.splat`),
+  give every ray a near and a far proxy; a handful of samples around them replace the 128.
+
+`render_rays` serves training and rendering alike; `render_panorama` chunks a whole panorama
+so memory stays bounded at any resolution. Shapes: R rays, S samples, V views.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+
+import torch
+from torch import Tensor
+
+from panogrf.model.erp import direction_to_pixel, erp_directions, sample_erp
+from panogrf.model.render_net import PointFeatures, RendererNet, visibility
+from panogrf.model.sampling import (
+    Composite,
+    composite,
+    guided_samples,
+    inverse_depth_samples,
+    sample_pdf,
+)
+from panogrf.model.splat import ProxyDepth, proxy_depth
+from panogrf.renderer.cache import SceneCache
+
+
+@dataclass(frozen=True)
+class Sampling:
+    """How rays are sampled."""
+
+    n_coarse: int = 64
+    """Samples uniform in inverse depth over [near, far] (0: depth-guided only)."""
+    n_fine: int = 64
+    """Importance samples from the coarse weights."""
+    n_guided: int = 0
+    """Samples around the splatted proxy depths (needs a proxy)."""
+    near: float = 0.5
+    """Nearest sample of the uniform sampling (metres)."""
+    far: float = 15.0
+    """Farthest sample of the uniform sampling (metres)."""
+    band: float = 0.08
+    """Half-width of the guided band in relative inverse depth."""
+
+
+QUALITY = {
+    "paper": Sampling(n_coarse=64, n_fine=64),
+    "fast": Sampling(n_coarse=0, n_fine=0, n_guided=8),
+}
+
+
+@dataclass
+class RayOutput:
+    """What `render_rays` returns: the final composite and, with two passes, the first."""
+
+    final: Composite
+    coarse: Composite | None = None
+
+
+def point_features(cache: SceneCache, points: Tensor, ray_dirs: Tensor, t: Tensor) -> PointFeatures:
+    """What each source view says about world points [N, 3] on target rays [N, 3] at t [N]."""
+    w2c = cache.w2c
+    cam = points[None] @ w2c[:, :3, :3].transpose(1, 2) + w2c[:, None, :3, 3]  # [V, N, 3]
+    z = torch.linalg.vector_norm(cam, dim=-1).clamp(min=1e-6)  # [V, N]
+    h, w = cache.maps.shape[-2:]
+    uv = direction_to_pixel(cam, h, w)  # [V, N, 2]
+    sampled = sample_erp(cache.maps, uv).transpose(1, 2)  # [V, N, C + 7]
+    hi, wi = cache.images.shape[-2:]
+    if (hi, wi) != (h, w):
+        uv = uv * (wi / w) + 0.5 * (wi / w - 1.0)  # same directions on the finer grid
+    colour = sample_erp(cache.images, uv).transpose(1, 2)  # [V, N, 3]
+    c = cache.feature_channels
+    params, depth = sampled[..., c : c + 6], sampled[..., c + 6]
+    src_dirs = (points[None] - cache.centres[:, None]) / z[..., None]
+    cos = (src_dirs * ray_dirs[None]).sum(-1)
+    gap = torch.linalg.vector_norm(src_dirs - ray_dirs[None], dim=-1)
+    ratio = torch.log(z / t.clamp(min=1e-6)[None])
+    return PointFeatures(
+        appearance=sampled[..., :c],
+        colour=colour,
+        visibility=visibility(params, depth, z),
+        residual=depth / z - 1.0,
+        direction=torch.stack((cos, gap, ratio), -1),
+    )
+
+
+def _shade(net: RendererNet, cache: SceneCache, origins: Tensor, dirs: Tensor, t: Tensor):
+    """Density [R, S] and colour [R, S, 3] at samples t [R, S] of rays (origins, dirs) [R, 3]."""
+    r, s = t.shape
+    pts = origins[:, None] + t[..., None] * dirs[:, None]  # [R, S, 3]
+    feats = point_features(
+        cache, pts.reshape(-1, 3), dirs[:, None].expand(r, s, 3).reshape(-1, 3), t.reshape(-1)
+    )
+    sigma, rgb = net.aggregator(feats)
+    return sigma.reshape(r, s), rgb.reshape(r, s, 3)
+
+
+def render_rays(
+    net: RendererNet,
+    cache: SceneCache,
+    origins: Tensor,  # [R, 3] world
+    dirs: Tensor,  # [R, 3] unit, world
+    sampling: Sampling,
+    proxy: tuple[Tensor, Tensor] | None = None,  # near, far [R] metres
+    generator: torch.Generator | None = None,
+) -> RayOutput:
+    """Render R rays with one sampling strategy (see `Sampling`)."""
+    r = origins.shape[0]
+    if sampling.n_guided:
+        if proxy is None:
+            raise ValueError("guided sampling needs proxy depths")
+        t = guided_samples(proxy[0], proxy[1], sampling.n_guided, sampling.band)
+        sigma, rgb = _shade(net, cache, origins, dirs, t)
+        return RayOutput(composite(sigma, rgb, t))
+    t_c = inverse_depth_samples(
+        r,
+        sampling.n_coarse,
+        sampling.near,
+        sampling.far,
+        generator=generator,
+        device=origins.device,
+        dtype=origins.dtype,
+    )
+    sigma_c, rgb_c = _shade(net, cache, origins, dirs, t_c)
+    coarse = composite(sigma_c, rgb_c, t_c)
+    if not sampling.n_fine:
+        return RayOutput(coarse)
+    t_f = sample_pdf(t_c, coarse.weights, sampling.n_fine, generator=generator)
+    sigma_f, rgb_f = _shade(net, cache, origins, dirs, t_f)
+    # One network for both passes: the coarse samples' values are reused, merged in order.
+    t_all, order = torch.sort(torch.cat((t_c, t_f), -1), -1)
+    sigma = torch.cat((sigma_c, sigma_f), -1).gather(-1, order)
+    rgb = torch.cat((rgb_c, rgb_f), 1).gather(1, order[..., None].expand(-1, -1, 3))
+    return RayOutput(composite(sigma, rgb, t_all), coarse)
+
+
+@dataclass
+class RenderOutput:
+    """A rendered panorama."""
+
+    rgb: Tensor  # [3, H, W] in [0, 1]
+    depth: Tensor  # [1, H, W] expected spherical depth (metres)
+    opacity: Tensor  # [1, H, W]
+
+
+def target_rays(c2w: Tensor, height: int, width: int) -> tuple[Tensor, Tensor]:
+    """Origins and unit directions [H*W, 3] (world) of every pixel of an ERP camera c2w [4, 4]."""
+    d = erp_directions(height, width, device=c2w.device, dtype=c2w.dtype).reshape(-1, 3)
+    d = d @ c2w[:3, :3].T
+    return c2w[:3, 3].expand_as(d), d
+
+
+def proxy_for(cache: SceneCache, c2w: Tensor, height: int, width: int) -> ProxyDepth:
+    """Proxy depths of a target panorama from the cached source depths."""
+    return proxy_depth(cache.depth, cache.c2w, c2w, height, width)
+
+
+@torch.no_grad()
+def render_panorama(
+    net: RendererNet,
+    cache: SceneCache,
+    c2w: Tensor,  # [4, 4] target pose
+    height: int,
+    quality: str | Sampling = "fast",
+    chunk: int = 32768,
+    progress: Callable[[float], None] | None = None,
+    should_stop: Callable[[], bool] | None = None,
+) -> RenderOutput | None:
+    """Render the H x 2H panorama seen from ``c2w``; None if ``should_stop`` said so midway.
+
+    ``quality``: "paper", "fast" or a `Sampling`. Rays go through the network ``chunk`` at a
+    time (``chunk`` sample points per view), so memory stays bounded at any resolution;
+    ``progress`` gets the fraction done.
+    """
+    sampling = QUALITY[quality] if isinstance(quality, str) else quality
+    width = 2 * height
+    c2w = c2w.to(cache.images.dtype)
+    origins, dirs = target_rays(c2w, height, width)
+    near = far = None
+    if sampling.n_guided:
+        proxy = proxy_for(cache, c2w, height, width)
+        near, far = proxy.near.reshape(-1), proxy.far.reshape(-1)
+    n = origins.shape[0]
+    per_ray = max(sampling.n_guided, sampling.n_coarse, sampling.n_fine)
+    chunk = max(64, chunk // per_ray)
+    rgb = torch.empty(n, 3, dtype=c2w.dtype, device=c2w.device)
+    depth = torch.empty(n, dtype=c2w.dtype, device=c2w.device)
+    opacity = torch.empty(n, dtype=c2w.dtype, device=c2w.device)
+    for start in range(0, n, chunk):
+        if should_stop is not None and should_stop():
+            return None
+        sl = slice(start, start + chunk)
+        px = None if near is None else (near[sl], far[sl])
+        out = render_rays(net, cache, origins[sl], dirs[sl], sampling, px).final
+        rgb[sl], depth[sl], opacity[sl] = out.rgb, out.depth, out.opacity
+        if progress is not None:
+            progress(min(1.0, (start + chunk) / n))
+    return RenderOutput(
+        rgb=rgb.clamp(0, 1).T.reshape(3, height, width),
+        depth=depth.reshape(1, height, width),
+        opacity=opacity.reshape(1, height, width),
+    )
+
+
+def sampling_with(quality: str, **changes) -> Sampling:
+    """A named sampling with some fields changed (e.g. more guided samples)."""
+    return replace(QUALITY[quality], **changes)

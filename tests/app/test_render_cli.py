@@ -1,0 +1,154 @@
+"""`panogrf render`, `panogrf eval` and `panogrf train renderer`: outputs, errors, plumbing.
+
+Plumbing tests use seeded random networks (monkeypatched loaders); the tests marked with the
+shipped weights run the real networks on the bundled demo scene.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+import torch
+
+from panogrf.app import cli, depth_weights
+from panogrf.app.commands import render as render_cmd
+from panogrf.app.images import read_rgb
+from panogrf.assets import path as asset_path
+from panogrf.model.depth import DepthEstimator
+from panogrf.model.mono import MonoDepthConfig, MonoDepthNet
+from panogrf.model.mvs import PRESETS as MVS_PRESETS
+from panogrf.model.mvs import MVSNet
+from panogrf.model.render_net import PRESETS, RendererNet
+from panogrf.renderer.methods import Models
+
+DEMO = asset_path("demo")
+
+
+def random_models() -> Models:
+    torch.manual_seed(0)
+    mvs = {m: MVSNet(MVS_PRESETS[m]).eval() for m in ("full", "mvs")}
+    est = DepthEstimator(MonoDepthNet(MonoDepthConfig()), mvs, working_height=32).eval()
+    nets = {k: RendererNet(v).eval() for k, v in PRESETS.items()}
+    return Models(estimator=lambda mode: est, renderer=lambda preset: nets[preset])
+
+
+@pytest.fixture
+def random_nets(monkeypatch):
+    monkeypatch.setattr(render_cmd, "default_models", random_models)
+
+
+@pytest.mark.parametrize("method", ["panogrf", "meshwarp", "nearest", "no_mvs"])
+def test_render_target_frame_writes_the_panorama_and_scores_it(random_nets, tmp_path, method):
+    out = tmp_path / "mid.png"
+    args = ["render", str(DEMO), "--out", str(out), "--target-frame", "1", "--height", "32"]
+    assert cli.main([*args, "--method", method, "--json"]) == 0
+    img = read_rgb(out)
+    assert img.shape == (32, 64, 3)
+
+
+def test_render_any_pose_and_summary(random_nets, tmp_path, capsys):
+    out = tmp_path / "p.png"
+    c2w = "1 0 0 0.2 0 1 0 1.5 0 0 1 0.1 0 0 0 1"
+    args = ["render", str(DEMO), "--out", str(out), "--c2w", c2w, "--height", "16", "--json"]
+    assert cli.main(args) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["sources"] == [0, 1, 2] and summary["size"] == [16, 32]
+    assert "metrics" not in summary
+    assert read_rgb(out).shape == (16, 32, 3)
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--target-frame", "7"], "frames 0..2"),
+        (["--target-frame", "1", "--sources", "0,1"], "must not contain the target"),
+        (["--c2w", "1 2 3"], "16 numbers"),
+        (["--c2w", "1 0 0 0 0 1 0 0 0 0 1 0 0 0 0 0"], "last row"),
+        (["--c2w", "2 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1"], "not a rotation"),
+        (["--c2w", "nan 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1"], "NaN"),
+        (["--target-frame", "1", "--height", "3"], "--height"),
+    ],
+)
+def test_render_bad_input_is_one_line_and_exit_2(random_nets, tmp_path, capsys, extra, message):
+    out = tmp_path / "x.png"
+    assert cli.main(["render", str(DEMO), "--out", str(out), *extra]) == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+    assert not out.exists()
+
+
+def test_render_missing_scene_and_bad_output(tmp_path, capsys):
+    assert (
+        cli.main(
+            [
+                "render",
+                str(tmp_path / "nope"),
+                "--out",
+                str(tmp_path / "a.png"),
+                "--target-frame",
+                "0",
+            ]
+        )
+        == 2
+    )
+    assert "transforms.json" in capsys.readouterr().err
+    bad = tmp_path / "missing_dir" / "a.png"
+    assert cli.main(["render", str(DEMO), "--out", str(bad), "--target-frame", "0"]) == 2
+    assert "does not exist" in capsys.readouterr().err
+    assert (
+        cli.main(["render", str(DEMO), "--out", str(tmp_path / "a.txt"), "--target-frame", "0"])
+        == 2
+    )
+    assert ".png" in capsys.readouterr().err
+
+
+def _tiny_dataset(tmp_path):
+    """Two copies of the demo scene as a dataset (its baseline, 1.0 m, rounded)."""
+    root = tmp_path / "data"
+    root.mkdir()
+    for name in ("a", "b"):
+        shutil.copytree(DEMO, root / name)
+    (root / "dataset.json").write_text(json.dumps({"scenes": [{"folder": "a"}, {"folder": "b"}]}))
+    c = json.loads((DEMO / "transforms.json").read_text())["frames"]
+    p = np.array([f["transform_matrix"] for f in c])[:, :3, 3]
+    return root, round(float(np.linalg.norm(p[2] - p[0])), 1)
+
+
+def test_eval_scores_every_method_per_baseline(random_nets, tmp_path, capsys):
+    root, baseline = _tiny_dataset(tmp_path)
+    out = tmp_path / "results.json"
+    args = ["eval", str(root), "--out", str(out), "--baselines", str(baseline), "--height", "32"]
+    methods = "panogrf,panogrf:paper,nearest,meshwarp"
+    assert (
+        cli.main([*args, "--methods", methods, "--subset", "panogrf:paper", "--subset-size", "1"])
+        == 0
+    )
+    report = json.loads(out.read_text())
+    res = report["results"]
+    assert set(res) == {"panogrf", "panogrf:paper", "nearest", "meshwarp"}
+    assert res["panogrf"][str(baseline)]["scenes"] == 2
+    assert res["panogrf:paper"][str(baseline)]["scenes"] == 1
+    for r in res.values():
+        row = r[str(baseline)]
+        assert np.isfinite([row[k] for k in ("psnr", "ws_psnr", "ssim", "lpips")]).all()
+        assert row["render_ms_median"] > 0
+    # The two scenes are identical: identical scores.
+    ps = report["per_scene"]["nearest"][str(baseline)]
+    assert ps[0]["ws_psnr"] == pytest.approx(ps[1]["ws_psnr"])
+    assert "WS-PSNR" in capsys.readouterr().out
+
+
+def test_eval_errors(random_nets, tmp_path, capsys):
+    root, _ = _tiny_dataset(tmp_path)
+    out = str(tmp_path / "r.json")
+    assert cli.main(["eval", str(root), "--out", out, "--methods", "bogus"]) == 2
+    assert "unknown method" in capsys.readouterr().err
+    assert cli.main(["eval", str(root), "--out", out, "--methods", "nearest:paper"]) == 2
+    assert "no sampling choice" in capsys.readouterr().err
+    assert cli.main(["eval", str(root), "--out", out, "--baselines", "3.0"]) == 2
+    assert "no scene with baseline" in capsys.readouterr().err
+    assert cli.main(["eval", str(tmp_path), "--out", out]) == 2
+    assert "dataset.json" in capsys.readouterr().err

@@ -1,0 +1,62 @@
+"""Proxy depth by forward splatting, checked on an analytic room with an occluding ball."""
+
+from __future__ import annotations
+
+import torch
+from helpers.room import pose, render
+
+from panogrf.model.erp import rotation_about
+from panogrf.model.splat import depth_edges, fill_holes, proxy_depth, splat_zbuffer
+
+SRC_A = pose(rotation_about("y", 0.3), [-0.5, 0.0, 0.1])
+SRC_B = pose(rotation_about("y", -1.1) @ rotation_about("x", 0.05), [0.6, 0.1, -0.2])
+TGT = pose(rotation_about("y", 2.0), [0.05, 0.05, -0.05])
+
+
+def _sources(height: int, ball: bool = True):
+    a_img, a_depth = render(SRC_A, ball=ball, height=height, width=2 * height)
+    b_img, b_depth = render(SRC_B, ball=ball, height=height, width=2 * height)
+    return torch.cat((a_depth, b_depth)).float(), torch.stack((SRC_A, SRC_B)).float()
+
+
+def test_splatted_depth_matches_the_true_target_depth():
+    depth, c2w = _sources(64)
+    _, true = render(TGT, ball=True, height=64, width=128)
+    true = true[0, 0].float()
+    proxy = proxy_depth(depth, c2w, TGT.float(), 64, 128)
+    assert proxy.near.shape == (64, 128) and torch.isfinite(proxy.near).all()
+    assert (proxy.near > 0).all() and (proxy.far >= proxy.near).all()
+    rel = (proxy.near - true).abs() / true
+    assert proxy.covered.float().mean() > 0.9
+    assert (rel < 0.03).float().mean() > 0.9, (rel < 0.03).float().mean()
+    # Where the proxies disagree the truth is (nearly always) inside [near, far].
+    inside = (true >= proxy.near * 0.97) & (true <= proxy.far * 1.03)
+    assert inside.float().mean() > 0.97
+
+
+def test_zbuffer_keeps_the_nearest_surface_and_drops_depth_edges():
+    depth, c2w = _sources(64)
+    edges = depth_edges(depth)
+    # The ball's outline and the room's corners, not the walls seen at grazing angles.
+    assert edges.any() and edges.float().mean() < 0.1, edges.float().mean()
+    # The same source splatted into itself is itself (except for the dropped edge pixels).
+    zbuf = splat_zbuffer(depth[:1], c2w[:1], c2w[0], 64, 128)
+    kept = ~edges[0, 0]
+    assert (zbuf[kept] > 0).all()
+    assert torch.allclose(zbuf[kept], depth[0, 0][kept], rtol=1e-4)
+    # Splatting both sources never puts anything behind the first surface the target sees.
+    _, true = render(TGT, ball=True, height=64, width=128)
+    both = splat_zbuffer(depth, c2w, TGT.float(), 64, 128)
+    hit = both > 0
+    assert (both[hit] <= true[0, 0].float()[hit] * 1.05).float().mean() > 0.99
+
+
+def test_fill_holes_takes_the_background_and_never_leaves_a_hole():
+    d = torch.full((8, 16), 2.0)
+    d[:, 8:] = 5.0
+    d[3, 7:10] = 0.0  # a hole at the edge between 2 m and 5 m
+    filled = fill_holes(d)
+    assert (filled > 0).all()
+    assert filled[3, 8] == 5.0 and filled[3, 9] == 5.0
+    empty = fill_holes(torch.zeros(4, 8))
+    assert torch.isfinite(empty).all() and (empty > 0).all()
