@@ -83,7 +83,7 @@ def guided_samples(
     near_proxy: Tensor,  # [R] proxy depth of the nearest surface (metres)
     far_proxy: Tensor,  # [R] proxy depth of the farthest surface nearby (>= near_proxy)
     n_samples: int,
-    band: float = 0.08,
+    band: float = 0.2,
 ) -> Tensor:
     """Depth-guided samples [R, n] (sorted): half around each proxy, within +-``band`` of it
     in relative inverse depth. Where both proxies agree the two halves interleave."""

@@ -2,10 +2,14 @@
 
 The cached depths of the source views, lifted to the world and projected into the target, give
 each target pixel the distance of the surfaces the sources saw along it. A z-buffer keeps the
-nearest; pixels on a source's depth edges are dropped first (they would be "flying" points
-between a foreground and a background, the equivalent of a depth mesh's stretched triangles).
-Each point lands on its nearest pixel; gaps that magnification leaves between those are filled
-from the 2x2 pixels around each projection.
+nearest. Each point lands on its nearest pixel; gaps that magnification leaves between those
+are filled from the 2x2 pixels around each projection, and disocclusions (seen by no source)
+from their farthest neighbour. The far proxy (the 3x3 maximum of the near one) puts the
+background of a depth edge within reach of the samples as well.
+
+(Dropping source pixels at depth discontinuities first, as a depth mesh drops stretched
+triangles, was measured on validation scenes of the train split with estimated depth: it did
+not change the share of pixels whose proxy is within 5 % of the truth, so it is not done.)
 
 Shapes: V views, H W the target panorama, h w the source depth maps.
 """
@@ -31,27 +35,6 @@ class ProxyDepth:
     covered: Tensor  # [H, W] bool: some source saw this pixel (others were filled)
 
 
-def depth_edges(depth: Tensor, tolerance: float = 0.04) -> Tensor:
-    """Pixels of depth maps [V, 1, h, w] next to a depth discontinuity: [V, 1, h, w] bool.
-
-    Along a row or a column (wrapping in width), a pixel marks an edge where its inverse depth
-    both differs from a neighbour's by more than ``tolerance`` (relative) *and* bends by more
-    than that (second difference). A plane seen at a grazing angle changes fast but does not
-    bend; a crease between two walls bends but does not jump; a discontinuity does both. Edges
-    grow by one pixel so that a short ramp of "flying" depths goes with them.
-    """
-    inv = 1.0 / depth.clamp(min=1e-6)
-    p = F.pad(circular_pad(inv, 1, 0), (0, 0, 1, 1), mode="replicate")
-    c = p[..., 1:-1, 1:-1]
-    edge = torch.zeros_like(c, dtype=torch.bool)
-    for a, b in ((p[..., 1:-1, :-2], p[..., 1:-1, 2:]), (p[..., :-2, 1:-1], p[..., 2:, 1:-1])):
-        jump = torch.maximum((a - c).abs(), (b - c).abs()) > 2.5 * tolerance * c
-        bend = (a + b - 2 * c).abs() > tolerance * c
-        edge |= jump & bend
-    grown = F.max_pool2d(F.pad(circular_pad(edge.to(depth.dtype), 1, 0), (0, 0, 1, 1)), 3, 1)
-    return grown > 0
-
-
 def _filter(x: Tensor, op: str) -> Tensor:
     """3x3 max or min of [H, W], wrapping in width."""
     y = circular_pad(x[None, None], 1, 0)
@@ -67,13 +50,10 @@ def splat_zbuffer(
     tgt_c2w: Tensor,  # [4, 4] target pose
     height: int,
     width: int,
-    edge_tolerance: float | None = None,
 ) -> Tensor:
     """Nearest splatted distance from the target centre per target pixel: [H, W], 0 = empty."""
     v = depth.shape[0]
     keep = depth > 0
-    if edge_tolerance is not None:
-        keep &= ~depth_edges(depth, edge_tolerance)
     points = erp_to_world(depth[:, 0], c2w)  # [V, h*w, 3]
     points = points[keep.reshape(v, -1)]  # [N, 3]
     uv, dist = world_to_erp(points, tgt_c2w, height, width)
@@ -120,17 +100,15 @@ def proxy_depth(
     tgt_c2w: Tensor,  # [4, 4]
     height: int,
     width: int,
-    edge_tolerance: float | None = None,
 ) -> ProxyDepth:
     """Near and far proxy depths of every ray of an H x W target panorama (see `ProxyDepth`).
 
     Sources are splatted at the target's resolution (nearest-resized first), so the
-    z-buffer's density follows the output size. ``edge_tolerance`` (see `depth_edges`) drops
-    source pixels at depth discontinuities first; None keeps every pixel.
+    z-buffer's density follows the output size.
     """
     if depth.shape[-2:] != (height, width):
         depth = F.interpolate(depth, size=(height, width), mode="nearest")
-    zbuf = splat_zbuffer(depth, c2w, tgt_c2w, height, width, edge_tolerance)
+    zbuf = splat_zbuffer(depth, c2w, tgt_c2w, height, width)
     covered = zbuf > 0
     near = fill_holes(zbuf)
     return ProxyDepth(near=near, far=_filter(near, "max"), covered=covered)

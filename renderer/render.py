@@ -49,8 +49,10 @@ class Sampling:
     """Nearest sample of the uniform sampling (metres)."""
     far: float = 15.0
     """Farthest sample of the uniform sampling (metres)."""
-    band: float = 0.08
-    """Half-width of the guided band in relative inverse depth."""
+    band: float = 0.2
+    """Half-width of the guided band in relative inverse depth (log scale). Estimated depth
+    is off by 10-20 % on many pixels: a band of 0.2 holds the true depth for most of them
+    (measured on validation scenes of the train split)."""
 
 
 QUALITY = {

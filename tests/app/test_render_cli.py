@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import torch
 
-from panogrf.app import cli, depth_weights
+from panogrf.app import cli
 from panogrf.app.commands import render as render_cmd
 from panogrf.app.images import read_rgb
 from panogrf.assets import path as asset_path

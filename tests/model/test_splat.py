@@ -6,7 +6,7 @@ import torch
 from helpers.room import pose, render
 
 from panogrf.model.erp import rotation_about
-from panogrf.model.splat import depth_edges, fill_holes, proxy_depth, splat_zbuffer
+from panogrf.model.splat import fill_holes, proxy_depth, splat_zbuffer
 
 SRC_A = pose(rotation_about("y", 0.3), [-0.5, 0.0, 0.1])
 SRC_B = pose(rotation_about("y", -1.1) @ rotation_about("x", 0.05), [0.6, 0.1, -0.2])
@@ -34,21 +34,18 @@ def test_splatted_depth_matches_the_true_target_depth():
     assert inside.float().mean() > 0.97
 
 
-def test_zbuffer_keeps_the_nearest_surface_and_drops_depth_edges():
+def test_zbuffer_keeps_the_nearest_surface():
     depth, c2w = _sources(64)
-    edges = depth_edges(depth)
-    # The ball's outline and the room's corners, not the walls seen at grazing angles.
-    assert edges.any() and edges.float().mean() < 0.1, edges.float().mean()
-    # The same source splatted into itself is itself (except for the dropped edge pixels).
+    # A source splatted into itself is itself.
     zbuf = splat_zbuffer(depth[:1], c2w[:1], c2w[0], 64, 128)
-    kept = ~edges[0, 0]
-    assert (zbuf[kept] > 0).all()
-    assert torch.allclose(zbuf[kept], depth[0, 0][kept], rtol=1e-4)
+    assert torch.allclose(zbuf, depth[0, 0], rtol=1e-4)
     # Splatting both sources never puts anything behind the first surface the target sees.
     _, true = render(TGT, ball=True, height=64, width=128)
     both = splat_zbuffer(depth, c2w, TGT.float(), 64, 128)
     hit = both > 0
-    assert (both[hit] <= true[0, 0].float()[hit] * 1.05).float().mean() > 0.99
+    assert hit.float().mean() > 0.95
+    # (At silhouettes a background point may fill a gap the foreground left: a few pixels.)
+    assert (both[hit] <= true[0, 0].float()[hit] * 1.02).float().mean() > 0.97
 
 
 def test_fill_holes_takes_the_background_and_never_leaves_a_hole():
