@@ -136,6 +136,23 @@ def erp_to_world(depth: Tensor, c2w: Tensor) -> Tensor:
     return transform_points(cam, c2w)
 
 
+def pad_seam(image: Tensor) -> Tensor:
+    """[B, C, H, W] -> [B, C, H, W + 2]: one wrapped column on each side, for `sample_padded`
+    (pad once, sample many times)."""
+    return torch.cat((image[..., -1:], image, image[..., :1]), dim=-1)
+
+
+def sample_padded(padded: Tensor, uv: Tensor, mode: str = "bilinear") -> Tensor:
+    """`sample_erp` on a panorama already padded by `pad_seam`: [B, C, H, W + 2] -> [B, C, N]."""
+    height, width = padded.shape[-2], padded.shape[-1] - 2
+    u = torch.remainder(uv[..., 0] + 0.5, width) - 0.5  # in [-0.5, W - 0.5)
+    x = (u + 1.5) / (width + 2) * 2.0 - 1.0
+    y = (uv[..., 1] + 0.5) / height * 2.0 - 1.0
+    grid = torch.stack((x, y), -1)[:, None]  # [B, 1, N, 2]
+    out = F.grid_sample(padded, grid, mode=mode, padding_mode="border", align_corners=False)
+    return out[:, :, 0]
+
+
 def sample_erp(image: Tensor, uv: Tensor, mode: str = "bilinear") -> Tensor:
     """Sample panoramas at continuous pixel coordinates, wrapping horizontally.
 
@@ -143,15 +160,8 @@ def sample_erp(image: Tensor, uv: Tensor, mode: str = "bilinear") -> Tensor:
     real number: it is taken modulo W). Rows clamp at the poles (no vertical wrap).
     Returns [B, C, N]. ``mode``: "bilinear" or "nearest".
     """
-    height, width = image.shape[-2:]
     # One wrapped column on each side makes the seam an ordinary interior neighbour.
-    padded = torch.cat((image[..., -1:], image, image[..., :1]), dim=-1)
-    u = torch.remainder(uv[..., 0] + 0.5, width) - 0.5  # in [-0.5, W - 0.5)
-    x = (u + 1.5) / (width + 2) * 2.0 - 1.0
-    y = (uv[..., 1] + 0.5) / height * 2.0 - 1.0
-    grid = torch.stack((x, y), -1)[:, None]  # [B, 1, N, 2]
-    out = F.grid_sample(padded, grid, mode=mode, padding_mode="border", align_corners=False)
-    return out[:, :, 0]
+    return sample_padded(pad_seam(image), uv, mode)
 
 
 def sample_erp_directions(image: Tensor, directions: Tensor, mode: str = "bilinear") -> Tensor:

@@ -14,7 +14,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from panogrf.model.erp import invert_rigid
+from panogrf.model.erp import invert_rigid, pad_seam
 from panogrf.model.render_net import RendererNet
 
 
@@ -27,6 +27,11 @@ class SceneCache:
     depth: Tensor  # [V, 1, h, w] estimated spherical depth (metres)
     maps: Tensor  # [V, C + 6 + 1, h, w] appearance features | visibility params | depth
     feature_channels: int
+
+    def __post_init__(self) -> None:
+        # Padded once for the seam, sampled for every chunk of points.
+        self.maps_padded = pad_seam(self.maps)
+        self.images_padded = pad_seam(self.images)
 
     @property
     def num_views(self) -> int:

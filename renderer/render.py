@@ -22,7 +22,7 @@ from dataclasses import dataclass, replace
 import torch
 from torch import Tensor
 
-from panogrf.model.erp import direction_to_pixel, erp_directions, sample_erp
+from panogrf.model.erp import direction_to_pixel, erp_directions, sample_padded
 from panogrf.model.render_net import PointFeatures, RendererNet, visibility
 from panogrf.model.sampling import (
     Composite,
@@ -76,11 +76,11 @@ def point_features(cache: SceneCache, points: Tensor, ray_dirs: Tensor, t: Tenso
     z = torch.linalg.vector_norm(cam, dim=-1).clamp(min=1e-6)  # [V, N]
     h, w = cache.maps.shape[-2:]
     uv = direction_to_pixel(cam, h, w)  # [V, N, 2]
-    sampled = sample_erp(cache.maps, uv).transpose(1, 2)  # [V, N, C + 7]
+    sampled = sample_padded(cache.maps_padded, uv).transpose(1, 2)  # [V, N, C + 7]
     hi, wi = cache.images.shape[-2:]
     if (hi, wi) != (h, w):
         uv = uv * (wi / w) + 0.5 * (wi / w - 1.0)  # same directions on the finer grid
-    colour = sample_erp(cache.images, uv).transpose(1, 2)  # [V, N, 3]
+    colour = sample_padded(cache.images_padded, uv).transpose(1, 2)  # [V, N, 3]
     c = cache.feature_channels
     params, depth = sampled[..., c : c + 6], sampled[..., c + 6]
     src_dirs = (points[None] - cache.centres[:, None]) / z[..., None]
@@ -174,7 +174,7 @@ def render_panorama(
     c2w: Tensor,  # [4, 4] target pose
     height: int,
     quality: str | Sampling = "fast",
-    chunk: int = 32768,
+    chunk: int = 16384,
     progress: Callable[[float], None] | None = None,
     should_stop: Callable[[], bool] | None = None,
 ) -> RenderOutput | None:
