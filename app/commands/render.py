@@ -1,8 +1,9 @@
-"""`panogrf render SCENE --out OUT.png`: a novel panorama from some views of a scene.
+"""`panogrf render SCENE --out OUT`: novel views of a scene, one panorama or a whole video.
 
 The target is a frame of the scene (``--target-frame``; that frame is then never used as a
-source, and where it has an image the render is scored against it) or any pose (``--c2w``,
-16 numbers, camera-to-world row-major, OpenGL frame, metres).
+source, and where it has an image the render is scored against it), any pose (``--c2w``,
+16 numbers, camera-to-world row-major, OpenGL frame, metres), or a nerfstudio camera path
+(``--camera-path``), rendered headless to an H.264 MP4 or a folder of PNG frames.
 """
 
 from __future__ import annotations
@@ -65,15 +66,26 @@ def register(subparsers) -> None:
             "examples:\n"
             "  panogrf render assets/demo --out mid.png --target-frame 1 --sources 0,2\n"
             '  panogrf render assets/demo --out p.png --c2w "1 0 0 0.3 0 1 0 1.5 0 0 1 0 '
-            '0 0 0 1" --height 256 --quality paper'
+            '0 0 0 1" --height 256 --quality paper\n'
+            "  panogrf render assets/demo --camera-path path.json --out tour.mp4 --quality preview"
         ),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("scene", type=Path, metavar="SCENE", help="scene folder (transforms.json)")
-    parser.add_argument("--out", type=Path, required=True, help="output image (.png or .jpg)")
+    parser.add_argument(
+        "--out",
+        type=Path,
+        required=True,
+        help="output image (.png, .jpg); with --camera-path a video (.mp4) or a folder",
+    )
     target = parser.add_mutually_exclusive_group(required=True)
     target.add_argument("--target-frame", type=int, help="render the pose of this frame")
     target.add_argument("--c2w", help="render this pose: 16 numbers, row-major camera-to-world")
+    target.add_argument(
+        "--camera-path",
+        type=Path,
+        help="render every camera of a nerfstudio camera_path.json to --out (.mp4 or folder)",
+    )
     parser.add_argument(
         "--sources",
         type=_indices,
@@ -88,9 +100,10 @@ def register(subparsers) -> None:
     )
     parser.add_argument(
         "--quality",
-        choices=sorted(QUALITY),
+        choices=("preview", *sorted(QUALITY)),
         default="fast",
-        help="neural sampling: fast (depth-guided, default) or paper (64 + 64)",
+        help="preview (GL depth-mesh warp), fast (depth-guided neural, default) or paper "
+        "(neural, 64 + 64 samples)",
     )
     parser.add_argument("--threads", type=int, default=0, help="torch threads (default: all)")
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
@@ -109,15 +122,20 @@ def default_models():
 
 
 def run(args: argparse.Namespace) -> int:
+    from panogrf.app.frames import FrameRenderer
     from panogrf.app.images import write_rgb
     from panogrf.app.scene import load_scene
     from panogrf.app.scoring import image_scores
-    from panogrf.renderer.methods import SourceViews, prepare, render_view
+    from panogrf.renderer.methods import SourceViews, prepare
 
+    if args.camera_path is not None:
+        return run_path(args)
     if args.out.suffix.lower() not in (".png", ".jpg", ".jpeg"):
         raise UserError(f"--out must be a .png or .jpg file, got {args.out}")
     if args.out.parent and not args.out.parent.exists():
         raise UserError(f"--out: folder {args.out.parent} does not exist")
+    if args.quality == "preview" and args.method != "panogrf":
+        raise UserError("--quality preview is the GL depth-mesh preview: use it without --method")
     if args.height is not None and not 8 <= args.height <= 4096:
         raise UserError(f"--height must be between 8 and 4096, got {args.height}")
     if args.threads:
@@ -145,11 +163,18 @@ def run(args: argparse.Namespace) -> int:
     views = SourceViews(data.images[sources], data.c2w[sources])
     models = default_models()
     start = time.perf_counter()
-    prepare(args.method, views, models)
-    prep = time.perf_counter() - start
-    start = time.perf_counter()
-    rgb = render_view(args.method, views, tgt, height, models, args.quality)
-    seconds = time.perf_counter() - start
+    frames = FrameRenderer(views, models, args.quality, args.method)
+    try:
+        if args.quality == "preview":
+            views.depth_for("full", models)
+        else:
+            prepare(args.method, views, models)
+        prep = time.perf_counter() - start
+        start = time.perf_counter()
+        rgb = frames.panorama(tgt.numpy(), height)
+        seconds = time.perf_counter() - start
+    finally:
+        frames.release()
     pixels = (rgb.permute(1, 2, 0).numpy() * 255.0 + 0.5).astype(np.uint8)
     try:
         write_rgb(args.out, pixels)
@@ -181,4 +206,56 @@ def run(args: argparse.Namespace) -> int:
             f"vs frame {args.target_frame}: PSNR {m['psnr']:.2f} dB, "
             f"WS-PSNR {m['ws_psnr']:.2f} dB, SSIM {m['ssim']:.4f}, LPIPS {m['lpips']:.4f}"
         )
+    return 0
+
+
+def run_path(args: argparse.Namespace) -> int:
+    """``--camera-path``: every camera of the path to a video or a folder of frames."""
+    from tqdm import tqdm
+
+    from panogrf.app.camera_path import read_camera_path
+    from panogrf.app.frames import FrameRenderer, render_camera_path
+    from panogrf.app.scene import load_scene
+    from panogrf.app.video import FrameSink
+    from panogrf.renderer.methods import SourceViews, prepare
+
+    if args.sources is not None or args.height is not None:
+        raise UserError("--camera-path takes its size from the path; drop --height/--sources")
+    if args.quality == "preview" and args.method != "panogrf":
+        raise UserError("--quality preview is the GL depth-mesh preview: use it without --method")
+    path = read_camera_path(args.camera_path)
+    if path.camera_type == "equirectangular" and path.render_width != 2 * path.render_height:
+        raise UserError(
+            f"{args.camera_path}: an equirectangular path needs render_width = 2 x "
+            f"render_height, got {path.render_width}x{path.render_height}"
+        )
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    sink = FrameSink(args.out, path.fps, path.render_width, path.render_height)
+    scene = load_scene(args.scene, load_images=True)
+    data = scene.images
+    views = SourceViews(data.images, data.c2w)
+    models = default_models()
+    frames = FrameRenderer(views, models, args.quality, args.method)
+    start = time.perf_counter()
+    try:
+        if args.quality == "preview":
+            views.depth_for("full", models)
+        else:
+            prepare(args.method, views, models)
+        prep = time.perf_counter() - start
+        start = time.perf_counter()
+        with sink, tqdm(total=len(path), unit="frame", desc="rendering") as bar:
+            render_camera_path(frames, path, sink, progress=lambda _: bar.update())
+    except OSError as exc:
+        raise UserError(f"cannot write {args.out}: {exc.strerror or exc}") from None
+    finally:
+        frames.release()
+    seconds = time.perf_counter() - start
+    what = "video" if sink.is_video else "frames"
+    print(
+        f"wrote {args.out} ({what}: {sink.count} frames, {path.render_width}x"
+        f"{path.render_height}, {path.camera_type}, {args.quality}): prepared in {prep:.2f} s, "
+        f"{1000 * seconds / max(sink.count, 1):.0f} ms per frame"
+    )
     return 0

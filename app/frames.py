@@ -1,0 +1,95 @@
+"""Frames of a camera path: equirectangular or perspective, at preview, fast or paper quality.
+
+One place turns a pose into an RGB frame for the video export and the viewer's recording:
+``preview`` draws the sources' depth meshes on GL (headless EGL unless a context is given),
+``fast`` and ``paper`` run the neural renderer (`render_view`). Perspective frames are cut out
+of a panorama rendered at the angular resolution they need.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import numpy as np
+import torch
+
+from panogrf.model.perspective import erp_to_perspective
+from panogrf.renderer.methods import Models, SourceViews, render_view
+
+QUALITIES = ("preview", "fast", "paper")
+
+
+def erp_height_for(camera_type: str, width: int, height: int, fov_deg: float) -> int:
+    """Panorama height that gives a frame its resolution (even, at most 1024)."""
+    if camera_type == "equirectangular":
+        return height
+    rows = math.ceil(180.0 / fov_deg * height)
+    return int(min(1024, max(16, rows + rows % 2)))
+
+
+class FrameRenderer:
+    """Renders camera poses of one scene to uint8 RGB frames; release() frees GL objects."""
+
+    def __init__(
+        self, views: SourceViews, models: Models, quality: str, method: str = "panogrf"
+    ) -> None:
+        if quality not in QUALITIES:
+            raise ValueError(f"quality must be one of {QUALITIES}, got {quality!r}")
+        self.views, self.models, self.quality, self.method = views, models, quality, method
+        self._preview = None
+        self._ctx = None
+
+    def _preview_renderer(self):
+        if self._preview is None:
+            from panogrf.renderer.gl_preview import PreviewRenderer, create_headless_context
+
+            depth = self.views.depth_for("full", self.models)[:, 0].numpy()
+            images = (self.views.images.permute(0, 2, 3, 1).numpy() * 255 + 0.5).astype(np.uint8)
+            self._ctx = create_headless_context()
+            self._preview = PreviewRenderer(self._ctx, images, depth, self.views.c2w.numpy())
+        return self._preview
+
+    def panorama(self, c2w: np.ndarray, height: int) -> torch.Tensor:
+        """The H x 2H panorama [3, H, 2H] in [0, 1] seen from ``c2w``."""
+        if self.quality == "preview":
+            rgb, _ = self._preview_renderer().render(c2w, height)
+            return torch.from_numpy(rgb).permute(2, 0, 1).float() / 255.0
+        tgt = torch.from_numpy(np.asarray(c2w, np.float64)).to(self.views.c2w.dtype)
+        return render_view(self.method, self.views, tgt, height, self.models, self.quality)
+
+    def frame(
+        self, c2w: np.ndarray, camera_type: str, width: int, height: int, fov_deg: float
+    ) -> np.ndarray:
+        """One frame as uint8 RGB [height, width, 3]."""
+        erp_h = erp_height_for(camera_type, width, height, fov_deg)
+        pano = self.panorama(c2w, erp_h)
+        if camera_type == "perspective":
+            pano = erp_to_perspective(pano, width, height, fov_deg)
+        elif pano.shape[-1] != width:
+            pano = torch.nn.functional.interpolate(
+                pano[None], size=(height, width), mode="bilinear", align_corners=False
+            )[0]
+        return (pano.clamp(0, 1).permute(1, 2, 0).numpy() * 255 + 0.5).astype(np.uint8)
+
+    def release(self) -> None:
+        if self._preview is not None:
+            self._preview.release()
+            self._preview = None
+        if self._ctx is not None:
+            self._ctx.release()
+            self._ctx = None
+
+
+def render_camera_path(
+    frames: FrameRenderer, path, sink, progress: Callable[[int], None] | None = None
+) -> None:
+    """Every camera of ``path`` (a `CameraPath`) through ``frames`` into ``sink``."""
+    for i, pose in enumerate(path.poses):
+        sink.write(
+            frames.frame(
+                pose, path.camera_type, path.render_width, path.render_height, float(path.fov[i])
+            )
+        )
+        if progress is not None:
+            progress(i + 1)

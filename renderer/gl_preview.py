@@ -1,0 +1,197 @@
+"""The instant preview: the sources' depth meshes warped into the target view on the GPU (GL).
+
+Each source panorama becomes a mesh with one vertex per pixel of its (estimated) depth map,
+lifted to the world once, textured with the full-resolution panorama. Per frame every mesh is
+projected straight into the target's equirectangular image by a geometry shader (seam-crossing
+triangles split, stretched ones dropped) into its own layer; a blend pass keeps the nearest
+surface, mixes the sources that agree on it by closeness, and fills what no source saw from
+the background. The same path renders the viewer's preview, `--quality preview` videos and the
+meshwarp baseline's GL twin.
+
+GL objects are created and released explicitly; the context comes from the caller (the viewer's
+window) or is a standalone EGL context made here (`create_headless_context`).
+"""
+
+from __future__ import annotations
+
+import moderngl
+import numpy as np
+
+from panogrf.shaders import load as load_shader
+
+#: Kept triangles span at most this ratio of source depths (larger: a depth discontinuity).
+MAX_STRETCH = 1.15
+#: Sources whose surface is within this relative distance of the nearest one are blended.
+BLEND_TOLERANCE = 0.06
+#: Distance (metres) mapped to the far end of the depth buffer.
+FAR = 100.0
+MAX_VIEWS = 16
+
+
+def create_headless_context() -> moderngl.Context:
+    """A standalone OpenGL 3.3+ context on EGL (no display needed)."""
+    return moderngl.create_context(standalone=True, backend="egl", require=330)
+
+
+def _erp_world_points(depth: np.ndarray, c2w: np.ndarray) -> np.ndarray:
+    """Depth [h, w] (metres) of a camera c2w [4, 4] -> world points [h, w, 3] at pixel centres."""
+    h, w = depth.shape
+    v, u = np.meshgrid(np.arange(h) + 0.5, np.arange(w) + 0.5, indexing="ij")
+    lon = 2 * np.pi * (u / w - 0.5)
+    lat = np.pi * (0.5 - v / h)
+    d = np.stack((np.cos(lat) * np.sin(lon), np.sin(lat), -np.cos(lat) * np.cos(lon)), -1)
+    cam = d * depth[..., None]
+    return cam @ c2w[:3, :3].T + c2w[:3, 3]
+
+
+def _grid_indices(h: int, w: int) -> np.ndarray:
+    """Triangles of an h x (w + 1) vertex grid (the last column closes the seam): [T, 3]."""
+    cols = w + 1
+    i, j = np.meshgrid(np.arange(h - 1), np.arange(w), indexing="ij")
+    a = i * cols + j
+    b, c, d = a + 1, a + cols, a + cols + 1
+    tris = np.stack((np.stack((a, c, b), -1), np.stack((b, c, d), -1)), -2)
+    return tris.reshape(-1, 3).astype(np.int32)
+
+
+class PreviewRenderer:
+    """Depth-mesh warping of V posed panoramas into any ERP view, on a moderngl context."""
+
+    def __init__(
+        self,
+        ctx: moderngl.Context,
+        images: np.ndarray,  # [V, H, W, 3] uint8
+        depth: np.ndarray,  # [V, h, w] float32 metres (the mesh's resolution)
+        c2w: np.ndarray,  # [V, 4, 4]
+    ) -> None:
+        v = images.shape[0]
+        if not 1 <= v <= MAX_VIEWS:
+            raise ValueError(f"the preview takes 1 to {MAX_VIEWS} views, got {v}")
+        if depth.shape[0] != v or c2w.shape != (v, 4, 4):
+            raise ValueError(
+                f"images {images.shape}, depth {depth.shape} and c2w {c2w.shape} disagree"
+            )
+        self.ctx = ctx
+        self.views = v
+        self.c2w = np.asarray(c2w, np.float64)
+        self.mesh_prog = ctx.program(
+            vertex_shader=load_shader("preview_mesh.vert"),
+            geometry_shader=load_shader("preview_mesh.geom"),
+            fragment_shader=load_shader("preview_mesh.frag"),
+        )
+        self.blend_prog = ctx.program(
+            vertex_shader=load_shader("fullscreen.vert"),
+            fragment_shader=load_shader("preview_blend.frag"),
+        )
+        self.blend_vao = ctx.vertex_array(self.blend_prog, [])
+        self._objects: list = [self.mesh_prog, self.blend_prog, self.blend_vao]
+        h, w = depth.shape[1:]
+        index = ctx.buffer(_grid_indices(h, w).tobytes())
+        self._objects.append(index)
+        self.textures, self.vaos = [], []
+        v_idx, u_idx = np.meshgrid(np.arange(h), np.arange(w + 1), indexing="ij")
+        uv = np.stack(((u_idx + 0.5) / w, (v_idx + 0.5) / h), -1).astype(np.float32)
+        for k in range(v):
+            d = np.asarray(depth[k], np.float32)
+            pts = _erp_world_points(d, self.c2w[k])
+            pts = np.concatenate((pts, pts[:, :1]), 1)  # the seam column again
+            dd = np.concatenate((d, d[:, :1]), 1)
+            data = np.concatenate((pts.astype(np.float32), uv, dd[..., None]), -1)
+            vbo = ctx.buffer(np.ascontiguousarray(data, np.float32).tobytes())
+            vao = ctx.vertex_array(
+                self.mesh_prog, [(vbo, "3f 2f 1f", "in_pos", "in_uv", "in_depth")], index
+            )
+            rgba = np.concatenate(
+                (images[k], np.full(images[k].shape[:2] + (1,), 255, np.uint8)), -1
+            )
+            tex = ctx.texture((images.shape[2], images.shape[1]), 4, np.ascontiguousarray(rgba))
+            tex.repeat_x, tex.repeat_y = True, False
+            tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
+            self.textures.append(tex)
+            self.vaos.append(vao)
+            self._objects += [vbo, vao, tex]
+        self._targets: dict[tuple[int, int], tuple] = {}
+
+    def _targets_for(self, height: int, width: int):
+        key = (height, width)
+        if key not in self._targets:
+            ctx = self.ctx
+            # The sources' layers side by side in one texture, one viewport each: clipping in
+            # clip space keeps every layer inside its own strip.
+            layers = ctx.texture((width * self.views, height), 4, dtype="f4")
+            layers.filter = (moderngl.NEAREST, moderngl.NEAREST)
+            depth = ctx.depth_renderbuffer((width * self.views, height))
+            layer_fbo = ctx.framebuffer(color_attachments=[layers], depth_attachment=depth)
+            color = ctx.texture((width, height), 4)
+            dist = ctx.texture((width, height), 1, dtype="f4")
+            out = ctx.framebuffer(color_attachments=[color, dist])
+            self._targets[key] = (layers, depth, layer_fbo, color, dist, out)
+        return self._targets[key]
+
+    def render_to_framebuffer(self, c2w: np.ndarray, height: int) -> tuple:
+        """Draw the preview of camera ``c2w`` [4, 4]; returns (colour texture, distance texture,
+        framebuffer) of the H x 2H result, left on the GPU (the viewer displays it as is)."""
+        width = 2 * height
+        layers, _, layer_fbo, color, dist, out = self._targets_for(height, width)
+        rot = np.asarray(c2w, np.float64)[:3, :3]
+        w2c = np.eye(4)
+        w2c[:3, :3] = rot.T
+        w2c[:3, 3] = -rot.T @ np.asarray(c2w, np.float64)[:3, 3]
+        ctx = self.ctx
+        prog = self.mesh_prog
+        prog["u_w2c"].write(w2c.T.astype("f4").tobytes())  # GL is column-major
+        prog["u_max_stretch"].value = MAX_STRETCH
+        prog["u_far"].value = FAR
+        prog["u_image"].value = 0
+        ctx.enable(moderngl.DEPTH_TEST)
+        ctx.disable(moderngl.CULL_FACE)
+        layer_fbo.use()
+        layer_fbo.viewport = (0, 0, width * self.views, height)
+        layer_fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+        for k in range(self.views):
+            layer_fbo.viewport = (k * width, 0, width, height)
+            self.textures[k].use(location=0)
+            self.vaos[k].render(moderngl.TRIANGLES)
+        ctx.disable(moderngl.DEPTH_TEST)
+        centre = np.asarray(c2w, np.float64)[:3, 3]
+        dists = np.linalg.norm(self.c2w[:, :3, 3] - centre, axis=-1)
+        weights = np.zeros(MAX_VIEWS, np.float32)
+        weights[: self.views] = 1.0 / (dists + 1e-2)
+        bp = self.blend_prog
+        bp["u_layers"].value = 1
+        bp["u_views"].value = self.views
+        bp["u_weights"].write(weights.tobytes())
+        bp["u_tolerance"].value = BLEND_TOLERANCE
+        bp["u_size"].value = (float(width), float(height))
+        layers.use(location=1)
+        out.use()
+        out.viewport = (0, 0, width, height)
+        self.blend_vao.render(moderngl.TRIANGLES, vertices=3)
+        return color, dist, out
+
+    def render(self, c2w: np.ndarray, height: int) -> tuple[np.ndarray, np.ndarray]:
+        """The preview of camera ``c2w`` read back: RGB uint8 [H, 2H, 3] and the distance of
+        the visible surface from the camera, float32 [H, 2H] (metres)."""
+        color, dist, out = self.render_to_framebuffer(c2w, height)
+        rgba = np.empty((height, 2 * height, 4), np.uint8)
+        d = np.empty((height, 2 * height), np.float32)
+        out.read_into(rgba, components=4, attachment=0)
+        out.read_into(d, components=1, attachment=1, dtype="f4")
+        return rgba[..., :3].copy(), d
+
+    def release(self) -> None:
+        """Free every GL object this renderer made (not the context)."""
+        for group in self._targets.values():
+            for obj in reversed(group):
+                obj.release()
+        self._targets.clear()
+        for obj in reversed(self._objects):
+            obj.release()
+        self._objects.clear()
+
+    def __enter__(self) -> PreviewRenderer:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.release()
+
