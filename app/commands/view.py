@@ -1,0 +1,170 @@
+"""`panogrf view SCENE`: walk through a scene in a window (or headless on EGL)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+from panogrf.app.errors import UserError
+
+
+def _size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(x) for x in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT, got {text!r}") from None
+    if not (64 <= w <= 8192 and 64 <= h <= 8192):
+        raise argparse.ArgumentTypeError(f"window size out of range: {text}")
+    return w, h
+
+
+KEYS = (
+    "Keys: W/A/S/D move, Q/E down/up, arrows or mouse drag look, [ ] speed, - = field of view, "
+    "V panorama/perspective, 1 refined, 2 preview, 3 distance, 4 source views (Tab: next), "
+    "K add keyframe, C clear keyframes, P play the path, O save it (camera_path.json), "
+    "X screenshot, H overlay, Esc quit."
+)
+
+
+def register(subparsers) -> None:
+    parser = subparsers.add_parser(
+        "view",
+        help="walk through a scene (window, or headless on EGL)",
+        description=(
+            "Open a scene: it is prepared once (depth estimation, feature maps; cached on disk "
+            "keyed by the scene's content and the weights), then the camera moves freely: a GL "
+            "preview follows every move, and when the camera stops the neural renderer refines "
+            "the view at increasing resolution. " + KEYS
+        ),
+        epilog="example: panogrf view assets/demo",
+    )
+    parser.add_argument("scene", type=Path, metavar="SCENE", help="scene folder (transforms.json)")
+    parser.add_argument(
+        "--window",
+        choices=("pyglet", "headless"),
+        default="pyglet",
+        help="pyglet (a window; needs a display) or headless (EGL, no display)",
+    )
+    parser.add_argument("--size", type=_size, default=(1024, 512), help="window size WxH")
+    parser.add_argument("--start-frame", type=int, default=0, help="start at this view's pose")
+    parser.add_argument("--cache-dir", type=Path, default=None, help="scene cache folder")
+    parser.add_argument("--no-refine", action="store_true", help="preview only (no network)")
+    parser.add_argument(
+        "--path-out",
+        type=Path,
+        default=Path("camera_path.json"),
+        help="where O saves the camera path (default camera_path.json)",
+    )
+    parser.add_argument(
+        "--screenshot-dir",
+        type=Path,
+        default=Path("."),
+        help="where X saves screenshots (default: here)",
+    )
+    parser.add_argument(
+        "--frames", type=int, default=None, help="close after this many frames (headless runs)"
+    )
+    parser.add_argument(
+        "--script",
+        default="",
+        help='scripted keys, e.g. "w*30,x,wait*10": hold w 30 frames, press x',
+    )
+    parser.add_argument(
+        "--fixed-step",
+        type=float,
+        default=None,
+        help="seconds of camera motion per frame (default: the wall clock)",
+    )
+    parser.add_argument("--threads", type=int, default=0, help="torch threads (default: all)")
+    parser.set_defaults(func=run)
+
+
+def prepare_scene(scene_dir: Path, cache_dir: Path | None, log=print):
+    """Load and prepare a scene for viewing: (SourceViews, Models, CacheResult)."""
+    from panogrf.app import depth_weights
+    from panogrf.app.commands.render import default_models
+    from panogrf.app.scene import load_scene
+    from panogrf.app.scene_cache import prepare_cached
+    from panogrf.assets import path as asset_path
+    from panogrf.renderer.methods import SourceViews
+
+    scene = load_scene(scene_dir, load_images=True)
+    data = scene.images
+    views = SourceViews(data.images, data.c2w)
+    models = default_models()
+    weight_files = [
+        asset_path(depth_weights.WEIGHTS["mono"]),
+        asset_path(depth_weights.WEIGHTS["full"]),
+        asset_path(depth_weights.RENDERER_WEIGHTS["panogrf"]),
+    ]
+    missing = [p.name for p in weight_files if not p.exists()]
+    if missing:
+        raise UserError(f"missing weights {missing}: reproduce them with `panogrf train`")
+    log(f"preparing {scene_dir} ({scene.num_views} views, {scene.width}x{scene.height})...")
+    result = prepare_cached(views, models, cache_dir, weight_files)
+    log(f"scene {result.status} in {result.seconds:.2f} s ({result.path})")
+    return scene, views, models, result
+
+
+def run(args: argparse.Namespace) -> int:
+    import numpy as np
+    import torch
+
+    from panogrf.app.viewer.window import ViewerSetup, parse_script, run_viewer
+    from panogrf.app.viewer.worker import RenderWorker
+
+    if args.window == "pyglet" and not _has_display():
+        raise UserError(
+            "no display for a window: set DISPLAY (e.g. under Xvfb) or use --window headless"
+        )
+    if args.frames is not None and args.frames < 1:
+        raise UserError("--frames must be at least 1")
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    try:
+        script = parse_script(args.script)
+    except ValueError:
+        raise UserError(f"--script: cannot read {args.script!r}") from None
+    scene, views, models, _ = prepare_scene(args.scene, args.cache_dir)
+    if not 0 <= args.start_frame < scene.num_views:
+        raise UserError(f"--start-frame: the scene has frames 0..{scene.num_views - 1}")
+    worker = None
+    if not args.no_refine:
+        cache = views.caches[("panogrf", "full")]
+        worker = RenderWorker(models.renderer("panogrf"), cache).start()
+    images = (views.images.permute(0, 2, 3, 1).numpy() * 255 + 0.5).astype(np.uint8)
+    setup = ViewerSetup(
+        images=images,
+        depth=views.depth["full"][:, 0].numpy(),
+        c2w=views.c2w.numpy(),
+        worker=worker,
+        start_pose=views.c2w[args.start_frame].numpy().astype(np.float64),
+        path_out=args.path_out,
+        screenshot_dir=args.screenshot_dir,
+        fixed_step=args.fixed_step,
+        frames=args.frames,
+        script=script,
+    )
+    start = time.perf_counter()
+    try:
+        config = run_viewer(setup, args.window, args.size)
+    finally:
+        if worker is not None:
+            worker.stop()
+    times = config.frame_times
+    if times:
+        print(
+            f"closed after {len(times)} frames in {time.perf_counter() - start:.1f} s "
+            f"(median frame {1000 * float(np.median(times)):.1f} ms)"
+        )
+    return 0
+
+
+def _has_display() -> bool:
+    import os
+
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")) or (
+        sys.platform in ("darwin", "win32")
+    )

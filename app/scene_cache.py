@@ -1,0 +1,118 @@
+"""On-disk cache of a prepared scene: estimated depth and the renderer's feature maps.
+
+Preparing a scene (depth estimation, encoders) takes seconds; opening it again should not.
+The cache file is keyed by the scene's content (every panorama's pixels and pose) and by the
+weights (their bytes), so any change to either makes a different key. A file that cannot be
+read, belongs to another key, or holds wrong shapes or non-finite values is rebuilt, never
+trusted. Files are written to a temporary name and renamed, so an interrupted write never
+leaves a broken cache under the real name.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+from safetensors import SafetensorError
+from safetensors.torch import load_file, save_file
+
+from panogrf.renderer.cache import SceneCache
+from panogrf.renderer.methods import Models, SourceViews
+
+FORMAT = "panogrf-scene-cache-1"
+PRESET, DEPTH_MODE = "panogrf", "full"
+
+
+def default_cache_dir() -> Path:
+    """``$XDG_CACHE_HOME/panogrf`` or ``~/.cache/panogrf``."""
+    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
+    return Path(base) / "panogrf"
+
+
+def content_key(images: torch.Tensor, c2w: torch.Tensor, weight_files: list[Path]) -> str:
+    """SHA-256 (hex, 32 chars) of the pixels, the poses and the weight files' bytes."""
+    h = hashlib.sha256(FORMAT.encode())
+    h.update(str(tuple(images.shape)).encode())
+    h.update((images.clamp(0, 1) * 255).round().to(torch.uint8).numpy().tobytes())
+    h.update(c2w.to(torch.float64).numpy().tobytes())
+    for path in weight_files:
+        h.update(path.name.encode())
+        h.update(path.read_bytes())
+    return h.hexdigest()[:32]
+
+
+@dataclass
+class CacheResult:
+    path: Path
+    status: str  # "built", "loaded" or "rebuilt: <why>"
+    seconds: float
+
+
+def _problem(tensors: dict, key: str, views: SourceViews) -> str | None:
+    meta_key = tensors.get("__key__")
+    if meta_key is None:
+        return "no key"
+    if bytes(meta_key.tolist()).decode(errors="replace") != key:
+        return "stale (another scene or other weights)"
+    depth, maps = tensors.get("depth"), tensors.get("maps")
+    v = views.images.shape[0]
+    if depth is None or maps is None:
+        return "missing tensors"
+    if depth.ndim != 4 or depth.shape[:2] != (v, 1) or maps.shape[0] != v:
+        return f"wrong shapes {tuple(depth.shape)}, {tuple(maps.shape)}"
+    if maps.shape[-2:] != depth.shape[-2:]:
+        return "maps and depth disagree in size"
+    if not (torch.isfinite(depth).all() and torch.isfinite(maps).all()):
+        return "non-finite values"
+    return None
+
+
+def prepare_cached(
+    views: SourceViews, models: Models, cache_dir: Path | None, weight_files: list[Path]
+) -> CacheResult:
+    """Fill ``views`` with the depth and renderer cache of the method, from disk when a valid
+    cache exists, else by computing them (and writing the cache, atomically)."""
+    import time
+
+    start = time.perf_counter()
+    cache_dir = Path(cache_dir) if cache_dir is not None else default_cache_dir()
+    key = content_key(views.images, views.c2w, weight_files)
+    path = cache_dir / f"{key}.safetensors"
+    why = None
+    if path.exists():
+        try:
+            tensors = load_file(str(path))
+            why = _problem(tensors, key, views)
+        except (SafetensorError, OSError, ValueError, RuntimeError) as exc:
+            why = f"unreadable ({type(exc).__name__})"
+        if why is None:
+            c = models.renderer(PRESET).config.feature_channels
+            views.depth[DEPTH_MODE] = tensors["depth"]
+            views.caches[(PRESET, DEPTH_MODE)] = SceneCache(
+                views.images, views.c2w, tensors["depth"], tensors["maps"], c
+            )
+            return CacheResult(path, "loaded", time.perf_counter() - start)
+    cache = views.cache_for(PRESET, DEPTH_MODE, models)
+    tensors = {
+        "depth": cache.depth.contiguous(),
+        "maps": cache.maps.contiguous(),
+        "__key__": torch.tensor(list(key.encode()), dtype=torch.uint8),
+    }
+    status = "built" if why is None else f"rebuilt: {why}"
+    try:
+        cache_dir.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=cache_dir, prefix=f".{key}.", suffix=".tmp")
+        os.close(fd)
+        try:
+            save_file(tensors, tmp, metadata={"format": FORMAT})
+            os.replace(tmp, path)
+        finally:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+    except OSError as exc:  # a read-only or full disk costs the cache, not the session
+        status += f" (not saved: {exc.strerror or exc})"
+    return CacheResult(path, status, time.perf_counter() - start)

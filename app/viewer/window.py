@@ -1,0 +1,420 @@
+"""The viewer window (moderngl-window): preview while moving, refined when still, camera paths.
+
+The same class runs in a real window (pyglet backend) and headless (EGL), a backend switch.
+Per frame: held keys move the camera; if the pose changed, the render worker's refinement is
+cancelled and the GL preview redrawn; once the camera has been still for a moment, the worker
+is asked to refine the pose and its newest finished level replaces the preview on screen.
+The display is the whole panorama or a perspective view, in colour or as distance.
+
+Keys: W/A/S/D move, Q/E down/up, arrows or mouse drag look, [ ] speed, - = field of view,
+V panorama/perspective, 1 refined, 2 preview, 3 distance, 4 source views (Tab: next source),
+K add keyframe, C clear keyframes, P play the path, O save it (camera_path.json), X screenshot,
+H toggle the overlay, Esc quit.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import moderngl
+import moderngl_window as mglw
+import numpy as np
+
+from panogrf.app.trajectory import interpolate_keyframes
+from panogrf.app.viewer.camera import FlyCamera
+from panogrf.shaders import load as load_shader
+
+MODES = ("refined", "preview", "distance", "sources")
+#: Seconds the camera must stay still before refinement starts.
+STILL_DELAY = 0.12
+LOOK_SPEED = 1.5  # radians per second for the arrow keys
+DRAG_SPEED = 0.004  # radians per pixel of mouse drag
+
+
+@dataclass
+class ViewerSetup:
+    """Everything the window needs, prepared before it opens (see `panogrf view`)."""
+
+    images: np.ndarray  # [V, H, W, 3] uint8 sources
+    depth: np.ndarray  # [V, h, w] metres (estimated)
+    c2w: np.ndarray  # [V, 4, 4]
+    worker: object | None  # RenderWorker (None: preview only)
+    start_pose: np.ndarray
+    preview_height: int = 512
+    path_out: Path = Path("camera_path.json")
+    screenshot_dir: Path = Path(".")
+    fixed_step: float | None = None  # seconds per frame (None: wall clock)
+    frames: int | None = None  # close after this many frames
+    script: list[tuple[str, int]] = field(default_factory=list)  # (key name, frames held)
+    fps: float = 30.0
+    log: object = print
+
+
+class PanoViewer(mglw.WindowConfig):
+    gl_version = (3, 3)
+    title = "panogrf"
+    window_size = (1024, 512)
+    aspect_ratio = None
+    resizable = True
+    vsync = False
+    clear_color = (0.0, 0.0, 0.0, 1.0)
+    setup: ViewerSetup | None = None  # set by `run_viewer` before the window is made
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__(**kwargs)
+        from panogrf.renderer.gl_preview import PreviewRenderer
+
+        s = self.setup
+        self.preview = PreviewRenderer(self.ctx, s.images, s.depth, s.c2w)
+        self.display = self.ctx.program(
+            vertex_shader=load_shader("fullscreen.vert"),
+            fragment_shader=load_shader("display.frag"),
+        )
+        self.overlay_prog = self.ctx.program(
+            vertex_shader=load_shader("fullscreen.vert"),
+            fragment_shader=load_shader("overlay.frag"),
+        )
+        self.quad = self.ctx.vertex_array(self.display, [])
+        self.overlay_quad = self.ctx.vertex_array(self.overlay_prog, [])
+        self.sources = [self._texture(img) for img in s.images]
+        h = s.preview_height
+        self.refined_tex = self.ctx.texture((2 * h, h), 3)
+        self.refined_tex.repeat_x = True
+        self.refined_gen = -1
+        self.overlay_tex = None
+        self.overlay_img = None
+        self.camera = FlyCamera.from_c2w(s.start_pose)
+        self.mode = "refined"
+        self.perspective = False
+        self.show_overlay = True
+        self.source_index = 0
+        self.held: set[str] = set()
+        self.keyframes: list[np.ndarray] = []
+        self.playback: np.ndarray | None = None
+        self.play_index = 0
+        self.last_pose = None
+        self.still_since = time.perf_counter()
+        self.requested = False
+        self.request_gen = -1
+        self.frame_count = 0
+        self.frame_times: list[float] = []
+        self.script = list(s.script)
+        self.last_overlay = 0.0
+        self.messages: list[str] = []
+        self._keymap = self._make_keymap()
+
+    # -- helpers -------------------------------------------------------------------------------
+    def _texture(self, rgb: np.ndarray) -> moderngl.Texture:
+        tex = self.ctx.texture((rgb.shape[1], rgb.shape[0]), 3, np.ascontiguousarray(rgb))
+        tex.repeat_x = True
+        tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
+        return tex
+
+    def _make_keymap(self) -> dict:
+        k = self.wnd.keys
+        names = "W A S D Q E K C P O X H V TAB LEFT RIGHT UP DOWN ESCAPE MINUS EQUAL"
+        names += " LEFT_BRACKET RIGHT_BRACKET NUMBER_1 NUMBER_2 NUMBER_3 NUMBER_4"
+        out = {}
+        for name in names.split():
+            code = getattr(k, name, None)
+            if code is not None:
+                out[code] = name
+        return out
+
+    def say(self, text: str) -> None:
+        self.messages = (self.messages + [text])[-3:]
+        self.setup.log(text)
+
+    # -- input ---------------------------------------------------------------------------------
+    def on_key_event(self, key, action, modifiers) -> None:
+        name = self._keymap.get(key)
+        if name is None:
+            return
+        if action == self.wnd.keys.ACTION_PRESS:
+            self.held.add(name)
+            self.press(name)
+        elif action == self.wnd.keys.ACTION_RELEASE:
+            self.held.discard(name)
+
+    def press(self, name: str) -> None:
+        """One-shot actions of a key (held keys act in `_apply_held`)."""
+        cam = self.camera
+        if name == "ESCAPE":
+            self.wnd.close()
+        elif name in ("LEFT_BRACKET", "RIGHT_BRACKET"):
+            cam.speed = float(
+                np.clip(cam.speed * (0.8 if name == "LEFT_BRACKET" else 1.25), 0.05, 20)
+            )
+        elif name in ("MINUS", "EQUAL"):
+            cam.fov = float(np.clip(cam.fov + (5 if name == "MINUS" else -5), 20, 140))
+        elif name == "V":
+            self.perspective = not self.perspective
+        elif name.startswith("NUMBER_"):
+            self.mode = MODES[int(name[-1]) - 1]
+        elif name == "TAB":
+            self.source_index = (self.source_index + 1) % len(self.sources)
+        elif name == "H":
+            self.show_overlay = not self.show_overlay
+        elif name == "K":
+            self.keyframes.append(cam.c2w)
+            self.say(f"keyframe {len(self.keyframes)} added")
+        elif name == "C":
+            self.keyframes.clear()
+            self.say("keyframes cleared")
+        elif name == "P":
+            if len(self.keyframes) < 2:
+                self.say("add at least two keyframes (K) to play a path")
+            else:
+                frames = max(2, int(self.setup.fps * 2 * (len(self.keyframes) - 1)))
+                self.playback = interpolate_keyframes(np.stack(self.keyframes), frames)
+                self.play_index = 0
+        elif name == "O":
+            self.save_path()
+        elif name == "X":
+            self.request_screenshot = True
+
+    request_screenshot = False
+
+    def on_mouse_drag_event(self, x, y, dx, dy) -> None:
+        self.camera.look(-dx * DRAG_SPEED, -dy * DRAG_SPEED)
+
+    def _apply_held(self, dt: float) -> None:
+        h, cam = self.held, self.camera
+        fwd = ("W" in h) - ("S" in h)
+        right = ("D" in h) - ("A" in h)
+        up = ("E" in h) - ("Q" in h)
+        if fwd or right or up:
+            cam.move(fwd, right, up, dt)
+        yaw = ("LEFT" in h) - ("RIGHT" in h)
+        pitch = ("UP" in h) - ("DOWN" in h)
+        if yaw or pitch:
+            cam.look(yaw * LOOK_SPEED * dt, pitch * LOOK_SPEED * dt)
+
+    def _run_script(self) -> None:
+        """Scripted input (headless sessions, tests, benchmarks): one step per frame."""
+        if not self.script:
+            return
+        name, frames = self.script[0]
+        if name != "WAIT":
+            if frames == 0:  # a press: one-shot action
+                self.press(name)
+            else:
+                self.held.add(name)
+        if frames <= 1:
+            self.script.pop(0)
+            if name != "WAIT":
+                self.held.discard(name)
+        else:
+            self.script[0] = (name, frames - 1)
+
+    # -- camera paths and screenshots ----------------------------------------------------------
+    def save_path(self) -> None:
+        from panogrf.app.camera_path import CameraPath, write_camera_path
+
+        if len(self.keyframes) < 1:
+            self.say("no keyframes to save (K adds one)")
+            return
+        fps = self.setup.fps
+        frames = max(1, int(fps * 2 * (len(self.keyframes) - 1))) if len(self.keyframes) > 1 else 1
+        poses = interpolate_keyframes(np.stack(self.keyframes), frames)
+        keyframes = [
+            {"matrix": k.T.reshape(16).tolist(), "fov": self.camera.fov, "aspect": 2.0}
+            for k in self.keyframes
+        ]
+        h = self.setup.preview_height
+        path = CameraPath(
+            poses=poses,
+            camera_type="perspective" if self.perspective else "equirectangular",
+            render_width=2 * h if not self.perspective else 1280,
+            render_height=h if not self.perspective else 720,
+            fps=fps,
+            fov=np.full(len(poses), self.camera.fov),
+            aspect=np.full(len(poses), 2.0 if not self.perspective else 1280 / 720),
+            keyframes=keyframes,
+        )
+        write_camera_path(self.setup.path_out, path)
+        self.say(f"saved {len(poses)} cameras to {self.setup.path_out}")
+
+    def _screenshot(self) -> None:
+        w, h = self.wnd.buffer_size
+        data = self.wnd.fbo.read(viewport=(0, 0, w, h), components=3)
+        img = np.frombuffer(data, np.uint8).reshape(h, w, 3)[::-1]
+        out = (
+            self.setup.screenshot_dir
+            / f"panogrf_{time.strftime('%Y%m%d_%H%M%S')}_{self.frame_count:05d}.png"
+        )
+        from panogrf.app.images import write_rgb
+
+        write_rgb(out, np.ascontiguousarray(img))
+        self.say(f"screenshot {out}")
+
+    # -- frame ---------------------------------------------------------------------------------
+    def on_render(self, time_s: float, frame_time: float) -> None:
+        start = time.perf_counter()
+        dt = self.setup.fixed_step or min(frame_time, 0.1)
+        self._run_script()
+        if self.playback is not None:
+            pose = self.playback[self.play_index]
+            self.camera = FlyCamera.from_c2w(pose, speed=self.camera.speed, fov=self.camera.fov)
+            self.play_index += 1
+            if self.play_index >= len(self.playback):
+                self.playback = None
+        else:
+            self._apply_held(dt)
+        pose = self.camera.c2w
+        moved = self.last_pose is None or not np.allclose(pose, self.last_pose, atol=1e-9)
+        worker = self.setup.worker
+        now = time.perf_counter()
+        if moved:
+            self.last_pose = pose
+            self.still_since = now
+            self.requested = False
+            if worker is not None:
+                worker.cancel()
+        elif worker is not None and not self.requested and now - self.still_since >= STILL_DELAY:
+            self.request_gen = worker.request(pose)
+            self.requested = True
+
+        h = self.setup.preview_height
+        color, dist, _ = self.preview.render_to_framebuffer(pose, h)
+        pano, is_depth = color, False
+        if self.mode == "distance":
+            pano, is_depth = dist, True
+        elif self.mode == "sources":
+            pano = self.sources[self.source_index]
+        elif self.mode == "refined" and worker is not None and self.requested:
+            done = worker.latest()
+            if done is not None and done.generation == self.request_gen:
+                if (
+                    done.generation != self.refined_gen
+                    or done.rgb.shape[0] != self.refined_tex.height
+                ):
+                    self._upload_refined(done.rgb)
+                    self.refined_gen = done.generation
+                pano = self.refined_tex
+        self.wnd.use()
+        w, hh = self.wnd.buffer_size
+        self.ctx.viewport = (0, 0, w, hh)
+        pano.use(location=0)
+        d = self.display
+        d["u_pano"].value = 0
+        d["u_perspective"].value = int(self.perspective)
+        d["u_fov"].value = math.radians(self.camera.fov)
+        d["u_size"].value = (float(w), float(hh))
+        d["u_depth"].value = int(is_depth)
+        d["u_max_depth"].value = 10.0
+        self.quad.render(moderngl.TRIANGLES, vertices=3)
+        if self.show_overlay:
+            self._draw_overlay(w, hh)
+        if self.request_screenshot:
+            self.request_screenshot = False
+            self._screenshot()
+        self.frame_count += 1
+        self.frame_times.append(time.perf_counter() - start)
+        if self.setup.frames is not None and self.frame_count >= self.setup.frames:
+            self.wnd.close()
+
+    def _upload_refined(self, rgb: np.ndarray) -> None:
+        if (rgb.shape[1], rgb.shape[0]) != self.refined_tex.size:
+            self.refined_tex.release()
+            self.refined_tex = self.ctx.texture((rgb.shape[1], rgb.shape[0]), 3)
+            self.refined_tex.repeat_x = True
+            self.refined_tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
+        self.refined_tex.write(np.ascontiguousarray(rgb))
+
+    def _draw_overlay(self, w: int, h: int) -> None:
+        now = time.perf_counter()
+        if self.overlay_tex is None or now - self.last_overlay > 0.25:
+            self.last_overlay = now
+            self._update_overlay()
+        self.overlay_tex.use(location=1)
+        o = self.overlay_prog
+        o["u_text"].value = 1
+        o["u_size"].value = (float(w), float(h))
+        o["u_text_size"].value = (
+            float(self.overlay_img.shape[1]),
+            float(self.overlay_img.shape[0]),
+        )
+        self.ctx.enable(moderngl.BLEND)
+        self.ctx.blend_func = moderngl.SRC_ALPHA, moderngl.ONE_MINUS_SRC_ALPHA
+        self.overlay_quad.render(moderngl.TRIANGLES, vertices=3)
+        self.ctx.disable(moderngl.BLEND)
+
+    def _update_overlay(self) -> None:
+        p = self.camera.position
+        recent = self.frame_times[-30:]
+        fps = len(recent) / max(sum(recent), 1e-6) if recent else 0.0
+        worker = self.setup.worker
+        if worker is None:
+            refine = "refinement off"
+        elif not self.requested:
+            refine = "moving: preview"
+        else:
+            done, frac = worker.status
+            total = len(worker.levels)
+            refine = f"refined {done}/{total}" + (f" ({frac:.0%})" if done < total else "")
+        lines = [
+            f"pos {p[0]:+.2f} {p[1]:+.2f} {p[2]:+.2f} m  speed {self.camera.speed:.2f} m/s",
+            f"{self.mode}{' src ' + str(self.source_index) if self.mode == 'sources' else ''}"
+            f"  {f'perspective {self.camera.fov:.0f} deg' if self.perspective else 'panorama'}",
+            f"{fps:.0f} fps  {refine}  keyframes {len(self.keyframes)}",
+            *self.messages,
+        ]
+        img = np.zeros((18 * len(lines) + 8, 460, 4), np.uint8)
+        img[..., 3] = 140
+        for i, line in enumerate(lines):
+            cv2.putText(
+                img,
+                line,
+                (6, 18 * i + 17),
+                cv2.FONT_HERSHEY_SIMPLEX,
+                0.45,
+                (255, 255, 255, 255),
+                1,
+                cv2.LINE_AA,
+            )
+        self.overlay_img = img
+        if self.overlay_tex is None or self.overlay_tex.size != (img.shape[1], img.shape[0]):
+            if self.overlay_tex is not None:
+                self.overlay_tex.release()
+            self.overlay_tex = self.ctx.texture((img.shape[1], img.shape[0]), 4)
+        self.overlay_tex.write(np.ascontiguousarray(img))
+
+    def on_close(self) -> None:
+        if self.setup.worker is not None:
+            self.setup.worker.stop()
+
+
+def parse_script(text: str) -> list[tuple[str, int]]:
+    """ "w*30,x,wait*10" -> [("W", 30), ("X", 0), ("WAIT", 10)]: hold a key for N frames, or
+    press it once (no count)."""
+    names = {str(i): f"NUMBER_{i}" for i in range(1, 5)}
+    names |= {
+        "[": "LEFT_BRACKET",
+        "]": "RIGHT_BRACKET",
+        "-": "MINUS",
+        "=": "EQUAL",
+        "esc": "ESCAPE",
+        "tab": "TAB",
+    }
+    out = []
+    for token in (t.strip() for t in text.split(",") if t.strip()):
+        key, _, count = token.partition("*")
+        name = names.get(key.lower(), key.upper())
+        out.append((name, int(count) if count else 0))
+    return out
+
+
+def run_viewer(setup: ViewerSetup, window: str = "pyglet", size: tuple[int, int] = (1024, 512)):
+    """Open the viewer and block until it closes; returns the window config (for its stats)."""
+    PanoViewer.setup = setup
+    args = ["--window", window, "--size", f"{size[0]}x{size[1]}"]
+    if window == "headless":
+        args += ["--backend", "egl"]
+    config = mglw.create_window_config_instance(PanoViewer, args=args)
+    mglw.run_window_config_instance(config)
+    return config

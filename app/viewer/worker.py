@@ -1,0 +1,137 @@
+"""The render worker: owns the neural renderer and refines the view while the camera is still.
+
+The window never calls the model. It posts the current pose with `request`; the worker renders
+it at each level of a resolution ladder (low first), publishing every finished level. A newer
+request (the camera moved) interrupts the render in progress at the next chunk of rays, so a
+stale pose is never finished. `latest` hands the newest finished frame to the window.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from panogrf.model.render_net import RendererNet
+from panogrf.renderer.cache import SceneCache
+from panogrf.renderer.render import render_panorama
+
+#: (height, sampling) of each refinement level, coarse to fine.
+LEVELS = ((128, "fast"), (256, "fast"), (512, "fast"))
+
+
+@dataclass
+class Refined:
+    """A finished refinement: RGB uint8 [H, 2H, 3] of pose ``c2w`` at ladder level ``level``."""
+
+    rgb: np.ndarray
+    c2w: np.ndarray
+    level: int
+    generation: int
+    seconds: float  # from the request to this level being done
+
+
+class RenderWorker:
+    """Progressive refinement in a background thread (start/stop explicitly)."""
+
+    def __init__(
+        self,
+        net: RendererNet,
+        cache: SceneCache,
+        levels: tuple[tuple[int, str], ...] = LEVELS,
+        threads: int | None = None,
+    ) -> None:
+        self.net, self.cache, self.levels = net, cache, levels
+        self.threads = threads
+        self._lock = threading.Lock()
+        self._wake = threading.Condition(self._lock)
+        self._generation = 0
+        self._pose: np.ndarray | None = None
+        self._requested_at = 0.0
+        self._latest: Refined | None = None
+        self._progress = 0.0
+        self._level = -1
+        self._stop = False
+        self._thread = threading.Thread(target=self._run, name="panogrf-render", daemon=True)
+
+    def start(self) -> RenderWorker:
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        with self._wake:
+            self._stop = True
+            self._generation += 1
+            self._wake.notify_all()
+        self._thread.join(timeout=30)
+
+    def request(self, c2w: np.ndarray) -> int:
+        """Refine pose ``c2w`` [4, 4] (cancels any other); returns the request's generation."""
+        with self._wake:
+            self._generation += 1
+            self._pose = np.array(c2w, np.float64)
+            self._requested_at = time.perf_counter()
+            self._progress, self._level = 0.0, -1
+            self._wake.notify_all()
+            return self._generation
+
+    def cancel(self) -> None:
+        """The camera moves: drop whatever is being refined."""
+        with self._wake:
+            self._generation += 1
+            self._pose = None
+            self._progress, self._level = 0.0, -1
+
+    def latest(self) -> Refined | None:
+        with self._lock:
+            return self._latest
+
+    @property
+    def status(self) -> tuple[int, float]:
+        """(levels finished for the current request, progress of the one in flight in [0, 1])."""
+        with self._lock:
+            return self._level + 1, self._progress
+
+    def _run(self) -> None:
+        if self.threads:
+            torch.set_num_threads(self.threads)
+        while True:
+            with self._wake:
+                while not self._stop and self._pose is None:
+                    self._wake.wait()
+                if self._stop:
+                    return
+                gen, pose, t0 = self._generation, self._pose, self._requested_at
+                self._pose = None
+
+            def stale(gen=gen) -> bool:
+                return self._generation != gen
+
+            def progress(f: float, gen=gen) -> None:
+                with self._lock:
+                    if self._generation == gen:
+                        self._progress = f
+
+            tgt = torch.from_numpy(pose).to(self.cache.images.dtype)
+            for level, (height, quality) in enumerate(self.levels):
+                out = render_panorama(
+                    self.net,
+                    self.cache,
+                    tgt,
+                    height,
+                    quality,
+                    progress=progress,
+                    should_stop=stale,
+                )
+                if out is None or stale():
+                    break
+                rgb = (out.rgb.permute(1, 2, 0).numpy() * 255 + 0.5).astype(np.uint8)
+                done = Refined(rgb, pose, level, gen, time.perf_counter() - t0)
+                with self._lock:
+                    if self._generation != gen:
+                        break
+                    self._latest = done
+                    self._level, self._progress = level, 0.0

@@ -1,0 +1,43 @@
+#version 330 core
+// The viewer's display: an equirectangular texture (row 0 = top) shown whole (ERP mode) or
+// through a pinhole camera looking down the panorama's -z (perspective mode), as colour or as
+// colour-mapped distance.
+uniform sampler2D u_pano;
+uniform int u_perspective;     // 0: whole panorama, 1: pinhole view
+uniform float u_fov;           // vertical field of view (radians)
+uniform vec2 u_size;           // window size in pixels
+uniform int u_depth;           // 1: the texture holds distances (red channel, metres)
+uniform float u_max_depth;
+out vec4 out_color;
+
+const float PI = 3.14159265358979;
+
+vec3 turbo(float x) {  // a compact approximation of the Turbo colour map
+    x = clamp(x, 0.0, 1.0);
+    vec4 v4 = vec4(1.0, x, x * x, x * x * x);
+    vec2 v2 = v4.zw * v4.z;
+    return vec3(
+        dot(v4, vec4(0.13572138, 4.61539260, -42.66032258, 132.13108234)) + dot(v2, vec2(-152.94239396, 59.28637943)),
+        dot(v4, vec4(0.09140261, 2.19418839, 4.84296658, -14.18503333)) + dot(v2, vec2(4.27729857, 2.82956604)),
+        dot(v4, vec4(0.10667330, 12.64194608, -60.58204836, 110.36276771)) + dot(v2, vec2(-89.90310912, 27.34824973)));
+}
+
+void main() {
+    vec2 p = gl_FragCoord.xy / u_size;  // (0, 0) bottom left
+    vec2 uv;
+    if (u_perspective == 1) {
+        float f = 0.5 / tan(0.5 * u_fov);
+        float aspect = u_size.x / u_size.y;
+        vec3 d = normalize(vec3((p.x - 0.5) * aspect, p.y - 0.5, -f));
+        float lon = atan(d.x, -d.z);
+        float lat = asin(clamp(d.y, -1.0, 1.0));
+        uv = vec2(lon / (2.0 * PI) + 0.5, 0.5 - lat / PI);
+    } else {
+        uv = vec2(p.x, 1.0 - p.y);
+    }
+    vec4 c = texture(u_pano, uv);
+    if (u_depth == 1) {
+        c = vec4(c.r > 0.0 ? turbo(c.r / u_max_depth) : vec3(0.0), 1.0);
+    }
+    out_color = vec4(c.rgb, 1.0);
+}
