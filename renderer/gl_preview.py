@@ -118,7 +118,7 @@ class PreviewRenderer:
             ctx = self.ctx
             # The sources' layers side by side in one texture, one viewport each: clipping in
             # clip space keeps every layer inside its own strip.
-            layers = ctx.texture((width * self.views, height), 4, dtype="f4")
+            layers = ctx.texture((width * self.views, height), 4, dtype="f2")
             layers.filter = (moderngl.NEAREST, moderngl.NEAREST)
             depth = ctx.depth_renderbuffer((width * self.views, height))
             layer_fbo = ctx.framebuffer(color_attachments=[layers], depth_attachment=depth)

@@ -36,7 +36,7 @@ void main() {
     if (c.a <= 0.0) {
         int w = int(u_size.x);
         int h = int(u_size.y);
-        for (int step = 1; step <= 24 && c.a <= 0.0; step *= 2) {
+        for (int step = 1; step <= 16 && c.a <= 0.0; step *= 4) {
             for (int k = 0; k < 8; ++k) {
                 ivec2 dir = ivec2(k == 0 || k == 4 || k == 5 ? 1 : (k == 1 || k == 6 || k == 7 ? -1 : 0),
                                   k == 2 || k == 4 || k == 6 ? 1 : (k == 3 || k == 5 || k == 7 ? -1 : 0));

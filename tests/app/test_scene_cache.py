@@ -1,0 +1,88 @@
+"""The on-disk scene cache: built once, loaded after, rebuilt when stale or corrupt."""
+
+from __future__ import annotations
+
+import torch
+
+from panogrf.app.scene_cache import content_key, prepare_cached
+from panogrf.model.depth import DepthEstimator
+from panogrf.model.mono import MonoDepthConfig, MonoDepthNet
+from panogrf.model.mvs import PRESETS as MVS_PRESETS
+from panogrf.model.mvs import MVSNet
+from panogrf.model.render_net import RendererNet
+from panogrf.renderer.methods import Models, SourceViews
+
+
+def _models() -> Models:
+    torch.manual_seed(0)
+    est = DepthEstimator(
+        MonoDepthNet(MonoDepthConfig()), {"full": MVSNet(MVS_PRESETS["full"]).eval()},
+        working_height=32,
+    ).eval()
+    net = RendererNet().eval()
+    return Models(estimator=lambda mode: est, renderer=lambda preset: net)
+
+
+def _views(seed: int = 0) -> SourceViews:
+    gen = torch.Generator().manual_seed(seed)
+    c2w = torch.eye(4).repeat(2, 1, 1)
+    c2w[1, 0, 3] = 1.0
+    return SourceViews(torch.rand(2, 3, 32, 64, generator=gen), c2w)
+
+
+def test_built_then_loaded_with_the_same_tensors(tmp_path):
+    weights = tmp_path / "w.safetensors"
+    weights.write_bytes(b"weights v1")
+    models = _models()
+    first = _views()
+    r1 = prepare_cached(first, models, tmp_path / "cache", [weights])
+    assert r1.status == "built" and r1.path.exists()
+    second = _views()
+    r2 = prepare_cached(second, models, tmp_path / "cache", [weights])
+    assert r2.status == "loaded" and r2.path == r1.path
+    a, b = first.caches[("panogrf", "full")], second.caches[("panogrf", "full")]
+    assert torch.equal(a.maps, b.maps) and torch.equal(a.depth, b.depth)
+    assert torch.equal(first.depth["full"], second.depth["full"])
+    # No temporary files are left behind.
+    assert [p.name for p in (tmp_path / "cache").iterdir()] == [r1.path.name]
+
+
+def test_key_changes_with_pixels_poses_and_weights(tmp_path):
+    w1, w2 = tmp_path / "a", tmp_path / "b"
+    w1.write_bytes(b"1")
+    w2.write_bytes(b"2")
+    v = _views()
+    k = content_key(v.images, v.c2w, [w1])
+    assert content_key(v.images, v.c2w, [w1]) == k
+    assert content_key(v.images, v.c2w, [w2]) != k
+    moved = v.c2w.clone()
+    moved[1, 2, 3] += 0.01
+    assert content_key(v.images, moved, [w1]) != k
+    other = v.images.clone()
+    other[0, 0, 0, 0] = 1.0 - other[0, 0, 0, 0]
+    assert content_key(other, v.c2w, [w1]) != k
+
+
+def test_corrupt_or_truncated_cache_is_rebuilt(tmp_path):
+    weights = tmp_path / "w"
+    weights.write_bytes(b"w")
+    models = _models()
+    r = prepare_cached(_views(), models, tmp_path, [weights])
+    good = r.path.read_bytes()
+    r.path.write_bytes(good[: len(good) // 2])  # an interrupted copy
+    again = prepare_cached(_views(), models, tmp_path, [weights])
+    assert again.status.startswith("rebuilt: unreadable")
+    assert prepare_cached(_views(), models, tmp_path, [weights]).status == "loaded"
+    r.path.write_bytes(b"\x00" * 64)
+    assert prepare_cached(_views(), models, tmp_path, [weights]).status.startswith("rebuilt")
+
+
+def test_unwritable_cache_folder_costs_only_the_cache(tmp_path):
+    weights = tmp_path / "w"
+    weights.write_bytes(b"w")
+    blocker = tmp_path / "file"
+    blocker.write_text("not a folder")
+    views = _views()
+    r = prepare_cached(views, _models(), blocker / "cache", [weights])
+    assert "not saved" in r.status
+    assert ("panogrf", "full") in views.caches

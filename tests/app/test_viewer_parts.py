@@ -1,0 +1,94 @@
+"""Viewer pieces without a window: fly camera, render worker, scripted keys."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import pytest
+import torch
+
+from panogrf.app.viewer.camera import FlyCamera
+from panogrf.app.viewer.window import parse_script
+from panogrf.app.viewer.worker import RenderWorker
+from panogrf.model.render_net import RendererNet
+from panogrf.renderer.cache import build_cache
+
+
+def test_camera_pose_round_trip_and_moves():
+    cam = FlyCamera(position=np.array([1.0, 1.5, -2.0]), yaw=0.7, pitch=-0.3)
+    m = cam.c2w
+    assert np.allclose(m[:3, :3] @ m[:3, :3].T, np.eye(3))
+    back = FlyCamera.from_c2w(m)
+    assert back.yaw == pytest.approx(0.7) and back.pitch == pytest.approx(-0.3)
+    assert np.allclose(back.position, cam.position)
+    level = FlyCamera(yaw=0.0, speed=2.0)
+    level.move(1.0, 0.0, 0.0, 0.5)  # forward is -z at yaw 0
+    assert np.allclose(level.position, [0, 0, -1.0])
+    level.move(0.0, 1.0, 1.0, 0.5)
+    assert np.allclose(level.position, [1.0, 1.0, -1.0])
+    turned = FlyCamera(yaw=math.pi / 2)
+    turned.move(1.0, 0.0, 0.0, 1.0)  # a quarter turn left: forward is -x
+    assert np.allclose(turned.position, [-1.0, 0, 0], atol=1e-12)
+    turned.look(0.0, 5.0)
+    assert turned.pitch == pytest.approx(1.5)  # never over the top
+
+
+def test_parse_script():
+    assert parse_script("w*3, x ,wait*2,[,1") == [
+        ("W", 3), ("X", 0), ("WAIT", 2), ("LEFT_BRACKET", 0), ("NUMBER_1", 0)
+    ]
+
+
+def _worker_cache():
+    torch.manual_seed(0)
+    net = RendererNet().eval()
+    c2w = torch.eye(4).repeat(2, 1, 1)
+    c2w[1, 0, 3] = 1.0
+    with torch.no_grad():
+        cache = build_cache(net, torch.rand(2, 3, 32, 64), c2w, torch.full((2, 1, 16, 32), 2.0))
+    return net, cache
+
+
+def _wait(worker, gen, level, timeout=60.0):
+    end = time.time() + timeout
+    while time.time() < end:
+        done = worker.latest()
+        if done is not None and done.generation == gen and done.level >= level:
+            return done
+        time.sleep(0.01)
+    raise AssertionError("the worker did not finish in time")
+
+
+def test_worker_refines_level_by_level_and_newer_requests_win():
+    net, cache = _worker_cache()
+    worker = RenderWorker(net, cache, levels=((8, "fast"), (16, "fast"))).start()
+    try:
+        gen = worker.request(np.eye(4))
+        done = _wait(worker, gen, 1)
+        assert done.rgb.shape == (16, 32, 3) and done.rgb.dtype == np.uint8
+        assert worker.status[0] == 2
+        pose = np.eye(4)
+        pose[0, 3] = 0.3
+        worker.cancel()
+        gen2 = worker.request(pose)
+        assert gen2 > gen
+        done2 = _wait(worker, gen2, 1)
+        assert np.allclose(done2.c2w, pose)
+    finally:
+        worker.stop()
+
+
+def test_cancel_stops_a_render_in_flight():
+    net, cache = _worker_cache()
+    worker = RenderWorker(net, cache, levels=((64, "paper"),)).start()
+    try:
+        gen = worker.request(np.eye(4))
+        time.sleep(0.05)
+        worker.cancel()
+        time.sleep(0.5)
+        done = worker.latest()
+        assert done is None or done.generation != gen
+    finally:
+        worker.stop()
