@@ -1,0 +1,148 @@
+"""The viewer's numbers on this machine: preparation, preview rate, refinement latency, memory.
+
+    python benchmarks/viewer.py --scene assets/demo --out benchmarks/results/viewer.json
+
+- scene preparation: cold (empty cache folder: depth estimation + encoders + writing the
+  cache) and cached (reading it back), median of ``--repeats``;
+- preview frames per second at 512 x 1024 while moving: the real viewer, headless on EGL, a
+  scripted walk (W held), median frame time over the walk;
+- refinement: time from the camera stopping to the first refined frame at 256 x 512, and to
+  the full 512 x 1024 refinement (the render worker, depth-guided sampling), median of
+  ``--repeats``; beside it, in the same process, the seed's method as published (64 + 64
+  samples per ray at 512 x 1024) once, as the baseline;
+- peak resident memory of the process.
+A table is printed last.
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import resource
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--scene", type=Path, default=None, help="default: the bundled demo")
+    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/viewer.json"))
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--walk-frames", type=int, default=90)
+    parser.add_argument("--skip-paper", action="store_true", help="skip the 64 + 64 baseline")
+    args = parser.parse_args()
+
+    from panogrf.app.commands.view import prepare_scene
+    from panogrf.app.images import write_json_atomic
+    from panogrf.app.viewer.window import ViewerSetup, parse_script, run_viewer
+    from panogrf.app.viewer.worker import RenderWorker
+    from panogrf.assets import path as asset_path
+    from panogrf.renderer.render import render_panorama
+
+    scene_dir = args.scene or asset_path("demo")
+    quiet = lambda *a: None  # noqa: E731
+    cold, cached = [], []
+    for _ in range(args.repeats):
+        with tempfile.TemporaryDirectory() as tmp:
+            t0 = time.perf_counter()
+            prepare_scene(scene_dir, Path(tmp), log=quiet)
+            cold.append(time.perf_counter() - t0)
+            t0 = time.perf_counter()
+            _, views, models, result = prepare_scene(scene_dir, Path(tmp), log=quiet)
+            cached.append(time.perf_counter() - t0)
+            assert result.status == "loaded", result.status
+    print(
+        f"preparation: cold {statistics.median(cold):.2f} s, cached {statistics.median(cached):.2f} s"
+    )
+
+    net = models.renderer("panogrf")
+    cache = views.caches[("panogrf", "full")]
+    images = (views.images.permute(0, 2, 3, 1).numpy() * 255 + 0.5).astype(np.uint8)
+    setup = ViewerSetup(
+        images=images,
+        depth=views.depth["full"][:, 0].numpy(),
+        c2w=views.c2w.numpy(),
+        worker=None,
+        start_pose=views.c2w[0].numpy().astype(np.float64),
+        frames=args.walk_frames + 5,
+        script=parse_script(f"wait*5,w*{args.walk_frames}"),
+        fixed_step=1 / 30,
+        preview_height=512,
+        log=quiet,
+    )
+    config = run_viewer(setup, "headless", (1024, 512))
+    walk = config.frame_times[5:]
+    frame_ms = 1000 * statistics.median(walk)
+    print(
+        f"preview while moving (512x1024): {frame_ms:.1f} ms per frame, {1000 / frame_ms:.1f} fps"
+    )
+
+    first, full = [], []
+    worker = RenderWorker(net, cache, levels=((256, "fast"), (512, "fast"))).start()
+    try:
+        for k in range(args.repeats):
+            pose = views.c2w[0].numpy().astype(np.float64).copy()
+            pose[0, 3] += 0.05 * (k + 1)  # a new pose each time
+            gen = worker.request(pose)
+            seen = {}
+            while 1 not in seen:
+                done = worker.latest()
+                if done is not None and done.generation == gen:
+                    seen.setdefault(done.level, done.seconds)
+                time.sleep(0.002)
+            first.append(seen[0])
+            full.append(seen[1])
+    finally:
+        worker.stop()
+    print(
+        f"refined 256x512 after {statistics.median(first):.2f} s, 512x1024 after "
+        f"{statistics.median(full):.2f} s"
+    )
+    paper_s = None
+    if not args.skip_paper:
+        t0 = time.perf_counter()
+        render_panorama(net, cache, views.c2w[0], 512, "paper")
+        paper_s = time.perf_counter() - t0
+        print(f"paper (64 + 64) 512x1024: {paper_s:.1f} s")
+    peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+    report = {
+        "what": "viewer preparation, preview rate and refinement latency",
+        "scene": str(scene_dir),
+        "views": int(views.images.shape[0]),
+        "prepare_cold_s": {"median": statistics.median(cold), "runs": cold},
+        "prepare_cached_s": {"median": statistics.median(cached), "runs": cached},
+        "preview_512x1024_frame_ms": {"median": frame_ms, "fps": 1000 / frame_ms},
+        "refine_first_256x512_s": {"median": statistics.median(first), "runs": first},
+        "refine_full_512x1024_s": {"median": statistics.median(full), "runs": full},
+        "paper_64_64_512x1024_s": paper_s,
+        "peak_rss_mb": peak_mb,
+        "machine": f"{platform.machine()}, {torch.get_num_threads()} torch threads, CPU, "
+        "Mesa llvmpipe (EGL)",
+    }
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    write_json_atomic(args.out, report)
+    rows = [
+        ("scene preparation, cold", f"{statistics.median(cold):.2f} s", "-"),
+        ("scene preparation, cached", f"{statistics.median(cached):.2f} s", "<= 0.5 s"),
+        ("preview 512x1024 while moving", f"{1000 / frame_ms:.1f} fps", ">= 30 fps"),
+        ("stop -> first refined 256x512", f"{statistics.median(first):.2f} s", "<= 1 s"),
+        ("stop -> refined 512x1024", f"{statistics.median(full):.2f} s", "-"),
+        ("paper 64+64 at 512x1024", "-" if paper_s is None else f"{paper_s:.1f} s", "baseline"),
+        ("peak memory (RSS)", f"{peak_mb:.0f} MB", "-"),
+    ]
+    if paper_s is not None:
+        rows.append(("paper / fast refinement", f"{paper_s / statistics.median(full):.1f}x", ""))
+    print(f"\n{'measure':<32} {'median':>12} {'target':>10}")
+    for name, value, target in rows:
+        print(f"{name:<32} {value:>12} {target:>10}")
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
