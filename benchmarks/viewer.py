@@ -56,9 +56,8 @@ def main() -> None:
             _, views, models, result = prepare_scene(scene_dir, Path(tmp), log=quiet)
             cached.append(time.perf_counter() - t0)
             assert result.status == "loaded", result.status
-    print(
-        f"preparation: cold {statistics.median(cold):.2f} s, cached {statistics.median(cached):.2f} s"
-    )
+    cold_s, cached_s = statistics.median(cold), statistics.median(cached)
+    print(f"preparation: cold {cold_s:.2f} s, cached {cached_s:.2f} s")
 
     net = models.renderer("panogrf")
     cache = views.caches[("panogrf", "full")]
