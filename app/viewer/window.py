@@ -250,7 +250,11 @@ class PanoViewer(mglw.WindowConfig):
         from panogrf.app.images import write_rgb
 
         write_rgb(out, np.ascontiguousarray(img))
-        self.say(f"screenshot {out}")
+        p, c = self.camera.position, self.camera
+        self.say(
+            f"screenshot {out} at {p[0]:+.3f} {p[1]:+.3f} {p[2]:+.3f} "
+            f"yaw {math.degrees(c.yaw):+.1f} pitch {math.degrees(c.pitch):+.1f}"
+        )
 
     # -- frame ---------------------------------------------------------------------------------
     def on_render(self, time_s: float, frame_time: float) -> None:

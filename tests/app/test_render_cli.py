@@ -152,3 +152,69 @@ def test_eval_errors(random_nets, tmp_path, capsys):
     assert "no scene with baseline" in capsys.readouterr().err
     assert cli.main(["eval", str(tmp_path), "--out", out]) == 2
     assert "dataset.json" in capsys.readouterr().err
+
+
+def _write_path(path, camera_type="equirectangular", n=3, w=64, h=32):
+    from panogrf.app.camera_path import CameraPath, write_camera_path
+    from panogrf.app.scene import load_scene
+    from panogrf.app.trajectory import interpolate_keyframes
+
+    poses = interpolate_keyframes(load_scene(DEMO).c2w, n)
+    write_camera_path(path, CameraPath(poses, camera_type, w, h, fps=10.0))
+
+
+@pytest.mark.gl
+@pytest.mark.parametrize("quality", ["preview", "fast"])
+def test_camera_path_to_mp4_opens_with_every_frame(random_nets, tmp_path, quality, capsys):
+    import cv2
+
+    cam = tmp_path / "camera_path.json"
+    _write_path(cam, n=4)
+    out = tmp_path / "tour.mp4"
+    args = ["render", str(DEMO), "--camera-path", str(cam), "--out", str(out)]
+    assert cli.main([*args, "--quality", quality]) == 0
+    cap = cv2.VideoCapture(str(out))
+    frames = []
+    while True:
+        ok, frame = cap.read()
+        if not ok:
+            break
+        frames.append(frame)
+    assert len(frames) == 4 and frames[0].shape == (32, 64, 3)
+    assert "4 frames" in capsys.readouterr().out
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["camera_path.json", "tour.mp4"]
+
+
+@pytest.mark.gl
+def test_perspective_path_to_png_frames(random_nets, tmp_path):
+    cam = tmp_path / "p.json"
+    _write_path(cam, "perspective", n=2, w=48, h=32)
+    out = tmp_path / "frames"
+    args = ["render", str(DEMO), "--camera-path", str(cam), "--out", str(out)]
+    assert cli.main([*args, "--quality", "preview"]) == 0
+    files = sorted(out.iterdir())
+    assert [p.name for p in files] == ["frame_00000.png", "frame_00001.png"]
+    assert read_rgb(files[0]).shape == (32, 48, 3)
+
+
+def test_camera_path_errors(random_nets, tmp_path, capsys):
+    cam = tmp_path / "c.json"
+    base = ["render", str(DEMO), "--camera-path", str(cam)]
+    cam.write_text("{not json")
+    assert cli.main([*base, "--out", str(tmp_path / "v.mp4")]) == 2
+    assert "invalid JSON" in capsys.readouterr().err
+    _write_path(cam)
+    data = json.loads(cam.read_text())
+    data["camera_path"] = []
+    cam.write_text(json.dumps(data))
+    assert cli.main([*base, "--out", str(tmp_path / "v.mp4")]) == 2
+    assert "empty" in capsys.readouterr().err
+    _write_path(cam, w=60, h=32)
+    assert cli.main([*base, "--out", str(tmp_path / "v.mp4")]) == 2
+    assert "render_width = 2" in capsys.readouterr().err
+    _write_path(cam)
+    assert cli.main([*base, "--out", str(tmp_path / "missing" / "v.mp4")]) == 2
+    assert "does not exist" in capsys.readouterr().err
+    assert cli.main([*base, "--out", str(tmp_path / "v.mp4"), "--height", "64"]) == 2
+    assert "--height" in capsys.readouterr().err
+    assert not (tmp_path / "v.mp4").exists()

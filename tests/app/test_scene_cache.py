@@ -16,7 +16,8 @@ from panogrf.renderer.methods import Models, SourceViews
 def _models() -> Models:
     torch.manual_seed(0)
     est = DepthEstimator(
-        MonoDepthNet(MonoDepthConfig()), {"full": MVSNet(MVS_PRESETS["full"]).eval()},
+        MonoDepthNet(MonoDepthConfig()),
+        {"full": MVSNet(MVS_PRESETS["full"]).eval()},
         working_height=32,
     ).eval()
     net = RendererNet().eval()

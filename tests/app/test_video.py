@@ -49,7 +49,9 @@ def test_png_folder_and_errors(tmp_path):
         for i in range(3):
             sink.write(_frame(i))
     assert sorted(p.name for p in (tmp_path / "frames").iterdir()) == [
-        "frame_00000.png", "frame_00001.png", "frame_00002.png"
+        "frame_00000.png",
+        "frame_00001.png",
+        "frame_00002.png",
     ]
     with pytest.raises(UserError, match="even"):
         FrameSink(tmp_path / "odd.mp4", 30, 63, 32)

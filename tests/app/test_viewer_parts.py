@@ -37,7 +37,11 @@ def test_camera_pose_round_trip_and_moves():
 
 def test_parse_script():
     assert parse_script("w*3, x ,wait*2,[,1") == [
-        ("W", 3), ("X", 0), ("WAIT", 2), ("LEFT_BRACKET", 0), ("NUMBER_1", 0)
+        ("W", 3),
+        ("X", 0),
+        ("WAIT", 2),
+        ("LEFT_BRACKET", 0),
+        ("NUMBER_1", 0),
     ]
 
 

@@ -1,0 +1,168 @@
+"""`panogrf view` for real: a window under Xvfb driven by xdotool, and a headless EGL session.
+
+The window test types the way a person would (XTEST key events to the focused window): a
+screenshot, W held for a while, another screenshot, Esc. The camera must have moved forward
+along its heading and the two screenshots must differ.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from panogrf.app.images import read_rgb
+from panogrf.assets import path as asset_path
+
+DEMO = asset_path("demo")
+PANOGRF = str(Path(sys.executable).with_name("panogrf"))
+SHOT = re.compile(
+    r"screenshot (\S+) at ([-+\d.]+) ([-+\d.]+) ([-+\d.]+) yaw ([-+\d.]+) pitch ([-+\d.]+)"
+)
+
+pytestmark = [pytest.mark.gl, pytest.mark.slow]
+
+
+def _free_display() -> str:
+    for n in range(90, 140):
+        if not Path(f"/tmp/.X11-unix/X{n}").exists() and not Path(f"/tmp/.X{n}-lock").exists():
+            return f":{n}"
+    raise RuntimeError("no free X display number")
+
+
+def _until(predicate, timeout: float, what: str):
+    end = time.time() + timeout
+    while time.time() < end:
+        value = predicate()
+        if value:
+            return value
+        time.sleep(0.1)
+    raise AssertionError(f"timed out waiting for {what}")
+
+
+@pytest.fixture
+def xvfb():
+    display = _free_display()
+    proc = subprocess.Popen(
+        ["Xvfb", display, "-screen", "0", "1280x720x24", "-nolisten", "tcp"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    n = display[1:]
+    _until(lambda: Path(f"/tmp/.X11-unix/X{n}").exists(), 20, "Xvfb")
+    yield display
+    proc.terminate()
+    proc.wait(10)
+
+
+def test_window_moves_on_key_presses(xvfb, tmp_path):
+    env = {**os.environ, "DISPLAY": xvfb}
+    log = tmp_path / "viewer.log"
+    cmd = [
+        PANOGRF,
+        "view",
+        str(DEMO),
+        "--window",
+        "pyglet",
+        "--size",
+        "512x256",
+        "--no-refine",
+        "--screenshot-dir",
+        str(tmp_path),
+        "--cache-dir",
+        str(tmp_path / "cache"),
+    ]
+    with log.open("w") as out:
+        viewer = subprocess.Popen(cmd, env=env, stdout=out, stderr=subprocess.STDOUT)
+    try:
+
+        def xdo(*args: str) -> str:
+            return subprocess.run(
+                ["xdotool", *args], env=env, capture_output=True, text=True, timeout=30
+            ).stdout.strip()
+
+        wid = _until(lambda: xdo("search", "--name", "panogrf").split(), 120, "the window")[0]
+        xdo("windowfocus", "--sync", wid)
+        time.sleep(1.0)
+
+        def shots():
+            return SHOT.findall(log.read_text())
+
+        xdo("key", "x")
+        _until(lambda: len(shots()) >= 1, 30, "the first screenshot")
+        xdo("keydown", "w")
+        time.sleep(1.5)
+        xdo("keyup", "w")
+        time.sleep(0.5)
+        xdo("key", "x")
+        _until(lambda: len(shots()) >= 2, 30, "the second screenshot")
+        xdo("key", "Escape")
+        assert viewer.wait(30) == 0, log.read_text()
+    finally:
+        if viewer.poll() is None:
+            viewer.kill()
+    (a, *pa), (b, *pb) = shots()[:2]
+    pa, pb = np.array(pa, float), np.array(pb, float)
+    yaw = math.radians(pa[3])
+    forward = np.array([-math.sin(yaw), 0.0, -math.cos(yaw)])
+    step = pb[:3] - pa[:3]
+    assert step @ forward > 0.3, (pa, pb)  # about 1 m/s for the time W was held
+    assert np.linalg.norm(step - (step @ forward) * forward) < 0.05  # straight ahead
+    img_a, img_b = read_rgb(a), read_rgb(b)
+    assert img_a.shape == img_b.shape == (256, 512, 3)
+    below = slice(120, None)  # under the overlay
+    diff = np.abs(img_a[below].astype(int) - img_b[below].astype(int)).mean()
+    assert diff > 5.0, diff
+
+
+def test_headless_session_writes_screenshots_and_a_camera_path(tmp_path):
+    out_path = tmp_path / "path.json"
+    cmd = [
+        PANOGRF,
+        "view",
+        str(DEMO),
+        "--window",
+        "headless",
+        "--size",
+        "256x128",
+        "--no-refine",
+        "--screenshot-dir",
+        str(tmp_path),
+        "--cache-dir",
+        str(tmp_path / "c"),
+        "--frames",
+        "40",
+        "--fixed-step",
+        "0.05",
+        "--path-out",
+        str(out_path),
+        "--script",
+        "k,w*10,left*5,k,d*5,k,o,x,3,x",
+    ]
+    run = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr
+    assert "saved" in run.stdout and len(SHOT.findall(run.stdout)) == 2
+    from panogrf.app.camera_path import read_camera_path
+
+    path = read_camera_path(out_path)
+    assert len(path) > 3 and path.camera_type == "equirectangular"
+    assert len(path.keyframes) == 3
+
+
+def test_view_errors(tmp_path):
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    run = subprocess.run([PANOGRF, "view", str(DEMO)], env=env, capture_output=True, text=True)
+    assert run.returncode == 2 and "headless" in run.stderr
+    run = subprocess.run(
+        [PANOGRF, "view", str(tmp_path / "nope"), "--window", "headless"],
+        capture_output=True,
+        text=True,
+    )
+    assert run.returncode == 2 and "Traceback" not in run.stderr
