@@ -61,9 +61,14 @@ class PreviewRenderer:
         self,
         ctx: moderngl.Context,
         images: np.ndarray,  # [V, H, W, 3] uint8
-        depth: np.ndarray,  # [V, h, w] float32 metres (the mesh's resolution)
+        depth: np.ndarray,  # [V, h, w] float32 metres
         c2w: np.ndarray,  # [V, 4, 4]
+        mesh_height: int | None = None,
+        max_views: int | None = None,
     ) -> None:
+        """``mesh_height``: rows of the depth meshes (default: the depth's own; fewer rows,
+        fewer triangles: the vertex stage dominates on a CPU rasteriser). ``max_views``: draw
+        only this many sources per frame, the nearest to the camera (default: all)."""
         v = images.shape[0]
         if not 1 <= v <= MAX_VIEWS:
             raise ValueError(f"the preview takes 1 to {MAX_VIEWS} views, got {v}")
@@ -73,7 +78,11 @@ class PreviewRenderer:
             )
         self.ctx = ctx
         self.views = v
+        self.max_views = min(v, max_views or v)
         self.c2w = np.asarray(c2w, np.float64)
+        if mesh_height is not None and mesh_height < depth.shape[1]:
+            stride = max(1, depth.shape[1] // mesh_height)
+            depth = depth[:, stride // 2 :: stride, stride // 2 :: stride]
         self.mesh_prog = ctx.program(
             vertex_shader=load_shader("preview_mesh.vert"),
             geometry_shader=load_shader("preview_mesh.geom"),
@@ -118,9 +127,9 @@ class PreviewRenderer:
             ctx = self.ctx
             # The sources' layers side by side in one texture, one viewport each: clipping in
             # clip space keeps every layer inside its own strip.
-            layers = ctx.texture((width * self.views, height), 4, dtype="f2")
+            layers = ctx.texture((width * self.max_views, height), 4, dtype="f2")
             layers.filter = (moderngl.NEAREST, moderngl.NEAREST)
-            depth = ctx.depth_renderbuffer((width * self.views, height))
+            depth = ctx.depth_renderbuffer((width * self.max_views, height))
             layer_fbo = ctx.framebuffer(color_attachments=[layers], depth_attachment=depth)
             color = ctx.texture((width, height), 4)
             dist = ctx.texture((width, height), 1, dtype="f4")
@@ -145,21 +154,22 @@ class PreviewRenderer:
         prog["u_image"].value = 0
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.disable(moderngl.CULL_FACE)
+        centre = np.asarray(c2w, np.float64)[:3, 3]
+        dists = np.linalg.norm(self.c2w[:, :3, 3] - centre, axis=-1)
+        chosen = np.argsort(dists, kind="stable")[: self.max_views]
         layer_fbo.use()
-        layer_fbo.viewport = (0, 0, width * self.views, height)
+        layer_fbo.viewport = (0, 0, width * self.max_views, height)
         layer_fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
-        for k in range(self.views):
-            layer_fbo.viewport = (k * width, 0, width, height)
+        for slot, k in enumerate(chosen):
+            layer_fbo.viewport = (slot * width, 0, width, height)
             self.textures[k].use(location=0)
             self.vaos[k].render(moderngl.TRIANGLES)
         ctx.disable(moderngl.DEPTH_TEST)
-        centre = np.asarray(c2w, np.float64)[:3, 3]
-        dists = np.linalg.norm(self.c2w[:, :3, 3] - centre, axis=-1)
         weights = np.zeros(MAX_VIEWS, np.float32)
-        weights[: self.views] = 1.0 / (dists + 1e-2)
+        weights[: len(chosen)] = 1.0 / (dists[chosen] + 1e-2)
         bp = self.blend_prog
         bp["u_layers"].value = 1
-        bp["u_views"].value = self.views
+        bp["u_views"].value = len(chosen)
         bp["u_weights"].write(weights.tobytes())
         bp["u_tolerance"].value = BLEND_TOLERANCE
         bp["u_size"].value = (float(width), float(height))
@@ -194,4 +204,3 @@ class PreviewRenderer:
 
     def __exit__(self, *exc) -> None:
         self.release()
-

@@ -65,7 +65,56 @@ def run(args: argparse.Namespace) -> int:
     except OSError as exc:
         raise UserError(f"cannot write to {args.out}: {exc.strerror or exc}") from None
     print(f"wrote {sheet} (each panorama above its true depth, then the estimated depth)")
+    _novel_view(data, args.out)
     return 0
+
+
+def _novel_view(data, out: Path) -> None:
+    """The middle view rendered from the outer two by PanoGRF and the baselines, scored
+    against the real middle panorama; then a short preview video along the three views."""
+    import time
+
+    from panogrf.app.commands.render import default_models
+    from panogrf.app.frames import FrameRenderer
+    from panogrf.app.images import write_rgb
+    from panogrf.app.scoring import image_scores
+    from panogrf.app.trajectory import interpolate_keyframes
+    from panogrf.app.video import FrameSink
+    from panogrf.app.visualize import stack_rows
+    from panogrf.renderer.methods import SourceViews, prepare, render_view
+
+    models = default_models()
+    v = data.images.shape[0]
+    target = v // 2
+    sources = [i for i in range(v) if i != target]
+    views = SourceViews(data.images[sources], data.c2w[sources])
+    height = data.images.shape[-2]
+    print(f"novel view: frame {target} rendered from frames {sources} ({height}x{2 * height}):")
+    rows = [(data.images[target].permute(1, 2, 0).numpy() * 255 + 0.5).astype(np.uint8)]
+    for method in ("panogrf", "meshwarp", "nearest"):
+        prepare(method, views, models)
+        start = time.perf_counter()
+        rgb = render_view(method, views, data.c2w[target], height, models, "fast")
+        ms = 1000 * (time.perf_counter() - start)
+        s = image_scores(rgb, data.images[target : target + 1])
+        print(
+            f"  {method:>8}: WS-PSNR {s['ws_psnr']:.2f} dB, SSIM {s['ssim']:.3f}, "
+            f"LPIPS {s['lpips']:.3f} ({ms:.0f} ms)"
+        )
+        rows.append((rgb.permute(1, 2, 0).numpy() * 255 + 0.5).astype(np.uint8))
+    sheet = out / "novel_view.png"
+    write_rgb(sheet, stack_rows(rows))
+    print(f"wrote {sheet} (real middle view, then PanoGRF, meshwarp, nearest)")
+    poses = interpolate_keyframes(data.c2w.numpy().astype(np.float64), 48)
+    frames = FrameRenderer(SourceViews(data.images, data.c2w), models, "preview")
+    video = out / "walk_preview.mp4"
+    try:
+        with FrameSink(video, 24, 2 * height, height) as sink:
+            for pose in poses:
+                sink.write(frames.frame(pose, "equirectangular", 2 * height, height, 75.0))
+    finally:
+        frames.release()
+    print(f"wrote {video} ({sink.count} frames of the GL preview walking through the views)")
 
 
 def _estimate_depth(data) -> dict:
