@@ -1,16 +1,27 @@
 #version 330 core
-// A source view's depth mesh: one vertex per depth pixel, already lifted to the world.
+// A source view's depth mesh projected straight into the target's equirectangular image.
+// Row 0 of the framebuffer is the top row (latitude +90 deg), like the other ERP passes, so
+// read-back needs no flip. Triangles that cross the target's seam are drawn separately (the
+// CPU picks them per frame) with u_unwrap = 1, twice: once as they are (u_shift = 0) and once a
+// full turn to the left (u_shift = -2), so each side of the image gets its part.
 in vec3 in_pos;       // world position (metres)
 in vec2 in_uv;        // source texture coordinate; u > 1 on the column that closes the seam
-in float in_depth;    // the source's own spherical depth at this vertex (metres)
 uniform mat4 u_w2c;   // target world -> camera
-out vec3 v_cam;
+uniform float u_far;  // metres mapped to the far end of the depth buffer
+uniform int u_unwrap;
+uniform float u_shift;
 out vec2 v_uv;
-out float v_src_depth;
+out float v_dist;
+
+const float PI = 3.14159265358979;
 
 void main() {
-    v_cam = (u_w2c * vec4(in_pos, 1.0)).xyz;
+    vec3 c = (u_w2c * vec4(in_pos, 1.0)).xyz;
+    float r = length(c);
+    float lon = atan(c.x, -c.z) / PI;  // [-1, 1]
+    float lat = asin(clamp(c.y / max(r, 1e-6), -1.0, 1.0)) / (0.5 * PI);
+    if (u_unwrap == 1 && lon < 0.0) lon += 2.0;
     v_uv = in_uv;
-    v_src_depth = in_depth;
-    gl_Position = vec4(0.0, 0.0, 0.0, 1.0);  // placed by the geometry shader
+    v_dist = r;
+    gl_Position = vec4(lon + u_shift, -lat, 2.0 * clamp(r / u_far, 0.0, 1.0) - 1.0, 1.0);
 }

@@ -49,7 +49,7 @@ def test_preview_matches_the_golden_image_and_the_real_view(gl, demo):
     with PreviewRenderer(gl, images[[0, 2]], depth[[0, 2]], data.c2w[[0, 2]].numpy()) as pr:
         rgb, dist = pr.render(data.c2w[1].numpy(), 256)
     assert rgb.shape == (256, 512, 3) and dist.shape == (256, 512)
-    assert np.isfinite(dist).all() and (dist > 0).mean() > 0.99
+    assert np.isfinite(dist).all() and (dist > 0).mean() > 0.97  # 0: filled holes
     x = torch.from_numpy(rgb).permute(2, 0, 1)[None].float() / 255
     assert float(ws_psnr(x, data.images[1:2])) > 27.0
     gt = data.depths[1, 0].numpy()
