@@ -14,7 +14,7 @@ import sys
 from panogrf.app.errors import UserError
 
 # Order is the order shown in --help.
-_COMMANDS = ("view", "render", "eval", "depth", "dataset", "scene", "compare", "train", "demo")
+_COMMANDS = ("view", "render", "eval", "dataset", "scene", "depth", "compare", "train", "demo")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -121,6 +121,7 @@ def save_weights(module: torch.nn.Module, path: Path, metadata: dict) -> None:
     os.close(fd)
     try:
         save_file(state, tmp, metadata=meta)
+        os.chmod(tmp, 0o644)  # mkstemp makes it private; weights are shared files
         os.replace(tmp, path)
     finally:
         if os.path.exists(tmp):
