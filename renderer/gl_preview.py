@@ -167,21 +167,26 @@ class PreviewRenderer:
 
     def _split_seam(self, k: int, w2c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Source k's kept triangles for a target w2c: (ordinary, seam-crossing) index arrays;
-        triangles around the target's poles are in neither."""
+        triangles around the target's poles are in neither.
+
+        Only triangles with a vertex near the seam (|lon| > 90 deg) or near a pole can be
+        either; the exact longitude spans are computed for those alone."""
         cam = self.points[k] @ w2c[:3, :3].T.astype(np.float32) + w2c[:3, 3].astype(np.float32)
         lon = np.arctan2(cam[:, 0], -cam[:, 2]) * np.float32(1 / np.pi)  # [-1, 1]
+        r2 = np.einsum("ij,ij->i", cam, cam)
+        risky = (np.abs(lon) > 0.5) | (cam[:, 1] * cam[:, 1] > 0.9 * r2)  # seam or pole
         tris = self.triangles[k]
-        t = lon[tris]
+        suspect = risky.view(np.uint8)[tris].any(1)
+        if not suspect.any():
+            return tris, tris[:0]
+        cand = tris[suspect]
+        t = lon[cand]
         span = t.max(1) - t.min(1)
-        ordinary = span <= MAX_LON_SPAN
-        crossing = span > 1.0
-        if crossing.any():
-            u = t[crossing]
-            u = np.where(u < 0, u + 2.0, u)
-            wrapped = np.zeros_like(crossing)
-            wrapped[crossing] = (u.max(1) - u.min(1)) <= MAX_LON_SPAN
-            crossing = wrapped
-        return tris[ordinary], tris[crossing]
+        u = np.where(t < 0, t + 2.0, t)
+        wrapped = (span > 1.0) & ((u.max(1) - u.min(1)) <= MAX_LON_SPAN)
+        ordinary = np.ones(len(tris), bool)
+        ordinary[suspect] = span <= MAX_LON_SPAN
+        return tris[ordinary], cand[wrapped]
 
     def render_to_framebuffer(self, c2w: np.ndarray, height: int) -> tuple:
         """Draw the preview of camera ``c2w`` [4, 4]; returns the colour and distance textures
