@@ -15,7 +15,7 @@ import numpy as np
 import torch
 
 from panogrf.model.perspective import erp_to_perspective
-from panogrf.renderer.methods import Models, SourceViews, render_view
+from panogrf.renderer.methods import Models, SourceViews, prepare, render_view
 
 QUALITIES = ("preview", "fast", "paper")
 
@@ -39,6 +39,14 @@ class FrameRenderer:
         self.views, self.models, self.quality, self.method = views, models, quality, method
         self._preview = None
         self._ctx = None
+
+    def prepare(self) -> None:
+        """Compute (once) what this quality needs before the first frame: the estimated depth
+        for the preview, the method's caches for the neural qualities."""
+        if self.quality == "preview":
+            self.views.depth_for("full", self.models)
+        else:
+            prepare(self.method, self.views, self.models)
 
     def _preview_renderer(self):
         if self._preview is None:

@@ -126,7 +126,7 @@ def run(args: argparse.Namespace) -> int:
     from panogrf.app.images import write_rgb
     from panogrf.app.scene import load_scene
     from panogrf.app.scoring import image_scores
-    from panogrf.renderer.methods import SourceViews, prepare
+    from panogrf.renderer.methods import SourceViews
 
     if args.camera_path is not None:
         return run_path(args)
@@ -165,10 +165,7 @@ def run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     frames = FrameRenderer(views, models, args.quality, args.method)
     try:
-        if args.quality == "preview":
-            views.depth_for("full", models)
-        else:
-            prepare(args.method, views, models)
+        frames.prepare()
         prep = time.perf_counter() - start
         start = time.perf_counter()
         rgb = frames.panorama(tgt.numpy(), height)
@@ -217,7 +214,7 @@ def run_path(args: argparse.Namespace) -> int:
     from panogrf.app.frames import FrameRenderer, render_camera_path
     from panogrf.app.scene import load_scene
     from panogrf.app.video import FrameSink
-    from panogrf.renderer.methods import SourceViews, prepare
+    from panogrf.renderer.methods import SourceViews
 
     if args.sources is not None or args.height is not None:
         raise UserError("--camera-path takes its size from the path; drop --height/--sources")
@@ -239,10 +236,7 @@ def run_path(args: argparse.Namespace) -> int:
     frames = FrameRenderer(views, models, args.quality, args.method)
     start = time.perf_counter()
     try:
-        if args.quality == "preview":
-            views.depth_for("full", models)
-        else:
-            prepare(args.method, views, models)
+        frames.prepare()
         prep = time.perf_counter() - start
         start = time.perf_counter()
         with sink, tqdm(total=len(path), unit="frame", desc="rendering") as bar:
