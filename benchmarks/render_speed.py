@@ -7,8 +7,9 @@ scene prepared once (depth + caches, timed separately), then every (size, sampli
 rendered ``--repeats`` times; the median milliseconds per panorama are reported, with the
 ratio of ``paper`` (the seed's 64 + 64 samples) to ``fast`` (depth-guided) measured side by
 side. Part 2 (quality against cost): on the first ``--scenes`` scenes at 1.0 m, WS-PSNR of the
-middle view for depth-guided sampling with 2, 4, 8, 16 samples and for coarse-to-fine sampling
-with 16 + 16, 32 + 32 and 64 + 64 samples, with their render times. A table is printed last.
+middle view for depth-guided sampling (4 or 8 guided samples alone, or with a sparse uniform
+backbone: 4 + 2, 8 + 4 = fast, 16 + 8) and for coarse-to-fine sampling with 16 + 16, 32 + 32
+and 64 + 64 samples, with their render times. A table is printed last.
 """
 
 from __future__ import annotations
@@ -31,10 +32,11 @@ from panogrf.renderer.methods import SourceViews, prepare
 from panogrf.renderer.render import QUALITY, Sampling, render_panorama
 
 SWEEP = {
-    "guided 2": Sampling(n_coarse=0, n_fine=0, n_guided=2),
     "guided 4": Sampling(n_coarse=0, n_fine=0, n_guided=4),
-    "guided 8 (fast)": QUALITY["fast"],
-    "guided 16": Sampling(n_coarse=0, n_fine=0, n_guided=16),
+    "guided 8": Sampling(n_coarse=0, n_fine=0, n_guided=8),
+    "guided 4 + 2 uniform": Sampling(n_coarse=2, n_fine=0, n_guided=4),
+    "guided 8 + 4 (fast)": QUALITY["fast"],
+    "guided 16 + 8": Sampling(n_coarse=8, n_fine=0, n_guided=16),
     "16 + 16": Sampling(n_coarse=16, n_fine=16),
     "32 + 32": Sampling(n_coarse=32, n_fine=32),
     "64 + 64 (paper)": QUALITY["paper"],
@@ -105,7 +107,7 @@ def main() -> None:
         print(f"sweep: {folder.name} done", flush=True)
     sweep_summary = {
         k: {
-            "samples_per_ray": SWEEP[k].n_guided or SWEEP[k].n_coarse + SWEEP[k].n_fine,
+            "samples_per_ray": SWEEP[k].n_guided + SWEEP[k].n_coarse + SWEEP[k].n_fine,
             "ws_psnr": statistics.fmean(v["ws_psnr"]),
             "median_ms": statistics.median(v["ms"]),
         }
@@ -135,9 +137,9 @@ def main() -> None:
         print(f"{key}: paper / fast = {ratio:.1f}x")
     n = len(scenes[: args.scenes])
     print(f"\nquality vs samples ({n} scenes at 1.0 m, {args.sweep_height} rows):")
-    print(f"{'sampling':<18} {'samples':>7} {'WS-PSNR':>8} {'median ms':>10}")
+    print(f"{'sampling':<22} {'samples':>7} {'WS-PSNR':>8} {'median ms':>10}")
     for k, v in sweep_summary.items():
-        print(f"{k:<18} {v['samples_per_ray']:7d} {v['ws_psnr']:8.2f} {v['median_ms']:10.0f}")
+        print(f"{k:<22} {v['samples_per_ray']:7d} {v['ws_psnr']:8.2f} {v['median_ms']:10.0f}")
     print(f"wrote {args.out}")
 
 
