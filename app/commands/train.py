@@ -74,6 +74,9 @@ def register(subparsers) -> None:
     renderer.add_argument("--scenes", type=int, default=2, help="scenes per step (default 2)")
     renderer.add_argument("--rays", type=int, default=256, help="rays per scene (default 256)")
     renderer.add_argument("--lr", type=float, default=1e-3, help="initial learning rate")
+    renderer.add_argument(
+        "--height", type=int, default=256, help="panorama height (default 256; depth at half)"
+    )
     renderer.add_argument("--seed", type=int, default=0, help="seed (default 0)")
     renderer.add_argument("--threads", type=int, default=0, help="torch threads (default: all)")
     renderer.add_argument("--log", type=Path, default=None, help="also append log lines here")
@@ -107,6 +110,8 @@ def run_renderer(args: argparse.Namespace) -> int:
         raise UserError(f"--out must end in .safetensors, got {args.out}")
     if args.steps < 1 or args.scenes < 1 or args.rays < 1:
         raise UserError("--steps, --scenes and --rays must be at least 1")
+    if args.height % 64:
+        raise UserError(f"--height must be a multiple of 64, got {args.height}")
     if args.threads:
         torch.set_num_threads(args.threads)
     log, close = _logger(args.log)
@@ -118,6 +123,8 @@ def run_renderer(args: argparse.Namespace) -> int:
         scenes_per_step=args.scenes,
         rays=args.rays,
         lr=args.lr,
+        height=args.height,
+        depth_height=args.height // 2,
         seed=args.seed,
         limit_scenes=args.limit_scenes,
     )

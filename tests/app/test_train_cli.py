@@ -53,3 +53,27 @@ def test_train_errors(tmp_path, capsys):
     args = ["train", "depth", "--data", str(tmp_path), "--stage", "mvs", "--out", out]
     assert main(args) == 2
     assert "--mono" in capsys.readouterr().err
+
+
+@pytest.mark.gl
+def test_train_renderer_smoke(tiny_train, tmp_path, capsys):
+    out = tmp_path / "renderer.safetensors"
+    args = ["train", "renderer", "--data", str(tiny_train), "--out", str(out), "--steps", "2"]
+    assert main([*args, "--scenes", "1", "--rays", "16", "--height", "64"]) == 0
+    with safe_open(str(out), framework="pt") as f:
+        meta = f.metadata()
+        assert meta["network"] == "RendererNet" and meta["preset"] == "panogrf"
+        assert all(torch.isfinite(f.get_tensor(k)).all() for k in f.keys())
+    assert {"val_ws_psnr_fast", "val_ws_psnr_paper"} <= set(json.loads(meta["final"]))
+    # The estimated depths of the training pairs were cached beside the data.
+    assert list(tiny_train.glob(".depth_full_*.safetensors"))
+    log = capsys.readouterr().out
+    assert "step     2" in log and "final" in log
+
+
+def test_train_renderer_errors(tmp_path, capsys):
+    base = ["train", "renderer", "--data", str(tmp_path)]
+    assert main([*base, "--out", "x.pt"]) == 2
+    assert "safetensors" in capsys.readouterr().err
+    assert main([*base, "--out", str(tmp_path / "r.safetensors"), "--height", "100"]) == 2
+    assert "multiple of 64" in capsys.readouterr().err
