@@ -123,33 +123,28 @@ def render_rays(
 ) -> RayOutput:
     """Render R rays with one sampling strategy (see `Sampling`)."""
     r = origins.shape[0]
+
+    def uniform() -> Tensor:
+        return inverse_depth_samples(
+            r,
+            sampling.n_coarse,
+            sampling.near,
+            sampling.far,
+            generator=generator,
+            device=origins.device,
+            dtype=origins.dtype,
+        )
+
     if sampling.n_guided:
         if proxy is None:
             raise ValueError("guided sampling needs proxy depths")
         t = guided_samples(proxy[0], proxy[1], sampling.n_guided, sampling.band)
         if sampling.n_coarse:
             # A sparse uniform backbone catches surfaces the proxies miss (wrong depth).
-            backbone = inverse_depth_samples(
-                r,
-                sampling.n_coarse,
-                sampling.near,
-                sampling.far,
-                generator=generator,
-                device=origins.device,
-                dtype=origins.dtype,
-            )
-            t = torch.sort(torch.cat((t, backbone), -1), -1).values
+            t = torch.sort(torch.cat((t, uniform()), -1), -1).values
         sigma, rgb = _shade(net, cache, origins, dirs, t)
         return RayOutput(composite(sigma, rgb, t))
-    t_c = inverse_depth_samples(
-        r,
-        sampling.n_coarse,
-        sampling.near,
-        sampling.far,
-        generator=generator,
-        device=origins.device,
-        dtype=origins.dtype,
-    )
+    t_c = uniform()
     sigma_c, rgb_c = _shade(net, cache, origins, dirs, t_c)
     coarse = composite(sigma_c, rgb_c, t_c)
     if not sampling.n_fine:
