@@ -6,8 +6,8 @@
   cache) and cached (reading it back), median of ``--repeats``;
 - preview frames per second at 512 x 1024 while moving: the real viewer, headless on EGL, a
   scripted walk (W held), median frame time over the walk;
-- refinement: time from the camera stopping to the first refined frame at 256 x 512, and to
-  the full 512 x 1024 refinement (the render worker, depth-guided sampling), median of
+- refinement: time from the camera stopping to the first refined frame at 256 x 512 (the
+  worker's draft sampling), and to the full 512 x 1024 refinement (fast sampling), median of
   ``--repeats``; beside it, in the same process, the seed's method as published (64 + 64
   samples per ray at 512 x 1024) once, as the baseline;
 - peak resident memory of the process.
@@ -40,7 +40,7 @@ def main() -> None:
     from panogrf.app.commands.view import prepare_scene
     from panogrf.app.images import write_json_atomic
     from panogrf.app.viewer.window import ViewerSetup, parse_script, run_viewer
-    from panogrf.app.viewer.worker import RenderWorker
+    from panogrf.app.viewer.worker import LEVELS, RenderWorker
     from panogrf.assets import path as asset_path
     from panogrf.renderer.render import render_panorama
 
@@ -82,7 +82,7 @@ def main() -> None:
     )
 
     first, full = [], []
-    worker = RenderWorker(net, cache, levels=((256, "fast"), (512, "fast"))).start()
+    worker = RenderWorker(net, cache, levels=LEVELS).start()
     try:
         for k in range(args.repeats):
             pose = views.c2w[0].numpy().astype(np.float64).copy()

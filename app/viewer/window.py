@@ -52,6 +52,8 @@ class ViewerSetup:
     script: list[tuple[str, int]] = field(default_factory=list)  # (key name, frames held)
     fps: float = 30.0
     log: object = print
+    mesh_height: int | None = 64  # rows of the preview's depth meshes (None: the depth's own)
+    max_views: int | None = 2  # sources drawn per frame, the nearest (None: all)
 
 
 class PanoViewer(mglw.WindowConfig):
@@ -69,7 +71,11 @@ class PanoViewer(mglw.WindowConfig):
         from panogrf.renderer.gl_preview import PreviewRenderer
 
         s = self.setup
-        self.preview = PreviewRenderer(self.ctx, s.images, s.depth, s.c2w)
+        # The two nearest sources and 64-row meshes: a CPU rasteriser's vertex stage and the
+        # per-frame seam split scale with the triangles (see benchmarks/viewer.py).
+        self.preview = PreviewRenderer(
+            self.ctx, s.images, s.depth, s.c2w, mesh_height=s.mesh_height, max_views=s.max_views
+        )
         self.display = self.ctx.program(
             vertex_shader=load_shader("fullscreen.vert"),
             fragment_shader=load_shader("display.frag"),

@@ -19,8 +19,9 @@ from panogrf.model.render_net import RendererNet
 from panogrf.renderer.cache import SceneCache
 from panogrf.renderer.render import render_panorama
 
-#: (height, sampling) of each refinement level, coarse to fine.
-LEVELS = ((128, "fast"), (256, "fast"), (512, "fast"))
+#: (height, sampling) of each refinement level, coarse to fine: a quick draft at 256 x 512,
+#: then the fast sampling at 512 x 1024.
+LEVELS = ((256, "draft"), (512, "fast"))
 
 
 @dataclass
