@@ -14,6 +14,7 @@ from collections.abc import Callable
 import numpy as np
 import torch
 
+from panogrf.app.images import to_uint8
 from panogrf.model.perspective import erp_to_perspective
 from panogrf.renderer.methods import Models, SourceViews, prepare, render_view
 
@@ -53,7 +54,7 @@ class FrameRenderer:
             from panogrf.renderer.gl_preview import PreviewRenderer, create_headless_context
 
             depth = self.views.depth_for("full", self.models)[:, 0].numpy()
-            images = (self.views.images.permute(0, 2, 3, 1).numpy() * 255 + 0.5).astype(np.uint8)
+            images = to_uint8(self.views.images)
             self._ctx = create_headless_context()
             self._preview = PreviewRenderer(self._ctx, images, depth, self.views.c2w.numpy())
         return self._preview
@@ -78,7 +79,7 @@ class FrameRenderer:
             pano = torch.nn.functional.interpolate(
                 pano[None], size=(height, width), mode="bilinear", align_corners=False
             )[0]
-        return (pano.clamp(0, 1).permute(1, 2, 0).numpy() * 255 + 0.5).astype(np.uint8)
+        return to_uint8(pano)
 
     def release(self) -> None:
         if self._preview is not None:

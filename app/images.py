@@ -19,6 +19,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import torch
 
 from panogrf.app.errors import UserError
 
@@ -154,6 +155,12 @@ def write_rgb(path: str | os.PathLike[str], img: np.ndarray) -> None:
     elif img.dtype != np.uint8:
         raise ValueError(f"{path}: expected uint8 or float pixels, got {img.dtype}")
     write_bytes_atomic(path, _encode(path, np.ascontiguousarray(img[..., ::-1])))
+
+
+def to_uint8(images: torch.Tensor) -> np.ndarray:
+    """Colours in [0, 1], channels first ([3, H, W] or [V, 3, H, W]) -> uint8, channels last."""
+    moved = images.detach().cpu().clamp(0, 1).movedim(-3, -1).numpy()
+    return (moved * 255.0 + 0.5).astype(np.uint8)
 
 
 def read_depth(path: str | os.PathLike[str]) -> np.ndarray:

@@ -61,13 +61,9 @@ def main() -> None:
 
     net = models.renderer("panogrf")
     cache = views.caches[("panogrf", "full")]
-    images = (views.images.permute(0, 2, 3, 1).numpy() * 255 + 0.5).astype(np.uint8)
-    setup = ViewerSetup(
-        images=images,
-        depth=views.depth["full"][:, 0].numpy(),
-        c2w=views.c2w.numpy(),
+    setup = ViewerSetup.from_views(
+        views,
         worker=None,
-        start_pose=views.c2w[0].numpy().astype(np.float64),
         frames=args.walk_frames + 5,
         script=parse_script(f"wait*5,w*{args.walk_frames}"),
         fixed_step=1 / 30,

@@ -64,9 +64,6 @@ class SceneCache:
             self.feature_channels,
         )
 
-    def nbytes(self) -> int:
-        return sum(t.numel() * t.element_size() for t in (self.images, self.depth, self.maps))
-
 
 def _check(images: Tensor, c2w: Tensor, depth: Tensor) -> None:
     if images.ndim != 4 or images.shape[1] != 3 or images.shape[-1] != 2 * images.shape[-2]:

@@ -18,7 +18,7 @@ so memory stays bounded at any resolution. Shapes: R rays, S samples, V views.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import torch
 from torch import Tensor
@@ -227,8 +227,3 @@ def render_panorama(
         depth=depth.reshape(1, height, width),
         opacity=opacity.reshape(1, height, width),
     )
-
-
-def sampling_with(quality: str, **changes) -> Sampling:
-    """A named sampling with some fields changed (e.g. more guided samples)."""
-    return replace(QUALITY[quality], **changes)

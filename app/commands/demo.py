@@ -32,7 +32,7 @@ def register(subparsers) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from panogrf.app.consistency import reprojection_check
-    from panogrf.app.images import write_rgb
+    from panogrf.app.images import to_uint8, write_rgb
     from panogrf.app.scene import load_scene
     from panogrf.app.visualize import colorize_depth, stack_rows
     from panogrf.assets import path as asset_path
@@ -55,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
     rows = []
     max_depth = float(data.depths.max())
     for i in range(scene.num_views):
-        rgb = (data.images[i].permute(1, 2, 0).numpy() * 255.0 + 0.5).astype(np.uint8)
+        rgb = to_uint8(data.images[i])
         rows += [rgb, colorize_depth(data.depths[i, 0].numpy(), max_depth)]
         rows.append(colorize_depth(estimates["full"][i, 0].numpy(), max_depth))
     try:
@@ -76,7 +76,7 @@ def _novel_view(data, out: Path) -> None:
 
     from panogrf.app.commands.render import default_models
     from panogrf.app.frames import FrameRenderer
-    from panogrf.app.images import write_rgb
+    from panogrf.app.images import to_uint8, write_rgb
     from panogrf.app.scoring import image_scores
     from panogrf.app.trajectory import interpolate_keyframes
     from panogrf.app.video import FrameSink
@@ -90,7 +90,7 @@ def _novel_view(data, out: Path) -> None:
     views = SourceViews(data.images[sources], data.c2w[sources])
     height = data.images.shape[-2]
     print(f"novel view: frame {target} rendered from frames {sources} ({height}x{2 * height}):")
-    rows = [(data.images[target].permute(1, 2, 0).numpy() * 255 + 0.5).astype(np.uint8)]
+    rows = [to_uint8(data.images[target])]
     for method in ("panogrf", "meshwarp", "nearest"):
         prepare(method, views, models)
         start = time.perf_counter()
@@ -101,7 +101,7 @@ def _novel_view(data, out: Path) -> None:
             f"  {method:>8}: WS-PSNR {s['ws_psnr']:.2f} dB, SSIM {s['ssim']:.3f}, "
             f"LPIPS {s['lpips']:.3f} ({ms:.0f} ms)"
         )
-        rows.append((rgb.permute(1, 2, 0).numpy() * 255 + 0.5).astype(np.uint8))
+        rows.append(to_uint8(rgb))
     sheet = out / "novel_view.png"
     write_rgb(sheet, stack_rows(rows))
     print(f"wrote {sheet} (real middle view, then PanoGRF, meshwarp, nearest)")

@@ -123,7 +123,7 @@ def default_models():
 
 def run(args: argparse.Namespace) -> int:
     from panogrf.app.frames import FrameRenderer
-    from panogrf.app.images import write_rgb
+    from panogrf.app.images import to_uint8, write_rgb
     from panogrf.app.scene import load_scene
     from panogrf.app.scoring import image_scores
     from panogrf.renderer.methods import SourceViews
@@ -172,7 +172,7 @@ def run(args: argparse.Namespace) -> int:
         seconds = time.perf_counter() - start
     finally:
         frames.release()
-    pixels = (rgb.permute(1, 2, 0).numpy() * 255.0 + 0.5).astype(np.uint8)
+    pixels = to_uint8(rgb)
     try:
         write_rgb(args.out, pixels)
     except OSError as exc:

@@ -134,13 +134,10 @@ def run(args: argparse.Namespace) -> int:
     if not args.no_refine:
         cache = views.caches[("panogrf", "full")]
         worker = RenderWorker(models.renderer("panogrf"), cache).start()
-    images = (views.images.permute(0, 2, 3, 1).numpy() * 255 + 0.5).astype(np.uint8)
-    setup = ViewerSetup(
-        images=images,
-        depth=views.depth["full"][:, 0].numpy(),
-        c2w=views.c2w.numpy(),
+    setup = ViewerSetup.from_views(
+        views,
+        args.start_frame,
         worker=worker,
-        start_pose=views.c2w[args.start_frame].numpy().astype(np.float64),
         path_out=args.path_out,
         screenshot_dir=args.screenshot_dir,
         fixed_step=args.fixed_step,

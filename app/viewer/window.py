@@ -55,6 +55,19 @@ class ViewerSetup:
     mesh_height: int | None = 64  # rows of the preview's depth meshes (None: the depth's own)
     max_views: int | None = 2  # sources drawn per frame, the nearest (None: all)
 
+    @classmethod
+    def from_views(cls, views, start_frame: int = 0, **kw) -> ViewerSetup:
+        """A setup from prepared `SourceViews` (full depth estimated), starting at a view."""
+        from panogrf.app.images import to_uint8
+
+        return cls(
+            images=to_uint8(views.images),
+            depth=views.depth["full"][:, 0].numpy(),
+            c2w=views.c2w.numpy(),
+            start_pose=views.c2w[start_frame].numpy().astype(np.float64),
+            **kw,
+        )
+
 
 class PanoViewer(mglw.WindowConfig):
     gl_version = (3, 3)

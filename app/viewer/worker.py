@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from panogrf.app.images import to_uint8
 from panogrf.model.render_net import RendererNet
 from panogrf.renderer.cache import SceneCache
 from panogrf.renderer.render import render_panorama
@@ -129,7 +130,7 @@ class RenderWorker:
                 )
                 if out is None or stale():
                     break
-                rgb = (out.rgb.permute(1, 2, 0).numpy() * 255 + 0.5).astype(np.uint8)
+                rgb = to_uint8(out.rgb)
                 done = Refined(rgb, pose, level, gen, time.perf_counter() - t0)
                 with self._lock:
                     if self._generation != gen:
