@@ -7,18 +7,21 @@ Per frame every mesh is projected straight into the target's equirectangular ima
 vertex shader, into its own layer. Triangles that cross the target's seam (longitude +-180
 deg) are found on the CPU and drawn apart, twice, one full turn apart, so each side gets its
 part; triangles around the target's poles (longitude undefined) are dropped. A blend pass
-keeps the nearest surface and mixes the sources that agree on it by closeness; a fill pass
-fills what no source saw from coarser mipmap levels (push-pull). The same path renders the
-viewer's preview and `--quality preview` videos.
+keeps the nearest surface and mixes the sources that agree on it by closeness; push-pull
+passes fill what no source saw from ever coarser averages of what they did. The same path
+renders the viewer's preview and `--quality preview` videos.
 
 (A geometry shader could split seam triangles on the GPU, but on Mesa's CPU rasteriser it
-cost about 0.7 us per triangle, six times the whole frame budget; the CPU pass costs a few ms.)
+cost about 0.7 us per triangle, six times the whole frame budget; the CPU pass costs about
+1 ms per source.)
 
 GL objects are created and released explicitly; the context comes from the caller (the viewer's
 window) or is a standalone EGL context made here (`create_headless_context`).
 """
 
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import moderngl
 import numpy as np
@@ -36,30 +39,63 @@ FAR = 100.0
 MAX_VIEWS = 16
 
 
+class PreviewTextures(NamedTuple):
+    """One drawn preview, on the GPU (H x 2H textures, row 0 = the top)."""
+
+    color: moderngl.Texture | None  # the filled RGB preview (None: fill_top=False)
+    blend: moderngl.Texture  # the blend: rgb premultiplied by coverage, coverage in alpha
+    coarse: moderngl.Texture  # push-pull level 1, filled: blend + (1 - a) * coarse = color
+    dist: moderngl.Texture  # distance of the visible surface (metres; 0: none)
+    dist_fbo: moderngl.Framebuffer  # holds dist as attachment 1 (for read-back)
+
+
 def create_headless_context() -> moderngl.Context:
     """A standalone OpenGL 3.3+ context on EGL (no display needed)."""
     return moderngl.create_context(standalone=True, backend="egl", require=330)
 
 
-def _erp_world_points(depth: np.ndarray, c2w: np.ndarray) -> np.ndarray:
-    """Depth [h, w] (metres) of a camera c2w [4, 4] -> world points [h, w, 3] at pixel centres."""
+def sphere_mesh(rows: int) -> tuple[np.ndarray, np.ndarray]:
+    """A mesh of the sphere in ERP texture coordinates with as many vertices per row as its
+    circumference needs: ``rows`` rows at pixel-centre latitudes, ``2 rows cos(lat)`` vertices
+    on each (at least 3), so near the poles, where an ERP grid crowds its pixels, it does not
+    crowd its triangles (about 36 % fewer than a full grid for the same rows).
+
+    Returns uv [N, 2] float32 (each row ends with its first vertex again at u + 1, closing the
+    seam with a repeating texture) and triangles [T, 3] int32, zipping neighbouring rows
+    together in order of u."""
+    v = (np.arange(rows) + 0.5) / rows
+    cols = np.maximum(3, np.round(2 * rows * np.cos(np.pi * (0.5 - v)))).astype(np.int64)
+    starts = np.concatenate(([0], np.cumsum(cols + 1)))
+    uv = np.concatenate(
+        [np.stack(((np.arange(n + 1) + 0.5) / n, np.full(n + 1, vr)), -1) for n, vr in zip(cols, v)]
+    ).astype(np.float32)
+    tris = []
+    for r in range(rows - 1):
+        n1, n2 = cols[r], cols[r + 1]
+        top, bot = starts[r], starts[r + 1]
+        # Every step advances along one row to its next vertex, the one with the smaller u.
+        nxt = np.concatenate((uv[top + 1 : top + n1 + 1, 0], uv[bot + 1 : bot + n2 + 1, 0]))
+        order = np.argsort(nxt, kind="stable")
+        is_top = order < n1
+        i = np.cumsum(is_top) - is_top  # top vertices passed before each step
+        j = np.cumsum(~is_top) - ~is_top
+        third = np.where(is_top, top + i + 1, bot + j + 1)
+        tris.append(np.stack((top + i, bot + j, third), -1))
+    return uv, np.concatenate(tris).astype(np.int32)
+
+
+def _uv_world_points(uv: np.ndarray, depth: np.ndarray, c2w: np.ndarray) -> tuple:
+    """Depth [h, w] sampled (nearest) at ERP coordinates uv [N, 2] -> (world points [N, 3],
+    the depths [N]) of a camera c2w [4, 4]."""
     h, w = depth.shape
-    v, u = np.meshgrid(np.arange(h) + 0.5, np.arange(w) + 0.5, indexing="ij")
-    lon = 2 * np.pi * (u / w - 0.5)
-    lat = np.pi * (0.5 - v / h)
-    d = np.stack((np.cos(lat) * np.sin(lon), np.sin(lat), -np.cos(lat) * np.cos(lon)), -1)
-    cam = d * depth[..., None]
-    return cam @ c2w[:3, :3].T + c2w[:3, 3]
-
-
-def _grid_indices(h: int, w: int) -> np.ndarray:
-    """Triangles of an h x (w + 1) vertex grid (the last column closes the seam): [T, 3]."""
-    cols = w + 1
-    i, j = np.meshgrid(np.arange(h - 1), np.arange(w), indexing="ij")
-    a = i * cols + j
-    b, c, d = a + 1, a + cols, a + cols + 1
-    tris = np.stack((np.stack((a, c, b), -1), np.stack((b, c, d), -1)), -2)
-    return tris.reshape(-1, 3).astype(np.int32)
+    row = np.minimum((uv[:, 1] * h).astype(np.int64), h - 1)
+    col = np.minimum(((uv[:, 0] % 1.0) * w).astype(np.int64), w - 1)
+    d = depth[row, col].astype(np.float64)
+    lon = 2 * np.pi * (uv[:, 0].astype(np.float64) - 0.5)
+    lat = np.pi * (0.5 - uv[:, 1].astype(np.float64))
+    dirs = np.stack((np.cos(lat) * np.sin(lon), np.sin(lat), -np.cos(lat) * np.cos(lon)), -1)
+    cam = dirs * d[:, None]
+    return cam @ c2w[:3, :3].T + c2w[:3, 3], d
 
 
 class PreviewRenderer:
@@ -88,16 +124,13 @@ class PreviewRenderer:
         self.views = v
         self.max_views = min(v, max_views or v)
         self.c2w = np.asarray(c2w, np.float64)
-        if mesh_height is not None and mesh_height < depth.shape[1]:
-            stride = max(1, depth.shape[1] // mesh_height)
-            depth = depth[:, stride // 2 :: stride, stride // 2 :: stride]
         self.mesh_prog = ctx.program(
             vertex_shader=load_shader("preview_mesh.vert"),
             fragment_shader=load_shader("preview_mesh.frag"),
         )
         self.blend_prog = ctx.program(
             vertex_shader=load_shader("fullscreen.vert"),
-            fragment_shader=load_shader("preview_blend.frag"),
+            fragment_shader=load_shader("preview_blend.frag", {"VIEWS": self.max_views}),
         )
         self.fill_prog = ctx.program(
             vertex_shader=load_shader("fullscreen.vert"),
@@ -112,20 +145,14 @@ class PreviewRenderer:
             self.blend_vao,
             self.fill_vao,
         ]
-        h, w = depth.shape[1:]
-        grid = _grid_indices(h, w)
-        v_idx, u_idx = np.meshgrid(np.arange(h), np.arange(w + 1), indexing="ij")
-        uv = np.stack(((u_idx + 0.5) / w, (v_idx + 0.5) / h), -1).astype(np.float32)
-        self.textures, self.points, self.triangles, self.buffers = [], [], [], []
+        uv, grid = sphere_mesh(min(mesh_height or depth.shape[1], depth.shape[1]))
+        self.textures, self.points, self.triangles, self.corners, self.buffers = [], [], [], [], []
         for k in range(v):
-            d = np.asarray(depth[k], np.float32)
-            pts = _erp_world_points(d, self.c2w[k])
-            pts = np.concatenate((pts, pts[:, :1]), 1).reshape(-1, 3)  # the seam column again
-            dd = np.concatenate((d, d[:, :1]), 1).reshape(-1)
+            pts, dd = _uv_world_points(uv, np.asarray(depth[k], np.float32), self.c2w[k])
             tri_d = dd[grid]
             keep = (tri_d.min(1) > 0) & (tri_d.max(1) <= MAX_STRETCH * tri_d.min(1))
             tris = np.ascontiguousarray(grid[keep])
-            data = np.concatenate((pts.astype(np.float32), uv.reshape(-1, 2)), -1)
+            data = np.concatenate((pts.astype(np.float32), uv), -1)
             vbo = ctx.buffer(np.ascontiguousarray(data, np.float32).tobytes())
             main_ibo = ctx.buffer(reserve=max(tris.nbytes, 4), dynamic=True)
             seam_ibo = ctx.buffer(reserve=max(tris.nbytes, 4), dynamic=True)
@@ -142,58 +169,80 @@ class PreviewRenderer:
             self.textures.append(tex)
             self.points.append(pts.astype(np.float32))
             self.triangles.append(tris)
+            self.corners.append(np.ascontiguousarray(tris.T))
             self.buffers.append((main_ibo, seam_ibo, vaos))
             self._objects += [vbo, main_ibo, seam_ibo, *vaos, tex]
         self._targets: dict[tuple[int, int], tuple] = {}
 
-    def _targets_for(self, height: int, width: int):
+    def _targets_for(self, height: int, width: int) -> dict:
         key = (height, width)
         if key not in self._targets:
             ctx = self.ctx
+            t: dict = {}
             # The sources' layers side by side in one texture, one viewport each: clipping in
             # clip space keeps every layer inside its own strip.
-            layers = ctx.texture((width * self.max_views, height), 4, dtype="f2")
-            layers.filter = (moderngl.NEAREST, moderngl.NEAREST)
-            depth = ctx.depth_renderbuffer((width * self.max_views, height))
-            layer_fbo = ctx.framebuffer(color_attachments=[layers], depth_attachment=depth)
-            blend = ctx.texture((width, height), 4)
-            blend.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
-            dist = ctx.texture((width, height), 1, dtype="f4")
-            blend_fbo = ctx.framebuffer(color_attachments=[blend, dist])
-            color = ctx.texture((width, height), 4)
-            out = ctx.framebuffer(color_attachments=[color])
-            self._targets[key] = (layers, depth, layer_fbo, blend, blend_fbo, color, dist, out)
+            t["layers"] = ctx.texture((width * self.max_views, height), 4, dtype="f2")
+            t["layers"].filter = (moderngl.NEAREST, moderngl.NEAREST)
+            t["depth"] = ctx.depth_renderbuffer((width * self.max_views, height))
+            t["layer_fbo"] = ctx.framebuffer(
+                color_attachments=[t["layers"]], depth_attachment=t["depth"]
+            )
+            t["blend"] = ctx.texture((width, height), 4)
+            t["blend"].filter = (moderngl.LINEAR_MIPMAP_NEAREST, moderngl.LINEAR)
+            t["blend"].repeat_x, t["blend"].repeat_y = True, False
+            t["dist"] = ctx.texture((width, height), 1, dtype="f4")
+            t["blend_fbo"] = ctx.framebuffer(color_attachments=[t["blend"], t["dist"]])
+            # Push-pull: one filled texture per mip level, down to a few pixels.
+            t["filled"] = []
+            level = 0
+            while True:
+                w, h = max(1, width >> level), max(1, height >> level)
+                tex = ctx.texture((w, h), 4)
+                tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
+                tex.repeat_x, tex.repeat_y = True, False
+                t["filled"].append((tex, ctx.framebuffer(color_attachments=[tex])))
+                if min(w, h) <= 2:
+                    break
+                level += 1
+            self._targets[key] = t
         return self._targets[key]
 
     def _split_seam(self, k: int, w2c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Source k's kept triangles for a target w2c: (ordinary, seam-crossing) index arrays;
         triangles around the target's poles are in neither.
 
-        Only triangles with a vertex near the seam (|lon| > 90 deg) or near a pole can be
-        either; the exact longitude spans are computed for those alone."""
-        cam = self.points[k] @ w2c[:3, :3].T.astype(np.float32) + w2c[:3, 3].astype(np.float32)
-        lon = np.arctan2(cam[:, 0], -cam[:, 2]) * np.float32(1 / np.pi)  # [-1, 1]
-        r2 = np.einsum("ij,ij->i", cam, cam)
-        risky = (np.abs(lon) > 0.5) | (cam[:, 1] * cam[:, 1] > 0.9 * r2)  # seam or pole
+        Only a triangle with vertices on both sides of the target's x = 0 plane can cross the
+        seam (behind the target) or surround a pole (its vertices' longitudes then spread all
+        round); longitude spans are computed for those alone. Any other triangle spans less
+        than half a turn and is drawn as it is."""
+        east = (self.points[k] @ w2c[0, :3].astype(np.float32) >= -np.float32(w2c[0, 3]))
+        east = east.view(np.uint8)
+        a, b, c = self.corners[k]
+        e = east[a]
+        suspect = ((e ^ east[b]) | (e ^ east[c])).view(bool)
         tris = self.triangles[k]
-        suspect = risky.view(np.uint8)[tris].any(1)
         if not suspect.any():
             return tris, tris[:0]
         cand = tris[suspect]
-        t = lon[cand]
+        cam = self.points[k][cand] @ w2c[:3, :3].T.astype(np.float32) + w2c[:3, 3].astype(
+            np.float32
+        )  # [S, 3, 3]
+        t = np.arctan2(cam[..., 0], -cam[..., 2]) * np.float32(1 / np.pi)  # longitude, [-1, 1]
         span = t.max(1) - t.min(1)
         u = np.where(t < 0, t + 2.0, t)
         wrapped = (span > 1.0) & ((u.max(1) - u.min(1)) <= MAX_LON_SPAN)
-        ordinary = np.ones(len(tris), bool)
+        ordinary = ~suspect
         ordinary[suspect] = span <= MAX_LON_SPAN
         return tris[ordinary], cand[wrapped]
 
-    def render_to_framebuffer(self, c2w: np.ndarray, height: int) -> tuple:
-        """Draw the preview of camera ``c2w`` [4, 4]; returns the colour and distance textures
-        of the H x 2H result, left on the GPU (the viewer displays them as they are), and the
-        framebuffer holding the distance."""
+    def render_to_framebuffer(self, c2w: np.ndarray, height: int, fill_top: bool = True):
+        """Draw the preview of camera ``c2w`` [4, 4], left on the GPU: a `PreviewTextures`.
+
+        ``fill_top=False`` skips the last, full-resolution push-pull step: whoever draws the
+        preview next (the viewer's display pass) does it as it samples, one pass fewer."""
         width = 2 * height
-        layers, _, layer_fbo, blend, blend_fbo, color, dist, out = self._targets_for(height, width)
+        t = self._targets_for(height, width)
+        layer_fbo = t["layer_fbo"]
         rot = np.asarray(c2w, np.float64)[:3, :3]
         w2c = np.eye(4)
         w2c[:3, :3] = rot.T
@@ -227,42 +276,65 @@ class PreviewRenderer:
                     prog["u_shift"].value = shift
                     seam_vao.render(moderngl.TRIANGLES, vertices=crossing.size)
         ctx.disable(moderngl.DEPTH_TEST)
-        weights = np.zeros(MAX_VIEWS, np.float32)
-        weights[: len(chosen)] = 1.0 / (dists[chosen] + 1e-2)
         bp = self.blend_prog
         bp["u_layers"].value = 1
-        bp["u_views"].value = len(chosen)
-        bp["u_weights"].write(weights.tobytes())
+        bp["u_weights"].write((1.0 / (dists[chosen] + 1e-2)).astype(np.float32).tobytes())
         bp["u_tolerance"].value = BLEND_TOLERANCE
-        bp["u_size"].value = (float(width), float(height))
-        layers.use(location=1)
-        blend_fbo.use()
-        blend_fbo.viewport = (0, 0, width, height)
+        if "u_width" in bp:  # compiled out when one view is drawn
+            bp["u_width"].value = width
+        t["layers"].use(location=1)
+        t["blend_fbo"].use()
+        t["blend_fbo"].viewport = (0, 0, width, height)
         self.blend_vao.render(moderngl.TRIANGLES, vertices=3)
-        blend.build_mipmaps()
-        blend.use(location=2)
-        self.fill_prog["u_blend"].value = 2
-        self.fill_prog["u_size"].value = (float(width), float(height))
-        out.use()
-        out.viewport = (0, 0, width, height)
-        self.fill_vao.render(moderngl.TRIANGLES, vertices=3)
-        return color, dist, blend_fbo
+        levels = t["filled"]
+        fill_top = fill_top or len(levels) < 2
+        self._fill(t, 0 if fill_top else 1)
+        return PreviewTextures(
+            color=levels[0][0] if fill_top else None,
+            blend=t["blend"],
+            coarse=levels[min(1, len(levels) - 1)][0],
+            dist=t["dist"],
+            dist_fbo=t["blend_fbo"],
+        )
+
+    def _fill(self, t: dict, last: int) -> None:
+        """Push-pull: mipmap the blended preview, then fill each level's holes from the filled
+        next coarser one, coarsest first, down to level ``last`` (in ``t["filled"][last]``)."""
+        t["blend"].build_mipmaps()
+        t["blend"].use(location=2)
+        fp = self.fill_prog
+        fp["u_level"].value = 2
+        fp["u_coarser"].value = 3
+        levels = t["filled"]
+        for lod in range(len(levels) - 1, last - 1, -1):
+            tex, fbo = levels[lod]
+            fp["u_lod"].value = lod
+            fp["u_coarsest"].value = int(lod == len(levels) - 1)
+            fp["u_size"].value = (float(tex.width), float(tex.height))
+            if lod < len(levels) - 1:
+                levels[lod + 1][0].use(location=3)
+            fbo.use()
+            fbo.viewport = (0, 0, tex.width, tex.height)
+            self.fill_vao.render(moderngl.TRIANGLES, vertices=3)
 
     def render(self, c2w: np.ndarray, height: int) -> tuple[np.ndarray, np.ndarray]:
         """The preview of camera ``c2w`` read back: RGB uint8 [H, 2H, 3] and the distance of
         the visible surface from the camera, float32 [H, 2H] (metres; 0 where no source saw
         it and the colour was filled in)."""
-        color, _, dist_fbo = self.render_to_framebuffer(c2w, height)
+        out = self.render_to_framebuffer(c2w, height)
         rgba = np.empty((height, 2 * height, 4), np.uint8)
         d = np.empty((height, 2 * height), np.float32)
-        color.read_into(rgba)
-        dist_fbo.read_into(d, components=1, attachment=1, dtype="f4")
+        out.color.read_into(rgba)
+        out.dist_fbo.read_into(d, components=1, attachment=1, dtype="f4")
         return rgba[..., :3].copy(), d
 
     def release(self) -> None:
         """Free every GL object this renderer made (not the context)."""
-        for group in self._targets.values():
-            for obj in reversed(group):
+        for t in self._targets.values():
+            for tex, fbo in t.pop("filled"):
+                fbo.release()
+                tex.release()
+            for obj in reversed(list(t.values())):
                 obj.release()
         self._targets.clear()
         for obj in reversed(self._objects):

@@ -1,12 +1,15 @@
 #version 330 core
 // The viewer's display: an equirectangular texture (row 0 = top) shown whole (ERP mode) or
 // through a pinhole camera looking down the panorama's -z (perspective mode), as colour or as
-// colour-mapped distance.
+// colour-mapped distance. PERSPECTIVE (0: whole panorama, 1: pinhole view) and DEPTH (1: the
+// texture holds distances in its red channel, metres) are defined at compile time: a CPU
+// rasteriser would otherwise pay for both sides of each branch on every pixel. FILL (1: u_pano
+// is the GL preview's blend, rgb premultiplied by coverage, and u_coarse its filled next
+// coarser level) does the preview's last push-pull step here.
 uniform sampler2D u_pano;
-uniform int u_perspective;     // 0: whole panorama, 1: pinhole view
+uniform sampler2D u_coarse;
 uniform float u_fov;           // vertical field of view (radians)
 uniform vec2 u_size;           // window size in pixels
-uniform int u_depth;           // 1: the texture holds distances (red channel, metres)
 uniform float u_max_depth;
 out vec4 out_color;
 
@@ -25,19 +28,24 @@ vec3 turbo(float x) {  // a compact approximation of the Turbo colour map
 void main() {
     vec2 p = gl_FragCoord.xy / u_size;  // (0, 0) bottom left
     vec2 uv;
-    if (u_perspective == 1) {
-        float f = 0.5 / tan(0.5 * u_fov);
-        float aspect = u_size.x / u_size.y;
-        vec3 d = normalize(vec3((p.x - 0.5) * aspect, p.y - 0.5, -f));
-        float lon = atan(d.x, -d.z);
-        float lat = asin(clamp(d.y, -1.0, 1.0));
-        uv = vec2(lon / (2.0 * PI) + 0.5, 0.5 - lat / PI);
-    } else {
-        uv = vec2(p.x, 1.0 - p.y);
-    }
+#if PERSPECTIVE
+    float f = 0.5 / tan(0.5 * u_fov);
+    float aspect = u_size.x / u_size.y;
+    vec3 d = normalize(vec3((p.x - 0.5) * aspect, p.y - 0.5, -f));
+    float lon = atan(d.x, -d.z);
+    float lat = asin(clamp(d.y, -1.0, 1.0));
+    uv = vec2(lon / (2.0 * PI) + 0.5, 0.5 - lat / PI);
+#else
+    uv = vec2(p.x, 1.0 - p.y);
+#endif
+#if FILL
+    vec4 c = textureLod(u_pano, uv, 0.0);
+    c = vec4(c.rgb + (1.0 - c.a) * texture(u_coarse, uv).rgb, 1.0);
+#else
     vec4 c = texture(u_pano, uv);
-    if (u_depth == 1) {
-        c = vec4(c.r > 0.0 ? turbo(c.r / u_max_depth) : vec3(0.0), 1.0);
-    }
+#endif
+#if DEPTH
+    c = vec4(c.r > 0.0 ? turbo(c.r / u_max_depth) : vec3(0.0), 1.0);
+#endif
     out_color = vec4(c.rgb, 1.0);
 }

@@ -2,28 +2,28 @@
 // Blends the sources' warped layers: per pixel the nearest surface wins, and every source
 // that sees that same surface (distance within u_tolerance) contributes, weighted by its
 // closeness to the target. Output alpha is 1 where some source saw the pixel, 0 elsewhere
-// (a hole, filled by the next pass).
+// (a hole, filled by the push-pull passes). VIEWS (the number of layers) is defined at
+// compile time, so the loops unroll and the layers stay in registers.
 uniform sampler2D u_layers;       // the sources' layers side by side: rgb + distance (0: none)
-uniform int u_views;
-uniform float u_weights[16];      // closeness of each drawn source to the target
+uniform float u_weights[VIEWS];   // closeness of each drawn source to the target
 uniform float u_tolerance;
-uniform vec2 u_size;              // (W, H)
+uniform int u_width;              // width of one layer
 layout(location = 0) out vec4 out_color;
 layout(location = 1) out float out_dist;
 
 void main() {
     ivec2 px = ivec2(gl_FragCoord.xy);
-    int w = int(u_size.x);
     float best = 1e30;
-    vec4 c[16];
-    for (int j = 0; j < u_views; ++j) {
-        c[j] = texelFetch(u_layers, ivec2(px.x + j * w, px.y), 0);
+    vec4 c[VIEWS];
+    for (int j = 0; j < VIEWS; ++j) {
+        c[j] = texelFetch(u_layers, ivec2(px.x + j * u_width, px.y), 0);
         if (c[j].a > 0.0) best = min(best, c[j].a);
     }
     vec3 acc = vec3(0.0);
     float wsum = 0.0;
-    for (int j = 0; j < u_views; ++j) {
-        float k = (c[j].a > 0.0 && c[j].a <= best * (1.0 + u_tolerance)) ? u_weights[j] : 0.0;
+    float limit = best * (1.0 + u_tolerance);
+    for (int j = 0; j < VIEWS; ++j) {
+        float k = (c[j].a > 0.0 && c[j].a <= limit) ? u_weights[j] : 0.0;
         acc += k * c[j].rgb;
         wsum += k;
     }

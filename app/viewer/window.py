@@ -89,15 +89,12 @@ class PanoViewer(mglw.WindowConfig):
         self.preview = PreviewRenderer(
             self.ctx, s.images, s.depth, s.c2w, mesh_height=s.mesh_height, max_views=s.max_views
         )
-        self.display = self.ctx.program(
-            vertex_shader=load_shader("fullscreen.vert"),
-            fragment_shader=load_shader("display.frag"),
-        )
+        # One display program per (perspective, distance) mode, made when first needed.
+        self.displays: dict[tuple[int, int, int], tuple] = {}
         self.overlay_prog = self.ctx.program(
             vertex_shader=load_shader("fullscreen.vert"),
             fragment_shader=load_shader("overlay.frag"),
         )
-        self.quad = self.ctx.vertex_array(self.display, [])
         self.overlay_quad = self.ctx.vertex_array(self.overlay_prog, [])
         self.sources = [self._texture(img) for img in s.images]
         h = s.preview_height
@@ -120,7 +117,8 @@ class PanoViewer(mglw.WindowConfig):
         self.requested = False
         self.request_gen = -1
         self.frame_count = 0
-        self.frame_times: list[float] = []
+        self.frame_times: list[float] = []  # seconds between consecutive frame starts
+        self.last_start: float | None = None
         self.script = list(s.script)
         self.last_overlay = 0.0
         self.messages: list[str] = []
@@ -277,7 +275,12 @@ class PanoViewer(mglw.WindowConfig):
 
     # -- frame ---------------------------------------------------------------------------------
     def on_render(self, time_s: float, frame_time: float) -> None:
+        # Frame period: from this frame's start to the next one's, so it includes the GL work
+        # finished at buffer swap, not only the commands issued here.
         start = time.perf_counter()
+        if self.last_start is not None:
+            self.frame_times.append(start - self.last_start)
+        self.last_start = start
         dt = self.setup.fixed_step or min(frame_time, 0.1)
         self._run_script()
         if self.playback is not None:
@@ -302,14 +305,9 @@ class PanoViewer(mglw.WindowConfig):
             self.request_gen = worker.request(pose)
             self.requested = True
 
-        h = self.setup.preview_height
-        color, dist, _ = self.preview.render_to_framebuffer(pose, h)
-        pano, is_depth = color, False
-        if self.mode == "distance":
-            pano, is_depth = dist, True
-        elif self.mode == "sources":
-            pano = self.sources[self.source_index]
-        elif self.mode == "refined" and worker is not None and self.requested:
+        # What to show; the GL preview is drawn only when it is shown (or shown through).
+        refined = None
+        if self.mode == "refined" and worker is not None and self.requested:
             done = worker.latest()
             if done is not None and done.generation == self.request_gen:
                 if (
@@ -318,28 +316,52 @@ class PanoViewer(mglw.WindowConfig):
                 ):
                     self._upload_refined(done.rgb)
                     self.refined_gen = done.generation
-                pano = self.refined_tex
+                refined = self.refined_tex
+        coarse, is_depth, fill = None, False, False
+        if self.mode == "sources":
+            pano = self.sources[self.source_index]
+        elif refined is not None:
+            pano = refined
+        else:
+            out = self.preview.render_to_framebuffer(pose, self.setup.preview_height, False)
+            if self.mode == "distance":
+                pano, is_depth = out.dist, True
+            else:
+                pano, coarse, fill = out.blend, out.coarse, True
         self.wnd.use()
         w, hh = self.wnd.buffer_size
         self.ctx.viewport = (0, 0, w, hh)
         pano.use(location=0)
-        d = self.display
+        d, quad = self._display(int(self.perspective), int(is_depth), int(fill))
         d["u_pano"].value = 0
-        d["u_perspective"].value = int(self.perspective)
-        d["u_fov"].value = math.radians(self.camera.fov)
+        if fill:
+            coarse.use(location=1)
+            d["u_coarse"].value = 1
+        if self.perspective:
+            d["u_fov"].value = math.radians(self.camera.fov)
         d["u_size"].value = (float(w), float(hh))
-        d["u_depth"].value = int(is_depth)
-        d["u_max_depth"].value = 10.0
-        self.quad.render(moderngl.TRIANGLES, vertices=3)
+        if is_depth:
+            d["u_max_depth"].value = 10.0
+        quad.render(moderngl.TRIANGLES, vertices=3)
         if self.show_overlay:
             self._draw_overlay(w, hh)
         if self.request_screenshot:
             self.request_screenshot = False
             self._screenshot()
         self.frame_count += 1
-        self.frame_times.append(time.perf_counter() - start)
         if self.setup.frames is not None and self.frame_count >= self.setup.frames:
             self.wnd.close()
+
+    def _display(self, perspective: int, depth: int, fill: int) -> tuple:
+        key = (perspective, depth, fill)
+        if key not in self.displays:
+            defines = {"PERSPECTIVE": perspective, "DEPTH": depth, "FILL": fill}
+            prog = self.ctx.program(
+                vertex_shader=load_shader("fullscreen.vert"),
+                fragment_shader=load_shader("display.frag", defines),
+            )
+            self.displays[key] = (prog, self.ctx.vertex_array(prog, []))
+        return self.displays[key]
 
     def _upload_refined(self, rgb: np.ndarray) -> None:
         if (rgb.shape[1], rgb.shape[0]) != self.refined_tex.size:
@@ -362,9 +384,12 @@ class PanoViewer(mglw.WindowConfig):
             float(self.overlay_img.shape[1]),
             float(self.overlay_img.shape[0]),
         )
+        th, tw = self.overlay_img.shape[:2]
+        self.ctx.viewport = (0, max(0, h - th), min(w, tw), min(h, th))  # only its pixels
         self.ctx.enable(moderngl.BLEND)
         self.ctx.blend_func = moderngl.SRC_ALPHA, moderngl.ONE_MINUS_SRC_ALPHA
         self.overlay_quad.render(moderngl.TRIANGLES, vertices=3)
+        self.ctx.viewport = (0, 0, w, h)
         self.ctx.disable(moderngl.BLEND)
 
     def _update_overlay(self) -> None:

@@ -83,3 +83,51 @@ def test_bad_input(gl, demo):
     _, images, depth = demo
     with pytest.raises(ValueError, match="disagree"):
         PreviewRenderer(gl, images, depth[:2], np.tile(np.eye(4), (3, 1, 1)))
+
+
+@pytest.mark.parametrize("rows", [4, 17, 64])
+def test_sphere_mesh_tiles_the_bands_between_its_rows(rows):
+    from panogrf.renderer.gl_preview import sphere_mesh
+
+    uv, tris = sphere_mesh(rows)
+    p = uv[tris].astype(np.float64)
+    e1, e2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
+    area = 0.5 * (e1[:, 0] * e2[:, 1] - e2[:, 0] * e1[:, 1])
+    # One winding for all (no folds) and no gaps or overlaps: the areas add up to the band.
+    assert (area < 0).all() or (area > 0).all()
+    assert np.abs(area).sum() == pytest.approx((rows - 1) / rows, rel=1e-5)
+    # Fewer vertices near the poles than at the equator, and fewer triangles than a grid.
+    per_row = np.unique(uv[:, 1], return_counts=True)[1]
+    assert per_row[0] < per_row[rows // 2] and per_row[rows // 2] >= 2 * rows
+    if rows >= 16:
+        assert len(tris) < 0.7 * 2 * (rows - 1) * 2 * rows
+
+
+def test_holes_are_filled_from_their_surroundings(gl, demo):
+    """Push-pull: a source that sees nothing behind a wall leaves a hole; the fill takes the
+    colours around it, not black, and the distance there stays 0 (unknown)."""
+    from panogrf.renderer.gl_preview import PreviewRenderer
+
+    data, images, depth = demo
+    d = depth[[0]].copy()
+    d[0, 40:60, 100:140] = 0.0  # no depth: the mesh has a hole there
+    with PreviewRenderer(gl, images[[0]], d, data.c2w[[0]].numpy()) as pr:
+        rgb, dist = pr.render(data.c2w[0].numpy(), 128)
+    hole = (slice(40, 60), slice(100, 140))
+    assert (dist[hole] == 0).mean() > 0.9
+    around = images[0, 76:124, 196:284].reshape(-1, 3).mean(0)  # the source at 256 rows
+    filled = rgb[hole].reshape(-1, 3).astype(float)
+    assert filled.mean() > 20
+    assert np.abs(filled.mean(0) - around).max() < 60
+
+
+def test_shader_defines():
+    from panogrf.shaders import load
+
+    text = load("display.frag", {"PERSPECTIVE": 1, "DEPTH": 0, "FILL": 1})
+    lines = text.splitlines()
+    assert lines[0].startswith("#version") and lines[1:4] == [
+        "#define PERSPECTIVE 1",
+        "#define DEPTH 0",
+        "#define FILL 1",
+    ]
