@@ -67,7 +67,10 @@ def sphere_mesh(rows: int) -> tuple[np.ndarray, np.ndarray]:
     cols = np.maximum(3, np.round(2 * rows * np.cos(np.pi * (0.5 - v)))).astype(np.int64)
     starts = np.concatenate(([0], np.cumsum(cols + 1)))
     uv = np.concatenate(
-        [np.stack(((np.arange(n + 1) + 0.5) / n, np.full(n + 1, vr)), -1) for n, vr in zip(cols, v)]
+        [
+            np.stack(((np.arange(n + 1) + 0.5) / n, np.full(n + 1, vr)), -1)
+            for n, vr in zip(cols, v, strict=True)
+        ]
     ).astype(np.float32)
     tris = []
     for r in range(rows - 1):
@@ -215,7 +218,7 @@ class PreviewRenderer:
         seam (behind the target) or surround a pole (its vertices' longitudes then spread all
         round); longitude spans are computed for those alone. Any other triangle spans less
         than half a turn and is drawn as it is."""
-        east = (self.points[k] @ w2c[0, :3].astype(np.float32) >= -np.float32(w2c[0, 3]))
+        east = self.points[k] @ w2c[0, :3].astype(np.float32) >= -np.float32(w2c[0, 3])
         east = east.view(np.uint8)
         a, b, c = self.corners[k]
         e = east[a]
