@@ -12,6 +12,7 @@ import importlib
 import sys
 
 from panogrf.app.errors import UserError
+from panogrf.app.runtime import keep_freed_memory
 
 # Order is the order shown in --help.
 _COMMANDS = ("view", "render", "eval", "dataset", "scene", "depth", "compare", "train", "demo")
@@ -32,6 +33,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    keep_freed_memory()
     try:
         return int(args.func(args) or 0)
     except UserError as exc:

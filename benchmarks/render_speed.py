@@ -7,9 +7,9 @@ scene prepared once (depth + caches, timed separately), then every (size, sampli
 rendered ``--repeats`` times; the median milliseconds per panorama are reported, with the
 ratio of ``paper`` (the seed's 64 + 64 samples) to ``fast`` (depth-guided) measured side by
 side. Part 2 (quality against cost): on the first ``--scenes`` scenes at 1.0 m, WS-PSNR of the
-middle view for depth-guided sampling (4 or 8 guided samples alone, or with a sparse uniform
-backbone: 4 + 2, 8 + 4 = fast, 16 + 8) and for coarse-to-fine sampling with 16 + 16, 32 + 32
-and 64 + 64 samples, with their render times. A table is printed last.
+middle view for depth-guided sampling (4 or 8 guided samples alone, or with a sparse
+uniform backbone: 3 + 1 = draft, 4 + 2, 8 + 4 = fast, 16 + 8) and for coarse-to-fine sampling
+with 16 + 16, 32 + 32 and 64 + 64 samples, with their render times. A table is printed last.
 """
 
 from __future__ import annotations
@@ -34,6 +34,7 @@ from panogrf.renderer.render import QUALITY, Sampling, render_panorama
 SWEEP = {
     "guided 4": Sampling(n_coarse=0, n_fine=0, n_guided=4),
     "guided 8": Sampling(n_coarse=0, n_fine=0, n_guided=8),
+    "guided 3 + 1 (draft)": QUALITY["draft"],
     "guided 4 + 2 uniform": Sampling(n_coarse=2, n_fine=0, n_guided=4),
     "guided 8 + 4 (fast)": QUALITY["fast"],
     "guided 16 + 8": Sampling(n_coarse=8, n_fine=0, n_guided=16),

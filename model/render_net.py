@@ -165,10 +165,14 @@ class Aggregator(nn.Module):
         self.config = config
         h, vc = config.hidden, config.view_channels
         cin = config.feature_channels + 3 + 3 + (3 if config.use_geometry else 0)
-        self.view_mlp = nn.Sequential(nn.Linear(cin, h), nn.ReLU(), nn.Linear(h, vc), nn.ReLU())
+        self.view_mlp = nn.Sequential(
+            nn.Linear(cin, h), nn.ReLU(inplace=True), nn.Linear(h, vc), nn.ReLU(inplace=True)
+        )
         self.blend_view = nn.Linear(vc, 1)
         self.blend_pool = nn.Linear(2 * vc, 1, bias=False)
-        self.density = nn.Sequential(nn.Linear(2 * vc + 1, h), nn.ReLU(), nn.Linear(h, 1))
+        self.density = nn.Sequential(
+            nn.Linear(2 * vc + 1, h), nn.ReLU(inplace=True), nn.Linear(h, 1)
+        )
 
     def forward(self, f: PointFeatures) -> tuple[Tensor, Tensor]:
         parts = [f.appearance, f.colour, f.direction]

@@ -30,7 +30,7 @@ from panogrf.shaders import load as load_shader
 
 MODES = ("refined", "preview", "distance", "sources")
 #: Seconds the camera must stay still before refinement starts.
-STILL_DELAY = 0.12
+STILL_DELAY = 0.1
 LOOK_SPEED = 1.5  # radians per second for the arrow keys
 DRAG_SPEED = 0.004  # radians per pixel of mouse drag
 
@@ -118,7 +118,12 @@ class PanoViewer(mglw.WindowConfig):
         self.request_gen = -1
         self.frame_count = 0
         self.frame_times: list[float] = []  # seconds between consecutive frame starts
+        self.moving_frame_times: list[float] = []  # the same, of frames where the camera moved
+        self.refine_log: list[tuple[int, float]] = []  # (level, seconds since the camera stopped)
         self.last_start: float | None = None
+        self.last_moved = False
+        self.preview_key = None
+        self.preview_out = None
         self.script = list(s.script)
         self.last_overlay = 0.0
         self.messages: list[str] = []
@@ -216,6 +221,11 @@ class PanoViewer(mglw.WindowConfig):
         if not self.script:
             return
         name, frames = self.script[0]
+        if name == "REFINED":  # wait until the worker has refined every level (tests, benchmarks)
+            worker = self.setup.worker
+            if worker is None or (self.requested and worker.status[0] >= len(worker.levels)):
+                self.script.pop(0)
+            return
         if name != "WAIT":
             if frames == 0:  # a press: one-shot action
                 self.press(name)
@@ -280,6 +290,8 @@ class PanoViewer(mglw.WindowConfig):
         start = time.perf_counter()
         if self.last_start is not None:
             self.frame_times.append(start - self.last_start)
+            if self.last_moved:
+                self.moving_frame_times.append(start - self.last_start)
         self.last_start = start
         dt = self.setup.fixed_step or min(frame_time, 0.1)
         self._run_script()
@@ -295,6 +307,7 @@ class PanoViewer(mglw.WindowConfig):
         moved = self.last_pose is None or not np.allclose(pose, self.last_pose, atol=1e-9)
         worker = self.setup.worker
         now = time.perf_counter()
+        self.last_moved = moved
         if moved:
             self.last_pose = pose
             self.still_since = now
@@ -316,6 +329,7 @@ class PanoViewer(mglw.WindowConfig):
                 ):
                     self._upload_refined(done.rgb)
                     self.refined_gen = done.generation
+                    self.refine_log.append((done.level, time.perf_counter() - self.still_since))
                 refined = self.refined_tex
         coarse, is_depth, fill = None, False, False
         if self.mode == "sources":
@@ -323,7 +337,13 @@ class PanoViewer(mglw.WindowConfig):
         elif refined is not None:
             pano = refined
         else:
-            out = self.preview.render_to_framebuffer(pose, self.setup.preview_height, False)
+            key = (pose.tobytes(), self.setup.preview_height)
+            if key != self.preview_key:  # a still camera's preview is on the GPU already
+                self.preview_out = self.preview.render_to_framebuffer(
+                    pose, self.setup.preview_height, False
+                )
+                self.preview_key = key
+            out = self.preview_out
             if self.mode == "distance":
                 pano, is_depth = out.dist, True
             else:
@@ -349,6 +369,9 @@ class PanoViewer(mglw.WindowConfig):
             self.request_screenshot = False
             self._screenshot()
         self.frame_count += 1
+        if not moved and self.playback is None:
+            # Still: nothing to redraw fast, leave the cores to the refinement.
+            time.sleep(max(0.0, 1.0 / self.setup.fps - (time.perf_counter() - start)))
         if self.setup.frames is not None and self.frame_count >= self.setup.frames:
             self.wnd.close()
 
@@ -439,7 +462,7 @@ class PanoViewer(mglw.WindowConfig):
 
 def parse_script(text: str) -> list[tuple[str, int]]:
     """ "w*30,x,wait*10" -> [("W", 30), ("X", 0), ("WAIT", 10)]: hold a key for N frames, or
-    press it once (no count)."""
+    press it once (no count); "refined" waits until the render worker has refined the view."""
     names = {str(i): f"NUMBER_{i}" for i in range(1, 5)}
     names |= {
         "[": "LEFT_BRACKET",

@@ -20,9 +20,11 @@ from panogrf.model.render_net import RendererNet
 from panogrf.renderer.cache import SceneCache
 from panogrf.renderer.render import render_panorama
 
-#: (height, sampling) of each refinement level, coarse to fine: a quick draft at 256 x 512,
-#: then the fast sampling at 512 x 1024.
-LEVELS = ((256, "draft"), (512, "fast"))
+#: (height, sampling, sources) of each refinement level, coarse to fine: a quick draft at
+#: 256 x 512 from the two sources nearest the camera (what the renderer was trained with; the
+#: GL preview draws the same two), then the fast sampling at 512 x 1024 from all of them
+#: (sources None: all).
+LEVELS = ((256, "draft", 2), (512, "fast", None))
 
 
 @dataclass
@@ -43,10 +45,12 @@ class RenderWorker:
         self,
         net: RendererNet,
         cache: SceneCache,
-        levels: tuple[tuple[int, str], ...] = LEVELS,
+        levels: tuple[tuple, ...] = LEVELS,
         threads: int | None = None,
     ) -> None:
-        self.net, self.cache, self.levels = net, cache, levels
+        self.net, self.cache = net, cache
+        self.levels = [(lv[0], lv[1], lv[2] if len(lv) > 2 else None) for lv in levels]
+        self._subsets: dict[tuple[int, ...], SceneCache] = {}
         self.threads = threads
         self._lock = threading.Lock()
         self._wake = threading.Condition(self._lock)
@@ -97,6 +101,17 @@ class RenderWorker:
         with self._lock:
             return self._level + 1, self._progress
 
+    def _nearest(self, pose: np.ndarray, count: int | None) -> SceneCache:
+        """The cache of the ``count`` sources nearest to ``pose`` (all: None), memoised."""
+        if count is None or count >= self.cache.num_views:
+            return self.cache
+        centres = self.cache.c2w[:, :3, 3].double().numpy()
+        dist = np.linalg.norm(centres - pose[:3, 3], axis=-1)
+        key = tuple(sorted(np.argsort(dist, kind="stable")[:count].tolist()))
+        if key not in self._subsets:
+            self._subsets[key] = self.cache.select(list(key))
+        return self._subsets[key]
+
     def _run(self) -> None:
         if self.threads:
             torch.set_num_threads(self.threads)
@@ -118,10 +133,10 @@ class RenderWorker:
                         self._progress = f
 
             tgt = torch.from_numpy(pose).to(self.cache.images.dtype)
-            for level, (height, quality) in enumerate(self.levels):
+            for level, (height, quality, sources) in enumerate(self.levels):
                 out = render_panorama(
                     self.net,
-                    self.cache,
+                    self._nearest(pose, sources),
                     tgt,
                     height,
                     quality,

@@ -96,3 +96,20 @@ def test_cancel_stops_a_render_in_flight():
         assert done is None or done.generation != gen
     finally:
         worker.stop()
+
+
+def test_worker_levels_can_use_the_nearest_sources():
+    net, cache = _worker_cache()  # sources at x = 0 and x = 1
+    worker = RenderWorker(net, cache, levels=((8, "fast", 1), (8, "fast", None)))
+    near_second = np.eye(4)
+    near_second[0, 3] = 0.9
+    one = worker._nearest(near_second, 1)
+    assert one.num_views == 1 and torch.equal(one.c2w[0], cache.c2w[1])
+    assert worker._nearest(near_second, 1) is one  # memoised
+    assert worker._nearest(np.eye(4), None) is cache
+    worker.start()
+    try:
+        done = _wait(worker, worker.request(near_second), 1)
+        assert done.rgb.shape == (8, 16, 3)
+    finally:
+        worker.stop()
