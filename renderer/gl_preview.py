@@ -184,9 +184,13 @@ class PreviewRenderer:
             t: dict = {}
             # The sources' layers side by side in one texture, one viewport each: clipping in
             # clip space keeps every layer inside its own strip.
-            t["layers"] = ctx.texture((width * self.max_views, height), 4, dtype="f2")
+            # 8-bit colour; the distance is the depth buffer's (linear in distance, 24 bits
+            # over FAR), read as a texture: cheaper to write than a float layer.
+            t["layers"] = ctx.texture((width * self.max_views, height), 4)
             t["layers"].filter = (moderngl.NEAREST, moderngl.NEAREST)
-            t["depth"] = ctx.depth_renderbuffer((width * self.max_views, height))
+            t["depth"] = ctx.depth_texture((width * self.max_views, height))
+            t["depth"].compare_func = ""  # read the values, no shadow comparison
+            t["depth"].filter = (moderngl.NEAREST, moderngl.NEAREST)
             t["layer_fbo"] = ctx.framebuffer(
                 color_attachments=[t["layers"]], depth_attachment=t["depth"]
             )
@@ -281,11 +285,14 @@ class PreviewRenderer:
         ctx.disable(moderngl.DEPTH_TEST)
         bp = self.blend_prog
         bp["u_layers"].value = 1
+        bp["u_depth"].value = 4
+        bp["u_far"].value = FAR
         bp["u_weights"].write((1.0 / (dists[chosen] + 1e-2)).astype(np.float32).tobytes())
         bp["u_tolerance"].value = BLEND_TOLERANCE
         if "u_width" in bp:  # compiled out when one view is drawn
             bp["u_width"].value = width
         t["layers"].use(location=1)
+        t["depth"].use(location=4)
         t["blend_fbo"].use()
         t["blend_fbo"].viewport = (0, 0, width, height)
         self.blend_vao.render(moderngl.TRIANGLES, vertices=3)

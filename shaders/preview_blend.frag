@@ -4,7 +4,9 @@
 // closeness to the target. Output alpha is 1 where some source saw the pixel, 0 elsewhere
 // (a hole, filled by the push-pull passes). VIEWS (the number of layers) is defined at
 // compile time, so the loops unroll and the layers stay in registers.
-uniform sampler2D u_layers;       // the sources' layers side by side: rgb + distance (0: none)
+uniform sampler2D u_layers;       // the sources' layers side by side: rgb
+uniform sampler2D u_depth;        // their depth buffer: distance / u_far (1: nothing drawn)
+uniform float u_far;
 uniform float u_weights[VIEWS];   // closeness of each drawn source to the target
 uniform float u_tolerance;
 uniform int u_width;              // width of one layer
@@ -14,9 +16,11 @@ layout(location = 1) out float out_dist;
 void main() {
     ivec2 px = ivec2(gl_FragCoord.xy);
     float best = 1e30;
-    vec4 c[VIEWS];
+    vec4 c[VIEWS];  // rgb, and the distance in alpha (0: nothing drawn)
     for (int j = 0; j < VIEWS; ++j) {
-        c[j] = texelFetch(u_layers, ivec2(px.x + j * u_width, px.y), 0);
+        ivec2 at = ivec2(px.x + j * u_width, px.y);
+        float z = texelFetch(u_depth, at, 0).r;
+        c[j] = vec4(texelFetch(u_layers, at, 0).rgb, z < 1.0 ? z * u_far : 0.0);
         if (c[j].a > 0.0) best = min(best, c[j].a);
     }
     vec3 acc = vec3(0.0);

@@ -7,11 +7,10 @@
 in vec3 in_pos;       // world position (metres)
 in vec2 in_uv;        // source texture coordinate; u > 1 on the column that closes the seam
 uniform mat4 u_w2c;   // target world -> camera
-uniform float u_far;  // metres mapped to the far end of the depth buffer
+uniform float u_far;  // metres mapped to the far end of the depth buffer (depth = r / u_far)
 uniform int u_unwrap;
 uniform float u_shift;
 out vec2 v_uv;
-out float v_dist;
 
 const float PI = 3.14159265358979;
 
@@ -22,6 +21,5 @@ void main() {
     float lat = asin(clamp(c.y / max(r, 1e-6), -1.0, 1.0)) / (0.5 * PI);
     if (u_unwrap == 1 && lon < 0.0) lon += 2.0;
     v_uv = in_uv;
-    v_dist = r;
     gl_Position = vec4(lon + u_shift, -lat, 2.0 * clamp(r / u_far, 0.0, 1.0) - 1.0, 1.0);
 }
