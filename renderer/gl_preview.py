@@ -1,15 +1,16 @@
 """The instant preview: the sources' depth meshes warped into the target view on the GPU (GL).
 
-Each source panorama becomes a mesh with one vertex per pixel of its (estimated) depth map,
-lifted to the world once, textured with the full-resolution panorama; triangles spanning a
-depth discontinuity (the "stretched" triangles of a depth mesh) are dropped once, there.
-Per frame every mesh is projected straight into the target's equirectangular image by the
-vertex shader, into its own layer. Triangles that cross the target's seam (longitude +-180
-deg) are found on the CPU and drawn apart, twice, one full turn apart, so each side gets its
-part; triangles around the target's poles (longitude undefined) are dropped. A blend pass
-keeps the nearest surface and mixes the sources that agree on it by closeness; push-pull
-passes fill what no source saw from ever coarser averages of what they did. The same path
-renders the viewer's preview and `--quality preview` videos.
+Each source panorama becomes a mesh over its (estimated) depth map, rows at pixel latitudes
+and as many vertices per row as the row's circumference needs (`sphere_mesh`), lifted to the
+world once, textured with the full-resolution panorama; triangles spanning a depth
+discontinuity (the "stretched" triangles of a depth mesh) are dropped once, there. Per frame
+every mesh is projected straight into the target's equirectangular image by the vertex
+shader, into its own layer (8-bit colour; the distance in the depth buffer). Triangles that
+cross the target's seam (longitude +-180 deg) are found on the CPU and drawn apart, twice, one
+full turn apart, so each side gets its part; triangles around the target's poles (longitude
+undefined) are dropped. A blend pass keeps the nearest surface and mixes the sources that
+agree on it by closeness; push-pull passes fill what no source saw from ever coarser averages
+of what they did. The same path renders the viewer's preview and `--quality preview` videos.
 
 (A geometry shader could split seam triangles on the GPU, but on Mesa's CPU rasteriser it
 cost about 0.7 us per triangle, six times the whole frame budget; the CPU pass costs about
@@ -264,9 +265,14 @@ class PreviewRenderer:
         chosen = np.argsort(dists, kind="stable")[: self.max_views]
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.disable(moderngl.CULL_FACE)
+        # Depth only: the blend reads a layer's colour only where its depth says it was drawn.
+        # (A framebuffer's colour mask takes effect when it is bound.)
+        layer_fbo.color_mask = (False, False, False, False)
         layer_fbo.use()
         layer_fbo.viewport = (0, 0, width * self.max_views, height)
-        layer_fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+        layer_fbo.clear(depth=1.0)
+        layer_fbo.color_mask = (True, True, True, True)
+        layer_fbo.use()
         for slot, k in enumerate(chosen):
             layer_fbo.viewport = (slot * width, 0, width, height)
             self.textures[k].use(location=0)
