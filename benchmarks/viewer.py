@@ -29,6 +29,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
 import torch
 
 
@@ -36,7 +37,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--scene", type=Path, default=None, help="default: the bundled demo")
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/viewer.json"))
-    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--walk-frames", type=int, default=45, help="frames per walk")
     parser.add_argument("--skip-paper", action="store_true", help="skip the 64 + 64 baseline")
     args = parser.parse_args()
@@ -111,6 +112,8 @@ def main() -> None:
             "median": frame_ms,
             "fps": 1000 / frame_ms,
             "frames": len(config.moving_frame_times),
+            "p10_ms": 1000 * float(np.percentile(config.moving_frame_times, 10)),
+            "p90_ms": 1000 * float(np.percentile(config.moving_frame_times, 90)),
         },
         "refine_first_256x512_s": {"median": statistics.median(first), "runs": first},
         "refine_full_512x1024_s": {"median": statistics.median(full), "runs": full},

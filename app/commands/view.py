@@ -152,9 +152,15 @@ def run(args: argparse.Namespace) -> int:
             worker.stop()
     times = config.frame_times
     if times:
+        moving = config.moving_frame_times
+        stats = [f"median frame {1000 * float(np.median(times)):.1f} ms"]
+        if moving:
+            stats.append(f"while moving {1000 * float(np.median(moving)):.1f} ms")
+        for level, seconds in config.refine_log[-2:]:
+            stats.append(f"refined level {level} {seconds:.2f} s after stopping")
         print(
-            f"closed after {len(times)} frames in {time.perf_counter() - start:.1f} s "
-            f"(median frame {1000 * float(np.median(times)):.1f} ms)"
+            f"closed after {config.frame_count} frames in {time.perf_counter() - start:.1f} s "
+            f"({', '.join(stats)})"
         )
     return 0
 
