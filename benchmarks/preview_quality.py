@@ -25,24 +25,33 @@ import torch
 ROWS = (32, 48, 64, 96, 128)
 
 
-def frame_ms(views, rows: int, frames: int = 30) -> float:
+def frame_costs(views, rounds: int = 3, frames: int = 15) -> dict[int, float]:
+    """Median ms per preview frame for each mesh height, the heights interleaved round by
+    round so a machine that slows down for a while slows all of them alike."""
     from panogrf.app.images import to_uint8
     from panogrf.renderer.gl_preview import PreviewRenderer, create_headless_context
 
     ctx = create_headless_context()
     images, depth = to_uint8(views.images), views.depth["full"][:, 0].numpy()
-    times = []
-    with PreviewRenderer(ctx, images, depth, views.c2w.numpy(), rows, max_views=2) as pr:
-        pose = views.c2w[0].numpy().astype(np.float64)
-        for k in range(frames + 3):
-            p = pose.copy()
-            p[2, 3] -= 0.02 * k  # walking forward
-            t0 = time.perf_counter()
-            pr.render_to_framebuffer(p, 512)
-            ctx.finish()
-            times.append(time.perf_counter() - t0)
+    renderers = {
+        r: PreviewRenderer(ctx, images, depth, views.c2w.numpy(), r, max_views=2) for r in ROWS
+    }
+    times: dict[int, list[float]] = {r: [] for r in ROWS}
+    pose = views.c2w[0].numpy().astype(np.float64)
+    for _ in range(rounds):
+        for r, pr in renderers.items():
+            for k in range(frames + 2):
+                p = pose.copy()
+                p[2, 3] -= 0.02 * k  # walking forward
+                t0 = time.perf_counter()
+                pr.render_to_framebuffer(p, 512)
+                ctx.finish()
+                if k >= 2:
+                    times[r].append(time.perf_counter() - t0)
+    for pr in renderers.values():
+        pr.release()
     ctx.release()
-    return 1000 * statistics.median(times[3:])
+    return {r: 1000 * statistics.median(t) for r, t in times.items()}
 
 
 def main() -> None:
@@ -67,7 +76,7 @@ def main() -> None:
 
     with tempfile.TemporaryDirectory() as tmp:
         _, views, _, _ = prepare_scene(asset_path("demo"), Path(tmp), log=lambda *a: None)
-    cost = {r: frame_ms(views, r) for r in ROWS}
+    cost = frame_costs(views)
     print("cost:", {r: round(v, 1) for r, v in cost.items()}, flush=True)
 
     entries = json.loads((args.data / "dataset.json").read_text())["scenes"]
