@@ -37,6 +37,8 @@ MAX_LON_SPAN = 0.5
 BLEND_TOLERANCE = 0.06
 #: Distance (metres) mapped to the far end of the depth buffer.
 FAR = 100.0
+#: Nearest distance of the layers' 8-bit log scale (as in preview_mesh.frag).
+LOG_NEAR = 0.1
 MAX_VIEWS = 16
 
 
@@ -46,7 +48,7 @@ class PreviewTextures(NamedTuple):
     color: moderngl.Texture | None  # the filled RGB preview (None: fill_top=False)
     blend: moderngl.Texture  # the blend: rgb premultiplied by coverage, coverage in alpha
     coarse: moderngl.Texture  # push-pull level 1, filled: blend + (1 - a) * coarse = color
-    dist: moderngl.Texture  # distance of the visible surface (metres; 0: none)
+    dist: moderngl.Texture | None  # distance of the visible surface (metres; 0: none)
     dist_fbo: moderngl.Framebuffer  # holds dist as attachment 1 (for read-back)
 
 
@@ -132,21 +134,27 @@ class PreviewRenderer:
             vertex_shader=load_shader("preview_mesh.vert"),
             fragment_shader=load_shader("preview_mesh.frag"),
         )
-        self.blend_prog = ctx.program(
-            vertex_shader=load_shader("fullscreen.vert"),
-            fragment_shader=load_shader("preview_blend.frag", {"VIEWS": self.max_views}),
-        )
+        # The blend with exact distances (written out) and without (the viewer's colour view).
+        self.blend_progs = {
+            dist: ctx.program(
+                vertex_shader=load_shader("fullscreen.vert"),
+                fragment_shader=load_shader(
+                    "preview_blend.frag", {"VIEWS": self.max_views, "DIST": int(dist)}
+                ),
+            )
+            for dist in (True, False)
+        }
         self.fill_prog = ctx.program(
             vertex_shader=load_shader("fullscreen.vert"),
             fragment_shader=load_shader("preview_fill.frag"),
         )
-        self.blend_vao = ctx.vertex_array(self.blend_prog, [])
+        self.blend_vaos = {d: ctx.vertex_array(p, []) for d, p in self.blend_progs.items()}
         self.fill_vao = ctx.vertex_array(self.fill_prog, [])
         self._objects: list = [
             self.mesh_prog,
-            self.blend_prog,
+            *self.blend_progs.values(),
             self.fill_prog,
-            self.blend_vao,
+            *self.blend_vaos.values(),
             self.fill_vao,
         ]
         uv, grid = sphere_mesh(min(mesh_height or depth.shape[1], depth.shape[1]))
@@ -243,11 +251,15 @@ class PreviewRenderer:
         ordinary[suspect] = span <= MAX_LON_SPAN
         return tris[ordinary], cand[wrapped]
 
-    def render_to_framebuffer(self, c2w: np.ndarray, height: int, fill_top: bool = True):
+    def render_to_framebuffer(
+        self, c2w: np.ndarray, height: int, fill_top: bool = True, distance: bool = True
+    ) -> PreviewTextures:
         """Draw the preview of camera ``c2w`` [4, 4], left on the GPU: a `PreviewTextures`.
 
         ``fill_top=False`` skips the last, full-resolution push-pull step: whoever draws the
-        preview next (the viewer's display pass) does it as it samples, one pass fewer."""
+        preview next (the viewer's display pass) does it as it samples, one pass fewer.
+        ``distance=False`` leaves ``dist`` unwritten and blends on 8-bit log distances (the
+        viewer's colour view: half the blend's cost on llvmpipe)."""
         width = 2 * height
         t = self._targets_for(height, width)
         layer_fbo = t["layer_fbo"]
@@ -265,14 +277,9 @@ class PreviewRenderer:
         chosen = np.argsort(dists, kind="stable")[: self.max_views]
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.disable(moderngl.CULL_FACE)
-        # Depth only: the blend reads a layer's colour only where its depth says it was drawn.
-        # (A framebuffer's colour mask takes effect when it is bound.)
-        layer_fbo.color_mask = (False, False, False, False)
         layer_fbo.use()
         layer_fbo.viewport = (0, 0, width * self.max_views, height)
-        layer_fbo.clear(depth=1.0)
-        layer_fbo.color_mask = (True, True, True, True)
-        layer_fbo.use()
+        layer_fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)  # alpha 0: nothing drawn
         for slot, k in enumerate(chosen):
             layer_fbo.viewport = (slot * width, 0, width, height)
             self.textures[k].use(location=0)
@@ -289,19 +296,26 @@ class PreviewRenderer:
                     prog["u_shift"].value = shift
                     seam_vao.render(moderngl.TRIANGLES, vertices=crossing.size)
         ctx.disable(moderngl.DEPTH_TEST)
-        bp = self.blend_prog
-        bp["u_layers"].value = 1
-        bp["u_depth"].value = 4
-        bp["u_far"].value = FAR
-        bp["u_weights"].write((1.0 / (dists[chosen] + 1e-2)).astype(np.float32).tobytes())
-        bp["u_tolerance"].value = BLEND_TOLERANCE
-        if "u_width" in bp:  # compiled out when one view is drawn
-            bp["u_width"].value = width
+        bp = self.blend_progs[distance]
+        weights = (1.0 / (dists[chosen] + 1e-2)).astype(np.float32)
+        uniforms = {
+            "u_layers": 1,
+            "u_depth": 4,
+            "u_far": FAR,
+            "u_tolerance": BLEND_TOLERANCE
+            if distance
+            else float(np.log1p(BLEND_TOLERANCE) / np.log(FAR / LOG_NEAR)),
+            "u_width": width,
+        }
+        for name, value in uniforms.items():
+            if name in bp:  # some are compiled out (one view; no exact distances)
+                bp[name].value = value
+        bp["u_weights"].write(weights.tobytes())
         t["layers"].use(location=1)
         t["depth"].use(location=4)
         t["blend_fbo"].use()
         t["blend_fbo"].viewport = (0, 0, width, height)
-        self.blend_vao.render(moderngl.TRIANGLES, vertices=3)
+        self.blend_vaos[distance].render(moderngl.TRIANGLES, vertices=3)
         levels = t["filled"]
         fill_top = fill_top or len(levels) < 2
         self._fill(t, 0 if fill_top else 1)
@@ -309,7 +323,7 @@ class PreviewRenderer:
             color=levels[0][0] if fill_top else None,
             blend=t["blend"],
             coarse=levels[min(1, len(levels) - 1)][0],
-            dist=t["dist"],
+            dist=t["dist"] if distance else None,
             dist_fbo=t["blend_fbo"],
         )
 

@@ -11,6 +11,7 @@ uniform float u_far;  // metres mapped to the far end of the depth buffer (depth
 uniform int u_unwrap;
 uniform float u_shift;
 out vec2 v_uv;
+out float v_dist;
 
 const float PI = 3.14159265358979;
 
@@ -21,5 +22,6 @@ void main() {
     float lat = asin(clamp(c.y / max(r, 1e-6), -1.0, 1.0)) / (0.5 * PI);
     if (u_unwrap == 1 && lon < 0.0) lon += 2.0;
     v_uv = in_uv;
+    v_dist = r;
     gl_Position = vec4(lon + u_shift, -lat, 2.0 * clamp(r / u_far, 0.0, 1.0) - 1.0, 1.0);
 }

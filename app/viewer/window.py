@@ -337,10 +337,11 @@ class PanoViewer(mglw.WindowConfig):
         elif refined is not None:
             pano = refined
         else:
-            key = (pose.tobytes(), self.setup.preview_height)
+            distance = self.mode == "distance"  # exact distances only when shown
+            key = (pose.tobytes(), self.setup.preview_height, distance)
             if key != self.preview_key:  # a still camera's preview is on the GPU already
                 self.preview_out = self.preview.render_to_framebuffer(
-                    pose, self.setup.preview_height, False
+                    pose, self.setup.preview_height, fill_top=False, distance=distance
                 )
                 self.preview_key = key
             out = self.preview_out

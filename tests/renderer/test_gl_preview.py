@@ -131,3 +131,22 @@ def test_shader_defines():
         "#define DEPTH 0",
         "#define FILL 1",
     ]
+
+
+def test_the_viewers_cheaper_blend_matches_the_exact_one(gl, demo):
+    """distance=False compares surfaces on the layers' 8-bit log distances instead of the
+    depth buffer: the same colours but for a few pixels where two surfaces nearly tie."""
+    from panogrf.renderer.gl_preview import PreviewRenderer
+
+    data, images, depth = demo
+    with PreviewRenderer(gl, images, depth, data.c2w.numpy()) as pr:
+        pose = data.c2w[1].numpy().copy()
+        pose[:3, 3] += [0.3, 0.1, -0.4]  # between the sources, none at the camera
+        blends = []
+        for distance in (True, False):
+            out = pr.render_to_framebuffer(pose, 128, distance=distance)
+            assert (out.dist is None) != distance
+            blends.append(np.frombuffer(out.blend.read(), np.uint8).reshape(128, 256, 4))
+    exact, cheap = (b.astype(np.int16) for b in blends)
+    assert (exact[..., 3] == cheap[..., 3]).mean() > 0.999  # the same pixels covered
+    assert (np.abs(exact - cheap)[..., :3].max(-1) <= 4).mean() > 0.995
