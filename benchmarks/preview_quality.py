@@ -44,7 +44,7 @@ def frame_costs(views, rounds: int = 3, frames: int = 15) -> dict[int, float]:
                 p = pose.copy()
                 p[2, 3] -= 0.02 * k  # walking forward
                 t0 = time.perf_counter()
-                pr.render_to_framebuffer(p, 512)
+                pr.render_to_framebuffer(p, 512, fill_top=False, distance=False)  # as the viewer
                 ctx.finish()
                 if k >= 2:
                     times[r].append(time.perf_counter() - t0)
