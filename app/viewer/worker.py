@@ -112,9 +112,25 @@ class RenderWorker:
             self._subsets[key] = self.cache.select(list(key))
         return self._subsets[key]
 
+    def _warm_up(self) -> None:
+        """A small render of the first level before the first request: the first real one
+        otherwise pays for growing the heap and first use of the kernels (about half a
+        second here). 64 rows fill whole chunks of rays, as a real render does."""
+        height, quality, sources = self.levels[0]
+        pose = self.cache.c2w[0].double().numpy()
+        render_panorama(
+            self.net,
+            self._nearest(pose, sources),
+            self.cache.c2w[0],
+            min(height, 64),
+            quality,
+            should_stop=lambda: self._stop or self._pose is not None,
+        )
+
     def _run(self) -> None:
         if self.threads:
             torch.set_num_threads(self.threads)
+        self._warm_up()
         while True:
             with self._wake:
                 while not self._stop and self._pose is None:
