@@ -61,10 +61,10 @@ class Sampling:
 #: on validation scenes of the train split (6 scenes, 128 rows, WS-PSNR): guided 8 alone 29.34,
 #: 8 + 4 backbone 30.00, 12 guided 29.40, 64 + 64 30.26 dB.
 #: ``draft`` (3 guided + 1 uniform) is the viewer's first refinement, chosen on the renderer's
-#: 24 validation scenes of the train split at 256 rows, WS-PSNR / median seconds (2 sources,
-#: this CPU, another job on the other core): fast 26.99 / 1.37, 4 + 2: 26.62 / 0.71,
-#: 4 + 1: 26.52 / 0.61, 3 + 2: 26.42 / 0.56, 3 + 1: 26.30 / 0.48, 2 + 2: 26.30 / 0.48; the GL
-#: preview it replaces: 23.98 dB.
+#: 24 validation scenes of the train split at 256 rows (`benchmarks/draft_sampling.py`),
+#: WS-PSNR / median seconds, 2 sources: fast 26.99 / 1.49, 4 + 2: 26.62 / 0.84, 4 + 1: 26.52 /
+#: 0.75, 3 + 2: 26.42 / 0.71, 3 + 1: 26.30 / 0.59, 2 + 2: 26.30 / 0.59; the GL preview it
+#: replaces: 23.98 dB.
 QUALITY = {
     "paper": Sampling(n_coarse=64, n_fine=64),
     "fast": Sampling(n_coarse=4, n_fine=0, n_guided=8),
