@@ -39,6 +39,7 @@ BLEND_TOLERANCE = 0.06
 FAR = 100.0
 #: Nearest distance of the layers' 8-bit log scale (as in preview_mesh.frag).
 LOG_NEAR = 0.1
+#: Sources drawn per frame at most (their layers sit side by side in one texture).
 MAX_VIEWS = 16
 
 
@@ -117,18 +118,18 @@ class PreviewRenderer:
         max_views: int | None = None,
     ) -> None:
         """``mesh_height``: rows of the depth meshes (default: the depth's own; fewer rows,
-        fewer triangles: the vertex stage dominates on a CPU rasteriser). ``max_views``: draw
-        only this many sources per frame, the nearest to the camera (default: all)."""
+        fewer triangles). ``max_views``: draw only this many sources per frame, the nearest to
+        the camera (default: all of them, at most `MAX_VIEWS`)."""
         v = images.shape[0]
-        if not 1 <= v <= MAX_VIEWS:
-            raise ValueError(f"the preview takes 1 to {MAX_VIEWS} views, got {v}")
+        if v < 1:
+            raise ValueError("the preview needs at least one view")
         if depth.shape[0] != v or c2w.shape != (v, 4, 4):
             raise ValueError(
                 f"images {images.shape}, depth {depth.shape} and c2w {c2w.shape} disagree"
             )
         self.ctx = ctx
         self.views = v
-        self.max_views = min(v, max_views or v)
+        self.max_views = min(v, max_views or v, MAX_VIEWS)
         self.c2w = np.asarray(c2w, np.float64)
         self.mesh_prog = ctx.program(
             vertex_shader=load_shader("preview_mesh.vert"),
@@ -190,6 +191,12 @@ class PreviewRenderer:
         key = (height, width)
         if key not in self._targets:
             ctx = self.ctx
+            limit = ctx.info["GL_MAX_TEXTURE_SIZE"]
+            if width * self.max_views > limit:
+                raise ValueError(
+                    f"{self.max_views} layers of width {width} exceed this GL's texture size "
+                    f"limit ({limit}): draw fewer views (max_views) or a smaller preview"
+                )
             t: dict = {}
             # The sources' layers side by side in one texture, one viewport each: clipping in
             # clip space keeps every layer inside its own strip.

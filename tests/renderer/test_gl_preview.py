@@ -150,3 +150,22 @@ def test_the_viewers_cheaper_blend_matches_the_exact_one(gl, demo):
     exact, cheap = (b.astype(np.int16) for b in blends)
     assert (exact[..., 3] == cheap[..., 3]).mean() > 0.999  # the same pixels covered
     assert (np.abs(exact - cheap)[..., :3].max(-1) <= 4).mean() > 0.995
+
+
+def test_more_sources_than_layers_draws_the_nearest(gl, demo):
+    from panogrf.renderer.gl_preview import MAX_VIEWS, PreviewRenderer
+
+    data, images, depth = demo
+    reps = MAX_VIEWS // 3 + 2  # more sources than MAX_VIEWS
+    many = PreviewRenderer(
+        gl,
+        np.tile(images, (reps, 1, 1, 1)),
+        np.tile(depth, (reps, 1, 1)),
+        np.tile(data.c2w.numpy(), (reps, 1, 1)),
+    )
+    with many as pr:
+        assert pr.views == 3 * reps > MAX_VIEWS and pr.max_views == MAX_VIEWS
+        rgb, _ = pr.render(data.c2w[1].numpy(), 32)
+    x = torch.from_numpy(rgb).permute(2, 0, 1)[None].float() / 255
+    small = F.interpolate(data.images[1:2], size=(32, 64), mode="area")
+    assert float(ws_psnr(x, small)) > 25.0
