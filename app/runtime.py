@@ -14,7 +14,7 @@ def keep_freed_memory() -> bool:
 
     Rendering and training allocate and free tensors of tens of megabytes per chunk of rays;
     by default glibc maps each from the OS afresh and unmaps it on free, so every chunk pays
-    page faults on memory it just had (on this 2-core machine, about 40 % of a draft render).
+    page faults on memory it just had (on this 2-core machine, about 30 % of a draft render).
     Large blocks now come from the heap (up to glibc's 32 MB limit) and the heap is trimmed
     only past 512 MB of free space. One arena for all threads: the viewer's render worker
     allocates from its own arena otherwise, whose heaps follow other rules and got slower

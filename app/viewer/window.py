@@ -89,7 +89,7 @@ class PanoViewer(mglw.WindowConfig):
         self.preview = PreviewRenderer(
             self.ctx, s.images, s.depth, s.c2w, mesh_height=s.mesh_height, max_views=s.max_views
         )
-        # One display program per (perspective, distance) mode, made when first needed.
+        # One display program per (perspective, distance, fill) mode, made when first needed.
         self.displays: dict[tuple[int, int, int], tuple] = {}
         self.overlay_prog = self.ctx.program(
             vertex_shader=load_shader("fullscreen.vert"),
@@ -345,7 +345,7 @@ class PanoViewer(mglw.WindowConfig):
                 )
                 self.preview_key = key
             out = self.preview_out
-            if self.mode == "distance":
+            if distance:
                 pano, is_depth = out.dist, True
             else:
                 pano, coarse, fill = out.blend, out.coarse, True

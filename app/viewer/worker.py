@@ -114,7 +114,7 @@ class RenderWorker:
 
     def _warm_up(self) -> None:
         """A small render of the first level before the first request: the first real one
-        otherwise pays for growing the heap and first use of the kernels (about half a
+        otherwise pays for growing the heap and first use of the kernels (a few tenths of a
         second here). 64 rows fill whole chunks of rays, as a real render does."""
         height, quality, sources = self.levels[0]
         pose = self.cache.c2w[0].double().numpy()
