@@ -37,7 +37,7 @@ MAX_LON_SPAN = 0.5
 BLEND_TOLERANCE = 0.06
 #: Distance (metres) mapped to the far end of the depth buffer.
 FAR = 100.0
-#: Nearest distance of the layers' 8-bit log scale (as in preview_mesh.frag).
+#: Nearest distance of the layers' 8-bit log scale (as in preview_mesh.vert).
 LOG_NEAR = 0.1
 #: Sources drawn per frame at most (their layers sit side by side in one texture).
 MAX_VIEWS = 16

@@ -11,9 +11,10 @@ uniform float u_far;  // metres mapped to the far end of the depth buffer (depth
 uniform int u_unwrap;
 uniform float u_shift;
 out vec2 v_uv;
-out float v_dist;
+out float v_log_dist;  // log distance: 0 at LOG_NEAR metres, 1 at u_far (per vertex: cheaper)
 
 const float PI = 3.14159265358979;
+const float LOG_NEAR = 0.1;  // as LOG_NEAR in gl_preview.py
 
 void main() {
     vec3 c = (u_w2c * vec4(in_pos, 1.0)).xyz;
@@ -22,6 +23,6 @@ void main() {
     float lat = asin(clamp(c.y / max(r, 1e-6), -1.0, 1.0)) / (0.5 * PI);
     if (u_unwrap == 1 && lon < 0.0) lon += 2.0;
     v_uv = in_uv;
-    v_dist = r;
+    v_log_dist = log(max(r, LOG_NEAR) / LOG_NEAR) / log(u_far / LOG_NEAR);
     gl_Position = vec4(lon + u_shift, -lat, 2.0 * clamp(r / u_far, 0.0, 1.0) - 1.0, 1.0);
 }
