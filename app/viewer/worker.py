@@ -54,6 +54,7 @@ class RenderWorker:
         self.threads = threads
         self._lock = threading.Lock()
         self._wake = threading.Condition(self._lock)
+        self._published = threading.Condition(self._lock)
         self._generation = 0
         self._pose: np.ndarray | None = None
         self._requested_at = 0.0
@@ -90,6 +91,13 @@ class RenderWorker:
             self._generation += 1
             self._pose = None
             self._progress, self._level = 0.0, -1
+
+    def wait_for_result(self, timeout: float) -> None:
+        """Sleep up to ``timeout`` seconds, waking as soon as a level is finished (the window
+        shows it at once instead of at its next frame)."""
+        if timeout > 0:
+            with self._published:
+                self._published.wait(timeout)
 
     def latest(self) -> Refined | None:
         with self._lock:
@@ -168,3 +176,4 @@ class RenderWorker:
                         break
                     self._latest = done
                     self._level, self._progress = level, 0.0
+                    self._published.notify_all()
