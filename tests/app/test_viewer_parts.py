@@ -113,3 +113,18 @@ def test_worker_levels_can_use_the_nearest_sources():
         assert done.rgb.shape == (8, 16, 3)
     finally:
         worker.stop()
+
+
+def test_waiting_for_a_result_wakes_when_a_level_is_done():
+    net, cache = _worker_cache()
+    worker = RenderWorker(net, cache, levels=((8, "fast"),)).start()
+    try:
+        time.sleep(0.5)  # the warm-up render is done
+        gen = worker.request(np.eye(4))
+        t0 = time.perf_counter()
+        while (done := worker.latest()) is None or done.generation != gen:
+            worker.wait_for_result(30.0)
+            assert time.perf_counter() - t0 < 20.0
+        assert time.perf_counter() - t0 < 5.0  # woken by the result, not the timeout
+    finally:
+        worker.stop()
