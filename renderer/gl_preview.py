@@ -37,7 +37,7 @@ MAX_LON_SPAN = 0.5
 BLEND_TOLERANCE = 0.06
 #: Distance (metres) mapped to the far end of the depth buffer.
 FAR = 100.0
-#: Nearest distance of the layers' 8-bit log scale (as in preview_mesh.vert).
+#: Nearest distance (metres) of the layers' 8-bit log scale (compiled into preview_mesh.vert).
 LOG_NEAR = 0.1
 #: Sources drawn per frame at most (their layers sit side by side in one texture).
 MAX_VIEWS = 16
@@ -132,7 +132,7 @@ class PreviewRenderer:
         self.max_views = min(v, max_views or v, MAX_VIEWS)
         self.c2w = np.asarray(c2w, np.float64)
         self.mesh_prog = ctx.program(
-            vertex_shader=load_shader("preview_mesh.vert"),
+            vertex_shader=load_shader("preview_mesh.vert", {"LOG_NEAR": f"{LOG_NEAR:.6f}"}),
             fragment_shader=load_shader("preview_mesh.frag"),
         )
         # The blend with exact distances (written out) and without (the viewer's colour view).

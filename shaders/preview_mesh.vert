@@ -11,10 +11,10 @@ uniform float u_far;  // metres mapped to the far end of the depth buffer (depth
 uniform int u_unwrap;
 uniform float u_shift;
 out vec2 v_uv;
-out float v_log_dist;  // log distance: 0 at LOG_NEAR metres, 1 at u_far (per vertex: cheaper)
+// Log distance, 0 at LOG_NEAR metres (defined at compile time), 1 at u_far; per vertex: cheaper.
+out float v_log_dist;
 
 const float PI = 3.14159265358979;
-const float LOG_NEAR = 0.1;  // as LOG_NEAR in gl_preview.py
 
 void main() {
     vec3 c = (u_w2c * vec4(in_pos, 1.0)).xyz;
