@@ -1,0 +1,163 @@
+"""Novel views and depth on real captures: every method, image and depth tables.
+
+    python scripts/make_dev_triplet.py --mirror PATH/TO/PanSplat.git   # once: data/real/
+    python benchmarks/real_capture.py [--data data/real] [--heights 512,256]
+
+Fetches nothing: it reads a dataset folder of triplets (``dataset.json`` listing scene folders
+of three views on a line with ground-truth depth), by default ``data/real`` as written by
+``scripts/make_dev_triplet.py`` (ignored by git: Matterport3D's terms keep the data and
+anything derived from it out of the repository). Without that folder it says how to make it
+and exits 0.
+
+For every triplet the middle view is rendered from the first and last by every method at each
+height and scored (PSNR, WS-PSNR, SSIM, LPIPS). Depth: the first and last views, each the
+other's source, estimated by every depth mode (mono, MVS-only, full) and compared with the
+ground truth at the dataset's resolution on 0 < gt <= d_max. ``--picture`` writes the true
+middle view, PanoGRF, MVS-only and meshwarp stacked (into the ignored data folder by default).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import statistics
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+METHODS = ("panogrf", "no_mono", "no_mvs", "meshwarp", "nearest")
+DEPTH_MODES = ("mono", "mvs", "full")
+IMAGE_KEYS = ("psnr", "ws_psnr", "ssim", "lpips")
+DEPTH_KEYS = ("l1", "rmse", "ws_l1", "ws_rmse")
+
+
+def triplets(root: Path) -> list[Path]:
+    index = json.loads((root / "dataset.json").read_text())
+    return [root / entry["folder"] for entry in index["scenes"]]
+
+
+def depth_scores(models, views, data, mode: str) -> dict[str, float]:
+    """Depth metrics of the first and last views (each the other's source), averaged."""
+    from panogrf.model.metrics import depth_metrics
+
+    est_net = models.estimator(mode)
+    depth = views.depth_for(mode, models)  # working resolution
+    depth = torch.nn.functional.interpolate(
+        depth, size=data.images.shape[-2:], mode="bilinear", align_corners=False
+    )
+    rows = []
+    for k, v in enumerate((0, 2)):
+        gt = data.depths[v, 0]
+        mask = (gt > 0) & (gt <= est_net.d_max)
+        m = depth_metrics(depth[k, 0], gt, mask)
+        rows.append([float(getattr(m, key)) for key in DEPTH_KEYS])
+    return dict(zip(DEPTH_KEYS, np.mean(rows, axis=0).tolist(), strict=True))
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--data", type=Path, default=Path("data/real"))
+    parser.add_argument("--heights", default="512,256", help="render heights")
+    parser.add_argument("--methods", default=",".join(METHODS))
+    parser.add_argument("--quality", default="fast", help="sampling of the neural methods")
+    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/real_capture.json"))
+    parser.add_argument(
+        "--picture", type=Path, default=None, help="comparison PNG (default DATA/comparison.png)"
+    )
+    parser.add_argument("--threads", type=int, default=0)
+    args = parser.parse_args()
+    if not (args.data / "dataset.json").exists():
+        print(
+            f"real_capture: no {args.data}/dataset.json; make the dev triplet with\n"
+            "  python scripts/make_dev_triplet.py --mirror PATH/TO/PanSplat.git\n"
+            "(a bare mirror of the public repository chengzhag/PanSplat). Nothing measured."
+        )
+        return 0
+    if args.threads:
+        torch.set_num_threads(args.threads)
+
+    from panogrf.app.commands.render import default_models
+    from panogrf.app.images import to_uint8, write_rgb
+    from panogrf.app.scene import load_scene
+    from panogrf.app.scoring import image_scores
+    from panogrf.renderer.methods import SourceViews, prepare, render_view
+
+    heights = [int(h) for h in args.heights.split(",")]
+    methods = [m for m in args.methods.split(",") if m]
+    models = default_models()
+    image_rows: dict[tuple[str, int], list[dict]] = {}
+    depth_rows: dict[str, list[dict]] = {m: [] for m in DEPTH_MODES}
+    pictures = []
+    start = time.perf_counter()
+    for folder in triplets(args.data):
+        scene = load_scene(folder, load_images=True)
+        data = scene.images
+        views = SourceViews(data.images[[0, 2]], data.c2w[[0, 2]])
+        for mode in DEPTH_MODES:
+            depth_rows[mode].append(depth_scores(models, views, data, mode))
+        renders = {}
+        for method in methods:
+            prepare(method, views, models)
+            for h in heights:
+                t0 = time.perf_counter()
+                rgb = render_view(method, views, data.c2w[1], h, models, args.quality)
+                sec = time.perf_counter() - t0
+                scores = image_scores(rgb, data.images[1:2]) | {"seconds": sec}
+                image_rows.setdefault((method, h), []).append(scores)
+                renders[(method, h)] = rgb
+                print(f"{folder.name} {method:>9} {h:4d} rows: WS-PSNR {scores['ws_psnr']:.2f} "
+                      f"LPIPS {scores['lpips']:.3f} ({sec:.1f} s)", flush=True)
+        h0 = max(heights)
+        from panogrf.renderer.cache import resize_erp
+
+        panel = [resize_erp(data.images[1:2], h0)[0]]
+        panel += [renders[(m, h0)] for m in ("panogrf", "no_mono", "meshwarp") if (m, h0) in renders]
+        pictures.append(torch.cat(panel, 1))  # stacked vertically
+    seconds = time.perf_counter() - start
+
+    image_table = {
+        f"{m}@{h}": {k: statistics.fmean(r[k] for r in rows) for k in (*IMAGE_KEYS, "seconds")}
+        | {"n": len(rows)}
+        for (m, h), rows in image_rows.items()
+    }
+    depth_table = {
+        mode: {k: statistics.fmean(r[k] for r in rows) for k in DEPTH_KEYS} | {"n": len(rows)}
+        for mode, rows in depth_rows.items()
+    }
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
+    report = {
+        "what": "middle view of each real triplet rendered from the first and last views",
+        "data": str(args.data),
+        "scenes": [p.name for p in triplets(args.data)],
+        "quality": args.quality,
+        "images": image_table,
+        "depth_metres": depth_table,
+        "machine": f"{platform.machine()}, {torch.get_num_threads()} torch threads, CPU",
+        "seconds": round(seconds, 1),
+        "commit": commit.stdout.strip(),
+    }
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = args.out.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(report, indent=2))
+    tmp.replace(args.out)
+    picture = args.picture or args.data / "comparison.png"
+    write_rgb(picture, to_uint8(torch.cat(pictures, 1)))
+
+    print(f"\nreal captures: {args.data} ({len(pictures)} triplet(s)); wrote {args.out}, {picture}")
+    print(f"{'mode':>6} " + " ".join(f"{k:>8}" for k in DEPTH_KEYS) + "   (depth, metres)")
+    for mode, r in depth_table.items():
+        print(f"{mode:>6} " + " ".join(f"{r[k]:8.3f}" for k in DEPTH_KEYS))
+    print(f"\n{'method':>9} {'rows':>5} {'PSNR':>7} {'WS-PSNR':>8} {'SSIM':>6} {'LPIPS':>6} {'s':>6}")
+    for (m, h) in sorted(image_rows, key=lambda k: (-k[1], methods.index(k[0]))):
+        r = image_table[f"{m}@{h}"]
+        print(f"{m:>9} {h:5d} {r['psnr']:7.2f} {r['ws_psnr']:8.2f} {r['ssim']:6.3f} "
+              f"{r['lpips']:6.3f} {r['seconds']:6.1f}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
