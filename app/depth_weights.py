@@ -1,8 +1,13 @@
-"""Loading the shipped networks (safetensors in `assets/`): depth estimator and renderer."""
+"""Loading the shipped networks (safetensors in `assets/`): depth estimator and renderer.
+
+``PANOGRF_WEIGHTS=DIR`` loads the weights files from DIR instead (the same file names), e.g.
+to compare freshly trained networks with the shipped ones before replacing them.
+"""
 
 from __future__ import annotations
 
 import json
+import os
 from functools import lru_cache
 from pathlib import Path
 
@@ -31,6 +36,12 @@ RENDERER_WEIGHTS = {
 }
 
 
+def weights_path(name: str) -> Path:
+    """Where the weights file ``name`` is read from: ``$PANOGRF_WEIGHTS/name`` or the asset."""
+    folder = os.environ.get("PANOGRF_WEIGHTS")
+    return Path(folder) / name if folder else asset_path(name)
+
+
 def _metadata(path: Path) -> dict:
     with safe_open(str(path), framework="pt") as f:
         return f.metadata() or {}
@@ -55,11 +66,11 @@ def load_depth_estimator(
     from dataclasses import asdict
 
     mono = MonoDepthNet(MonoDepthConfig())
-    _load(mono, asset_path(WEIGHTS["mono"]), asdict(mono.config))
+    _load(mono, weights_path(WEIGHTS["mono"]), asdict(mono.config))
     mvs = {}
     for mode in modes:
         net = MVSNet(PRESETS[mode])
-        _load(net, asset_path(WEIGHTS[mode]), asdict(net.config))
+        _load(net, weights_path(WEIGHTS[mode]), asdict(net.config))
         mvs[mode] = net
     return DepthEstimator(mono, mvs).to(device).eval()
 
@@ -72,5 +83,5 @@ def load_renderer(preset: str = "panogrf", device: str = "cpu") -> RendererNet:
     if preset not in RENDERER_WEIGHTS:
         raise UserError(f"unknown renderer preset {preset!r}: one of {sorted(RENDERER_WEIGHTS)}")
     net = RendererNet(RENDERER_PRESETS[preset])
-    _load(net, asset_path(RENDERER_WEIGHTS[preset]), asdict(net.config))
+    _load(net, weights_path(RENDERER_WEIGHTS[preset]), asdict(net.config))
     return net.to(device).eval()

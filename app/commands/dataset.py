@@ -47,6 +47,13 @@ def register(subparsers) -> None:
         help="comma-separated first-to-last distances in metres to cycle through, e.g. 1.0,1.5,2.0 "
         "(default: random in 0.2-2.0)",
     )
+    make.add_argument(
+        "--world",
+        choices=("classic", "home"),
+        default="classic",
+        help="classic rooms, or home: household materials, bright windows, rugs, sun patches, "
+        "camera heights 1.0-1.8 m, baselines up to 3.5 m, middle view off the line",
+    )
     make.add_argument("--seed", type=int, default=0, help="base seed (default 0)")
     make.add_argument("--start", type=int, default=0, help="index of the first scene")
     make.add_argument("--json", action="store_true", help="print the summary as JSON")
@@ -69,6 +76,7 @@ def run_make(args: argparse.Namespace) -> int:
         count=args.count,
         height=args.height,
         baselines=args.baselines,
+        world=args.world,
         seed=args.seed,
         start=args.start,
     )

@@ -46,6 +46,18 @@ def register(subparsers) -> None:
     depth.add_argument("--threads", type=int, default=0, help="torch threads (default: all)")
     depth.add_argument("--log", type=Path, default=None, help="also append log lines here")
     depth.add_argument("--limit-scenes", type=int, default=None, help="load only N scenes")
+    depth.add_argument("--init", type=Path, default=None, help="start from these weights")
+    depth.add_argument(
+        "--no-augment",
+        action="store_true",
+        help="mild exposure jitter only, instead of the real-camera corruptions",
+    )
+    depth.add_argument(
+        "--mono-noise",
+        type=float,
+        default=0.5,
+        help="stage mvs, full: fraction of pairs with a corrupted mono prior (default 0.5)",
+    )
     depth.set_defaults(func=run_depth)
 
     renderer = sub.add_parser(
@@ -81,6 +93,7 @@ def register(subparsers) -> None:
     renderer.add_argument("--threads", type=int, default=0, help="torch threads (default: all)")
     renderer.add_argument("--log", type=Path, default=None, help="also append log lines here")
     renderer.add_argument("--limit-scenes", type=int, default=None, help="load only N scenes")
+    renderer.add_argument("--init", type=Path, default=None, help="start from these weights")
     renderer.set_defaults(func=run_renderer)
 
 
@@ -127,6 +140,7 @@ def run_renderer(args: argparse.Namespace) -> int:
         depth_height=args.height // 2,
         seed=args.seed,
         limit_scenes=args.limit_scenes,
+        init=args.init,
     )
     try:
         train_renderer(cfg, load_depth_estimator(("full",)), log=log)
@@ -167,6 +181,9 @@ def run_depth(args: argparse.Namespace) -> int:
         mono_weights=args.mono,
         mvs_preset=args.preset,
         limit_scenes=args.limit_scenes,
+        init=args.init,
+        augment=not args.no_augment,
+        mono_noise=args.mono_noise,
     )
     try:
         (train_mono if args.stage == "mono" else train_mvs)(cfg, log=log)

@@ -33,6 +33,7 @@ from panogrf.app.synth.layout import LayoutConfig, SynthScene, generate_layout
 from panogrf.app.synth.textures import texture_bank
 
 SPLITS = ("train", "test")
+WORLDS = ("classic", "home")
 
 
 @dataclass(frozen=True)
@@ -55,6 +56,9 @@ class MakeConfig:
     """Index of the first scene (to extend a dataset)."""
     procedural_textures: int = 32
     """Procedural textures in the split's pool (besides its photographs)."""
+    world: str = "classic"
+    """"classic" (photographs and patterns on the walls) or "home" (`panogrf.app.synth.home`:
+    household materials, bright windows, rugs, sun patches, baselines up to 3.5 m)."""
 
 
 def scene_seed(split: str, base_seed: int, index: int) -> int:
@@ -64,13 +68,21 @@ def scene_seed(split: str, base_seed: int, index: int) -> int:
     return 2 * (base_seed * 1_000_000 + index) + SPLITS.index(split)
 
 
-def build_textures(split: str, base_seed: int, procedural: int = 32) -> np.ndarray:
-    """The texture pool [L, S, S, 3] of a split: its photographs plus procedural textures.
+def build_textures(
+    split: str, base_seed: int, procedural: int = 32, world: str = "classic"
+) -> tuple[np.ndarray, dict[str, range] | None]:
+    """The texture pool [L, S, S, 3] of a split and, for the home world, its material groups.
 
-    Made once per dataset run (and uploaded once); each scene picks its materials from it.
+    Classic: the split's photographs plus procedural textures. Made once per dataset run (and
+    uploaded once); each scene picks its materials from it.
     """
+    if world == "home":
+        from panogrf.app.synth.materials import home_texture_bank
+
+        rng = np.random.default_rng([base_seed, SPLITS.index(split), 0x40E])
+        return home_texture_bank(split, rng, max(4, procedural // 4))
     rng = np.random.default_rng([base_seed, SPLITS.index(split), 0x7E7])
-    return texture_bank(split, rng, procedural)
+    return texture_bank(split, rng, procedural), None
 
 
 def build_scene(
@@ -79,8 +91,14 @@ def build_scene(
     baseline: float | None,
     n_layers: int,
     config: LayoutConfig | None = None,
+    groups: dict[str, range] | None = None,
 ) -> SynthScene:
-    """The layout of one synthetic scene whose materials index a pool of ``n_layers`` textures."""
+    """The layout of one synthetic scene whose materials index a pool of ``n_layers`` textures
+    (home world: ``groups``, the pool's material groups)."""
+    if groups is not None:
+        from panogrf.app.synth.home import generate_home
+
+        return generate_home(seed, split, groups, baseline)
     return generate_layout(seed, split, n_layers, baseline, config or LayoutConfig())
 
 
@@ -119,6 +137,8 @@ def make_dataset(cfg: MakeConfig, progress: bool = True) -> dict:
     """Render ``cfg.count`` scenes into ``cfg.out``; returns a summary with timings."""
     if cfg.split not in SPLITS:
         raise ValueError(f"split must be one of {SPLITS}, got {cfg.split!r}")
+    if cfg.world not in WORLDS:
+        raise ValueError(f"world must be one of {WORLDS}, got {cfg.world!r}")
     if cfg.count < 1 or cfg.height < 8:
         raise ValueError("count must be >= 1 and height >= 8")
     out = Path(cfg.out)
@@ -132,7 +152,9 @@ def make_dataset(cfg: MakeConfig, progress: bool = True) -> dict:
         ThreadPoolExecutor(max_workers=2) as pool,
         tqdm(total=cfg.count * 3, unit="pano", disable=not progress, desc=f"{cfg.split}") as bar,
     ):
-        textures = build_textures(cfg.split, cfg.seed, cfg.procedural_textures)
+        textures, groups = build_textures(
+            cfg.split, cfg.seed, cfg.procedural_textures, cfg.world
+        )
         renderer.set_textures(textures)
         previous = None  # (folder, transforms, write futures) of the scene still being written
 
@@ -146,7 +168,7 @@ def make_dataset(cfg: MakeConfig, progress: bool = True) -> dict:
         for i in range(cfg.start, cfg.start + cfg.count):
             seed = scene_seed(cfg.split, cfg.seed, i)
             baseline = cfg.baselines[i % len(cfg.baselines)] if cfg.baselines else None
-            scene = build_scene(cfg.split, seed, baseline, len(textures))
+            scene = build_scene(cfg.split, seed, baseline, len(textures), groups=groups)
             folder = out / f"{cfg.split}_{i:05d}"
             (folder / "images").mkdir(parents=True, exist_ok=True)
             (folder / "depth").mkdir(parents=True, exist_ok=True)
@@ -181,7 +203,12 @@ def make_dataset(cfg: MakeConfig, progress: bool = True) -> dict:
     index["scenes"] = [e for e in index.get("scenes", []) if e["folder"] not in known] + entries
     index["scenes"].sort(key=lambda e: e["folder"])
     index.update(
-        {"generator": "panogrf dataset make", "height": cfg.height, "width": 2 * cfg.height}
+        {
+            "generator": "panogrf dataset make",
+            "world": cfg.world,
+            "height": cfg.height,
+            "width": 2 * cfg.height,
+        }
     )
     _write_json_atomic(index_path, index)
     n = 3 * cfg.count

@@ -22,6 +22,7 @@ import torch
 from safetensors.torch import save_file
 from torch import Tensor
 
+from panogrf.app.train.augment import corrupt_mono, photometric
 from panogrf.app.train.data import TripletSet, load_triplets, yaw_roll
 from panogrf.model.erp import latitude_weights
 from panogrf.model.mono import MonoDepthConfig, MonoDepthNet
@@ -57,6 +58,14 @@ class TrainDepthConfig:
     """Steps between log lines."""
     limit_scenes: int | None = None
     """Load only this many scenes (smoke tests)."""
+    init: Path | None = None
+    """Start from these weights (same network) instead of a random initialisation."""
+    augment: bool = True
+    """Real-camera corruptions (`panogrf.app.train.augment.photometric`) on every view instead
+    of the mild exposure / white-balance jitter."""
+    mono_noise: float = 0.5
+    """Stage mvs, mono-guided: fraction of pairs whose monocular depth is corrupted
+    (`corrupt_mono`), so the fusion learns to check its prior."""
     extra: dict = field(default_factory=dict)
     """Free-form notes stored with the weights."""
 
@@ -68,7 +77,9 @@ def weighted_l1(pred: Tensor, gt: Tensor, d_max: float) -> Tensor:
     return ((pred - gt).abs() * valid).sum() / valid.sum().clamp(min=1.0)
 
 
-def _mono_batch(data: TripletSet, gen: torch.Generator, batch: int) -> tuple[Tensor, Tensor]:
+def _mono_batch(
+    data: TripletSet, gen: torch.Generator, batch: int, augment: bool = False
+) -> tuple[Tensor, Tensor]:
     n = len(data)
     scene = torch.randint(n, (batch,), generator=gen)
     view = torch.randint(3, (batch,), generator=gen)
@@ -79,6 +90,8 @@ def _mono_batch(data: TripletSet, gen: torch.Generator, batch: int) -> tuple[Ten
     img, dep = torch.roll(img, shift, -1), torch.roll(dep, shift, -1)
     if torch.rand(1, generator=gen) < 0.5:
         img, dep = img.flip(-1), dep.flip(-1)
+    if augment:
+        return photometric(img, gen), dep
     # Mild photometric jitter: exposure and white balance.
     gain = 1.0 + 0.2 * (torch.rand(batch, 3, 1, 1, generator=gen) - 0.5)
     img = (img * gain * (0.8 + 0.4 * torch.rand(batch, 1, 1, 1, generator=gen))).clamp(0, 1)
@@ -135,13 +148,14 @@ def train_mono(cfg: TrainDepthConfig, log=print) -> dict:
     train, val = _split(data, cfg.val_scenes)
     log(f"mono: {len(train)} train scenes ({3 * len(train)} panoramas), {len(val)} validation")
     net = MonoDepthNet(MonoDepthConfig())
+    _init(net, cfg.init, log)
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
     gen = torch.Generator().manual_seed(cfg.seed)
     start, running = time.perf_counter(), 0.0
     for step in range(1, cfg.steps + 1):
         for group in opt.param_groups:
             group["lr"] = _lr_at(step, cfg.steps, cfg.lr)
-        img, gt = _mono_batch(train, gen, cfg.batch)
+        img, gt = _mono_batch(train, gen, cfg.batch, cfg.augment)
         loss = weighted_l1(net(img).depth, gt, net.config.d_max)
         opt.zero_grad(set_to_none=True)
         loss.backward()
@@ -171,7 +185,17 @@ def train_mono(cfg: TrainDepthConfig, log=print) -> dict:
     return figures
 
 
-def _mvs_batch(data: TripletSet, gen: torch.Generator, batch: int):
+def _init(net: torch.nn.Module, path: Path | None, log) -> None:
+    """Load starting weights into ``net`` (strict: the same network) when a path is given."""
+    if path is None:
+        return
+    from safetensors.torch import load_file
+
+    net.load_state_dict(load_file(str(path)))
+    log(f"initialised from {path}")
+
+
+def _mvs_batch(data: TripletSet, gen: torch.Generator, batch: int, augment: bool = False):
     """Random reference/source pairs of the same scene, each view turned by its own yaw, the
     whole world mirrored half of the time, and mild photometric jitter per view."""
     n = len(data)
@@ -185,8 +209,11 @@ def _mvs_batch(data: TripletSet, gen: torch.Generator, batch: int):
         c2w = data.c2w[scene, view]
         shift = int(torch.randint(img.shape[-1], (1,), generator=gen))
         img, dep, c2w = yaw_roll(img, dep, c2w, shift)
-        gain = 1.0 + 0.2 * (torch.rand(batch, 3, 1, 1, generator=gen) - 0.5)
-        imgs.append((img * gain).clamp(0, 1))
+        if augment:
+            imgs.append(photometric(img, gen))
+        else:
+            gain = 1.0 + 0.2 * (torch.rand(batch, 3, 1, 1, generator=gen) - 0.5)
+            imgs.append((img * gain).clamp(0, 1))
         deps.append(dep[:, None])
         poses.append(c2w)
     if torch.rand(1, generator=gen) < 0.5:
@@ -247,18 +274,20 @@ def train_mvs(cfg: TrainDepthConfig, log=print) -> dict:
         f"mono input={mvs_cfg.use_mono}): {len(train)} train scenes, {len(val)} validation"
     )
     net = MVSNet(mvs_cfg)
+    _init(net, cfg.init, log)
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
     gen = torch.Generator().manual_seed(cfg.seed)
     start, running = time.perf_counter(), 0.0
     for step in range(1, cfg.steps + 1):
         for group in opt.param_groups:
             group["lr"] = _lr_at(step, cfg.steps, cfg.lr)
-        ref, src, ref_c2w, src_c2w, gt = _mvs_batch(train, gen, cfg.batch)
+        ref, src, ref_c2w, src_c2w, gt = _mvs_batch(train, gen, cfg.batch, cfg.augment)
         kw = {}
         if mono is not None:
             with torch.no_grad():
                 m = mono(ref)
-            kw = {"mono_depth": m.depth, "mono_features": m.features}
+            mono_depth = corrupt_mono(m.depth, gen, cfg.mono_noise) if cfg.mono_noise else m.depth
+            kw = {"mono_depth": mono_depth, "mono_features": m.features}
         out = net(ref, src, ref_c2w, src_c2w, **kw)
         d_max = mvs_cfg.d_max
         loss = weighted_l1(out.depth, gt, d_max) + 0.5 * weighted_l1(out.expected, gt, d_max)

@@ -27,7 +27,7 @@ from torch import Tensor
 from tqdm import tqdm
 
 from panogrf.app.train.data import TripletSet, load_triplets, yaw_roll
-from panogrf.app.train.depth import _lr_at, save_weights
+from panogrf.app.train.depth import _init, _lr_at, save_weights
 from panogrf.model.depth import DepthEstimator
 from panogrf.model.erp import latitude_weights
 from panogrf.model.metrics import ws_psnr
@@ -73,6 +73,8 @@ class TrainRendererConfig:
     """Steps between log lines."""
     limit_scenes: int | None = None
     """Load only this many scenes (smoke tests)."""
+    init: Path | None = None
+    """Start from these weights (same preset) instead of a random initialisation."""
     extra: dict = field(default_factory=dict)
     """Free-form notes stored with the weights."""
 
@@ -184,6 +186,7 @@ def train_renderer(cfg: TrainRendererConfig, estimator: DepthEstimator, log=prin
     depths = pair_depths(estimator, _at_height(data, cfg.depth_height), Path(cfg.data), log)
     train_idx, val_idx = _split_indices(len(data), cfg.val_scenes)
     net = RendererNet(PRESETS[cfg.preset])
+    _init(net, cfg.init, log)
     log(
         f"renderer ({cfg.preset}, {sum(p.numel() for p in net.parameters())} parameters): "
         f"{len(train_idx)} train scenes, {len(val_idx)} validation"

@@ -119,7 +119,7 @@ def test_gl_depth_matches_ray_casting(split, seed):
     from panogrf.app.synth.gl_render import PanoramaRenderer
     from panogrf.app.synth.raycast import raycast_depth
 
-    textures = build_textures(split, 0, procedural=4)
+    textures, _ = build_textures(split, 0, procedural=4)
     scene = build_scene(split, seed, baseline=1.5, n_layers=len(textures))
     mesh = scene.merged_mesh()
     height, width = 48, 96
@@ -174,7 +174,7 @@ def test_no_cracks_where_clipped_triangles_meet():
     below this camera (depth 0, a black dot). Every ray in a closed room must hit something."""
     from panogrf.app.synth.gl_render import PanoramaRenderer
 
-    textures = build_textures("test", 99, 32)
+    textures, _ = build_textures("test", 99, 32)
     scene = build_scene("test", scene_seed("test", 99, 0), 1.0, len(textures))
     with PanoramaRenderer() as renderer:
         renderer.set_textures(textures)

@@ -1,0 +1,173 @@
+"""The "home" world: the classic two-room layout dressed as a lived-in home.
+
+Starting from `generate_layout` (rooms, doorway, furniture, cameras), with wider ranges (camera
+heights 1.0-1.8 m, baselines up to 3.5 m, the middle camera off the line), this:
+- gives every surface a material of its kind from `panogrf.app.synth.materials` (plaster or
+  wallpaper on walls, planks, tiles or carpet on floors, fabric and kitchen fronts on furniture);
+- cuts bright windows into the walls of the main room, their exterior blown out (tint far above
+  1, so the shader saturates it), some with curtains beside them: a bright patch that is *not*
+  far away, which is what real captures show and the classic world never did;
+- lays rugs and sun patches (the floor's own texture, over-exposed) on the floor;
+- adds beds and tall shelves against the walls.
+Depth stays exact: windows, rugs and patches are thin quads a few millimetres off their surface.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import trimesh
+
+from panogrf.app.synth.layout import (
+    LayoutConfig,
+    Material,
+    SceneObject,
+    SynthScene,
+    _box,
+    _quad,
+    _segment_distance,
+    generate_layout,
+)
+
+HOME_LAYOUT = LayoutConfig(camera_height=(1.0, 1.8), baseline=(0.2, 3.5))
+"""Layout ranges of the home world."""
+
+
+def _pick(rng: np.random.Generator, layers: range, scale, tint_range=(0.8, 1.0)) -> Material:
+    tint = np.clip(rng.uniform(*tint_range) + rng.normal(0, 0.04, 3), 0.3, 10.0)
+    return Material(
+        layer=int(rng.choice(layers)),
+        scale=float(rng.uniform(*scale)),
+        offset=(float(rng.random()), float(rng.random())),
+        tint=tuple(float(t) for t in tint),
+    )
+
+
+def _kind_of(name: str) -> str:
+    if name.endswith("floor") or name == "threshold":
+        return "floor"
+    if name.endswith("ceiling"):
+        return "ceiling"
+    if name.startswith(("roomA_wall", "roomB_wall", "divider")):
+        return "wall"
+    return "furniture"
+
+
+def _window(rng, wall: str, lx: float, lz: float, ha: float, groups) -> list[SceneObject]:
+    """A window on one wall of room A (x = 0, z = 0 or z = lz), maybe with curtains."""
+    span = lz if wall == "x0" else lx
+    width = float(min(rng.uniform(0.8, 2.6), span - 0.4))
+    height = float(min(rng.uniform(1.0, 1.9), ha - 0.5))
+    sill = float(rng.uniform(0.2, max(0.25, ha - height - 0.2)))
+    if width < 0.5 or height < 0.5:
+        return []
+    s0 = float(rng.uniform(0.2, span - width - 0.2))
+    eps = 0.01
+
+    def at(s: float, y: float, off: float = eps) -> list[float]:
+        if wall == "x0":
+            return [off, y, s]
+        return [s, y, off if wall == "z0" else lz - off]
+
+    corners = np.array(
+        [at(s0, sill), at(s0 + width, sill), at(s0 + width, sill + height), at(s0, sill + height)]
+    )
+    glow = Material(
+        layer=int(rng.choice(groups["window"])),
+        scale=float(max(width, height)),
+        offset=(float(rng.random()), float(rng.random())),
+        tint=tuple(float(t) for t in rng.uniform(3.0, 8.0) * rng.uniform(0.9, 1.1, 3)),
+    )
+    out = [SceneObject(f"window_{wall}", _quad(corners), glow)]
+    if rng.random() < 0.5:
+        cloth = _pick(rng, groups["furniture"], (0.3, 0.8))
+        for side in (-1, 1):
+            w = float(rng.uniform(0.2, 0.45))
+            centre_s = s0 - w / 2 + 0.05 if side < 0 else s0 + width + w / 2 - 0.05
+            inward = 0.08
+            c = at(centre_s, (sill + height + 0.15) / 2 + 0.05, inward)
+            ext = [0.06, sill + height + 0.15, w] if wall == "x0" else [w, sill + height + 0.15, 0.06]
+            out.append(SceneObject(f"curtain_{wall}_{side}", _box(ext, c), cloth))
+    return out
+
+
+def _floor_quad(rng, lo, hi, size_range, lift: float) -> trimesh.Trimesh | None:
+    w, d = rng.uniform(*size_range, size=2)
+    if np.any(hi - lo < [w, d]):
+        return None
+    x0, z0 = rng.uniform(lo, hi - [w, d])
+    return _quad(
+        np.array([[x0, lift, z0], [x0, lift, z0 + d], [x0 + w, lift, z0 + d], [x0 + w, lift, z0]])
+    )
+
+
+def generate_home(seed: int, split: str, groups: dict[str, range], baseline: float | None = None):
+    """A home-world scene (deterministic from ``seed``); ``groups`` from `home_texture_bank`."""
+    n_layers = max(r.stop for r in groups.values())
+    scene = generate_layout(seed, split, n_layers, baseline, HOME_LAYOUT)
+    rng = np.random.default_rng([seed, 0x40E])
+    lx, ha, lz = scene.meta["room_a"]
+
+    # Materials by kind; one wall material per room, as painters do.
+    wall_mats = {
+        room: _pick(rng, groups["wall"], (0.6, 1.6), (0.5, 0.9)) for room in ("roomA", "roomB")
+    }
+    objects = []
+    for obj in scene.objects:
+        kind = _kind_of(obj.name)
+        if kind == "wall":
+            mat = wall_mats["roomB" if obj.name.startswith("roomB") else "roomA"]
+        elif kind == "floor":
+            mat = _pick(rng, groups["floor"], (0.8, 2.0))
+        elif kind == "ceiling":
+            mat = _pick(rng, groups["ceiling"], (1.0, 3.0), (0.6, 0.95))
+        else:
+            mat = _pick(rng, groups["furniture"], (0.3, 1.2), (0.6, 1.0))
+        objects.append(dataclasses.replace(obj, material=mat))
+    floor_a = next(o for o in objects if o.name == "roomA_floor").material
+
+    centres = scene.cameras[:, :3, 3]
+    a, b = centres[0, [0, 2]], centres[2, [0, 2]]
+    for wall in rng.permutation(["x0", "z0", "z1"])[: int(rng.integers(1, 4))]:
+        objects += _window(rng, str(wall), lx, lz, ha, groups)
+    lo, hi = np.array([0.1, 0.1]), np.array([lx - 0.1, lz - 0.1])
+    if rng.random() < 0.7 and (m := _floor_quad(rng, lo, hi, (1.2, 3.0), 0.004)) is not None:
+        objects.append(SceneObject("rug", m, _pick(rng, groups["rug"], (1.5, 3.0))))
+    for i in range(int(rng.integers(0, 3))):
+        if (m := _floor_quad(rng, lo, hi, (0.4, 1.5), 0.007)) is not None:
+            sun = dataclasses.replace(floor_a, tint=tuple(rng.uniform(1.5, 2.5) * np.asarray(floor_a.tint)))
+            objects.append(SceneObject(f"sun_patch_{i}", m, sun))
+
+    # Beds and shelves against the walls, clear of the camera line (centre from the wall).
+    clear = HOME_LAYOUT.camera_clearance
+    for i in range(int(rng.integers(0, 3))):
+        bed = rng.random() < 0.5
+        w, d = (rng.uniform(0.9, 1.8), rng.uniform(1.9, 2.1)) if bed else (
+            rng.uniform(0.6, 1.6), rng.uniform(0.3, 0.45))
+        h = rng.uniform(0.45, 0.6) if bed else rng.uniform(1.4, min(2.2, ha - 0.2))
+        x = float(rng.uniform(w / 2 + 0.05, max(w / 2 + 0.06, lx - w / 2 - 0.05)))
+        z = d / 2 + 0.02 if rng.random() < 0.5 else lz - d / 2 - 0.02
+        if _segment_distance(np.array([x, z]), a, b) < clear + math.hypot(w, d) / 2:
+            continue
+        parts = [_box([w, h, d], [x, h / 2, z])]
+        if bed:
+            head_z = z - d / 2 + 0.04 if z < lz / 2 else z + d / 2 - 0.04
+            parts.append(_box([w, 1.0, 0.08], [x, 0.5, head_z]))
+        objects.append(
+            SceneObject(
+                f"A_{'bed' if bed else 'shelf'}_{i}",
+                trimesh.util.concatenate(parts),
+                _pick(rng, groups["furniture"], (0.3, 1.0), (0.6, 1.0)),
+            )
+        )
+
+    cameras = scene.cameras.copy()
+    if scene.baseline > 0.3:
+        # Middle camera off the line, horizontally, less than the clearance kept around it.
+        line = (b - a) / max(np.linalg.norm(b - a), 1e-9)
+        off = rng.uniform(-1, 1) * min(0.3, 0.15 * scene.baseline)
+        cameras[1, :3, 3] += off * np.array([-line[1], 0.0, line[0]])
+    meta = dict(scene.meta, world="home")
+    return dataclasses.replace(scene, objects=objects, cameras=cameras, meta=meta)

@@ -1,0 +1,80 @@
+"""Training-time corruptions of what real captures do to images and to the mono prior.
+
+`photometric` changes each panorama as a real 360-degree camera does from shot to shot:
+exposure (with highlights clipping), white balance, gamma, the falloff of the two fisheye
+lenses towards their seam, sensor noise, slight blur and JPEG-like loss of detail, and a tripod
+or operator blob at the nadir. Geometry is untouched, so depth and poses stay exact.
+
+`corrupt_mono` makes the monocular depth wrong the ways it is wrong on real rooms (a wrong
+global scale, smooth regions too near or too far), so the mono-guided MVS learns to check its
+prior against the cost volume instead of copying it.
+
+All functions draw from a torch.Generator and work on batches [B, C, H, W].
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+
+def _u(gen: torch.Generator, b: int, lo: float, hi: float, *shape: int) -> Tensor:
+    return lo + (hi - lo) * torch.rand(b, *shape, generator=gen)
+
+
+def _smooth_field(gen: torch.Generator, b: int, h: int, w: int, cells: int = 4) -> Tensor:
+    """Smooth random field [B, 1, H, W] in about [-1, 1], wrapping in width."""
+    grid = torch.rand(b, 1, cells, 2 * cells, generator=gen) * 2 - 1
+    grid = torch.cat((grid, grid[..., :1]), -1)  # wrap: the last column meets the first
+    up = F.interpolate(grid, size=(h, w + w // (2 * cells)), mode="bicubic", align_corners=True)
+    return up[..., :w]
+
+
+def photometric(images: Tensor, gen: torch.Generator, strength: float = 1.0) -> Tensor:
+    """Per-panorama camera corruptions of images [B, 3, H, W] in [0, 1] (a new tensor)."""
+    b, _, h, w = images.shape
+    x = images.clamp(0, 1) ** 2.2  # to linear light
+    # Exposure (log-uniform, 0.55x - 1.8x) and white balance (+-12 % per channel).
+    gain = torch.exp(_u(gen, b, math.log(0.55), math.log(1.8), 1, 1, 1) * strength)
+    wb = 1 + strength * _u(gen, b, -0.12, 0.12, 3, 1, 1)
+    x = x * gain * wb
+    # Fisheye falloff: darker towards the stitching seam at longitude +-90 degrees.
+    lon = (torch.arange(w) + 0.5) / w * 2 * math.pi - math.pi
+    lat = math.pi * (0.5 - (torch.arange(h) + 0.5) / h)
+    off_axis = torch.acos((torch.cos(lat)[:, None] * torch.cos(lon)[None]).abs().clamp(max=1))
+    vignette = _u(gen, b, 0.0, 0.35 * strength, 1, 1, 1)
+    x = x * (1 - vignette * (off_axis / (math.pi / 2)) ** 2)
+    x = x.clamp(0, 1) ** (1 / 2.2)  # highlights clip, as a sensor does
+    # Tone curve (gamma 0.8 - 1.25).
+    x = x ** torch.exp(strength * _u(gen, b, -0.22, 0.22, 1, 1, 1))
+    # Slight blur or JPEG-like block loss on some, then noise.
+    soft = torch.rand(b, generator=gen) < 0.3 * strength
+    if soft.any():
+        blurred = F.avg_pool2d(F.pad(x[soft], (1, 1, 1, 1), mode="replicate"), 3, stride=1)
+        x = x.clone()
+        x[soft] = blurred
+    x = x + torch.randn(x.shape, generator=gen) * _u(gen, b, 0.0, 0.02 * strength, 1, 1, 1)
+    # A tripod / operator blob at the nadir on some panoramas.
+    blob = torch.rand(b, generator=gen) < 0.3 * strength
+    if blob.any():
+        rows = (torch.arange(h) + 0.5) / h
+        for i in torch.nonzero(blob).flatten().tolist():
+            extent = float(_u(gen, 1, 0.04, 0.12))
+            mask = (rows > 1 - extent).view(h, 1).expand(h, w)
+            colour = _u(gen, 1, 0.05, 0.5, 3, 1)[0]
+            x[i, :, mask] = colour.expand(-1, int(mask.sum()))
+    return x.clamp(0, 1)
+
+
+def corrupt_mono(depth: Tensor, gen: torch.Generator, p: float = 0.6) -> Tensor:
+    """Monocular depth [B, 1, h, w] (metres) made wrong on a fraction ``p`` of the batch:
+    a global scale of 0.7x - 1.4x times smooth regions off by up to +-40 %."""
+    b, _, h, w = depth.shape
+    hit = (torch.rand(b, 1, 1, 1, generator=gen) < p).to(depth.dtype)
+    scale = torch.exp(_u(gen, b, math.log(0.7), math.log(1.4), 1, 1, 1))
+    local = torch.exp(0.35 * _smooth_field(gen, b, h, w))
+    wrong = depth * scale * local
+    return hit * wrong + (1 - hit) * depth
