@@ -27,6 +27,7 @@ import torch
 from torch import Tensor
 
 from panogrf.model.depth import DepthEstimator
+from panogrf.model.photometric import balance_exposure
 from panogrf.model.render_net import RendererNet
 from panogrf.renderer.baselines import render_meshwarp, render_nearest
 from panogrf.renderer.cache import SceneCache, build_cache
@@ -61,7 +62,12 @@ class Models:
 
 @dataclass
 class SourceViews:
-    """Posed source panoramas of one scene and what is derived from them, memoised."""
+    """Posed source panoramas of one scene and what is derived from them, memoised.
+
+    The panoramas are brought to a common exposure on construction (`balance_exposure`: real
+    captures change exposure between shots); ``gains`` [V, 3] says what was applied (all 1 for
+    a consistent capture). ``balance=False`` keeps them as given.
+    """
 
     images: Tensor  # [V, 3, H, W] in [0, 1]
     c2w: Tensor  # [V, 4, 4]
@@ -69,6 +75,15 @@ class SourceViews:
     caches: dict[tuple[str, str], SceneCache] = field(default_factory=dict)
     fitted: dict[str, object] = field(default_factory=dict)  # per-scene models (snerf)
     seconds: dict[str, float] = field(default_factory=dict)  # preparation time per item
+    balance: bool = True
+    gains: Tensor | None = None  # [V, 3] exposure gains applied to the given images
+
+    def __post_init__(self) -> None:
+        if self.gains is None:
+            if self.balance:
+                self.images, self.gains = balance_exposure(self.images)
+            else:
+                self.gains = self.images.new_ones(self.images.shape[0], 3)
 
     def depth_for(self, mode: str, models: Models) -> Tensor:
         if mode not in self.depth:

@@ -87,7 +87,6 @@ def prepare_scene(scene_dir: Path, cache_dir: Path | None, log=print):
     from panogrf.app.commands.render import default_models
     from panogrf.app.scene import load_scene
     from panogrf.app.scene_cache import prepare_cached
-    from panogrf.assets import path as asset_path
     from panogrf.renderer.methods import SourceViews
 
     scene = load_scene(scene_dir, load_images=True)
@@ -95,9 +94,9 @@ def prepare_scene(scene_dir: Path, cache_dir: Path | None, log=print):
     views = SourceViews(data.images, data.c2w)
     models = default_models()
     weight_files = [
-        asset_path(depth_weights.WEIGHTS["mono"]),
-        asset_path(depth_weights.WEIGHTS["full"]),
-        asset_path(depth_weights.RENDERER_WEIGHTS["panogrf"]),
+        depth_weights.weights_path(depth_weights.WEIGHTS["mono"]),
+        depth_weights.weights_path(depth_weights.WEIGHTS["full"]),
+        depth_weights.weights_path(depth_weights.RENDERER_WEIGHTS["panogrf"]),
     ]
     missing = [p.name for p in weight_files if not p.exists()]
     if missing:
