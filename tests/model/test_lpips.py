@@ -11,8 +11,8 @@ import torch
 from panogrf.app.lpips_weights import load_lpips
 from panogrf.model.lpips import LPIPS, MIN_SIZE
 
-# The LPIPS authors' example images, kept beside the repository (../shared); CI has them too.
-REFERENCE_DIR = Path(__file__).resolve().parents[3] / "shared" / "reference" / "lpips"
+# The LPIPS authors' example images, with their licence, in the repository (tests/data/lpips).
+REFERENCE_DIR = Path(__file__).resolve().parents[1] / "data" / "lpips"
 
 
 def _read_rgb(name: str) -> torch.Tensor:
