@@ -109,13 +109,18 @@ def main() -> int:
                 scores = image_scores(rgb, data.images[1:2]) | {"seconds": sec}
                 image_rows.setdefault((method, h), []).append(scores)
                 renders[(method, h)] = rgb
-                print(f"{folder.name} {method:>9} {h:4d} rows: WS-PSNR {scores['ws_psnr']:.2f} "
-                      f"LPIPS {scores['lpips']:.3f} ({sec:.1f} s)", flush=True)
+                print(
+                    f"{folder.name} {method:>9} {h:4d} rows: WS-PSNR {scores['ws_psnr']:.2f} "
+                    f"LPIPS {scores['lpips']:.3f} ({sec:.1f} s)",
+                    flush=True,
+                )
         h0 = max(heights)
         from panogrf.renderer.cache import resize_erp
 
         panel = [resize_erp(data.images[1:2], h0)[0]]
-        panel += [renders[(m, h0)] for m in ("panogrf", "no_mono", "meshwarp") if (m, h0) in renders]
+        panel += [
+            renders[(m, h0)] for m in ("panogrf", "no_mono", "meshwarp") if (m, h0) in renders
+        ]
         pictures.append(torch.cat(panel, 1))  # stacked vertically
     seconds = time.perf_counter() - start
 
@@ -151,11 +156,15 @@ def main() -> int:
     print(f"{'mode':>6} " + " ".join(f"{k:>8}" for k in DEPTH_KEYS) + "   (depth, metres)")
     for mode, r in depth_table.items():
         print(f"{mode:>6} " + " ".join(f"{r[k]:8.3f}" for k in DEPTH_KEYS))
-    print(f"\n{'method':>9} {'rows':>5} {'PSNR':>7} {'WS-PSNR':>8} {'SSIM':>6} {'LPIPS':>6} {'s':>6}")
-    for (m, h) in sorted(image_rows, key=lambda k: (-k[1], methods.index(k[0]))):
+    print(
+        f"\n{'method':>9} {'rows':>5} {'PSNR':>7} {'WS-PSNR':>8} {'SSIM':>6} {'LPIPS':>6} {'s':>6}"
+    )
+    for m, h in sorted(image_rows, key=lambda k: (-k[1], methods.index(k[0]))):
         r = image_table[f"{m}@{h}"]
-        print(f"{m:>9} {h:5d} {r['psnr']:7.2f} {r['ws_psnr']:8.2f} {r['ssim']:6.3f} "
-              f"{r['lpips']:6.3f} {r['seconds']:6.1f}")
+        print(
+            f"{m:>9} {h:5d} {r['psnr']:7.2f} {r['ws_psnr']:8.2f} {r['ssim']:6.3f} "
+            f"{r['lpips']:6.3f} {r['seconds']:6.1f}"
+        )
     return 0
 
 

@@ -4,8 +4,8 @@ Real captures change exposure and white balance from shot to shot; a renderer th
 dark and a bright photograph paints a grey average. Panoramas of one place see nearly the same
 content (every view sees the whole room), so each view's solid-angle-weighted mean log colour
 estimates its exposure: every view is scaled, per channel, towards the scene's common mean.
-Differences below ``deadband`` (log of linear light; 0.3 ~ 35 %, about half a stop) are what moving the camera changes in
-the content itself, and are left alone.
+Differences below ``deadband`` (log of linear light; 0.3 ~ 35 %, about half a stop) are what
+moving the camera changes in the content itself, and are left alone.
 """
 
 from __future__ import annotations

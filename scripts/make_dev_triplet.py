@@ -6,8 +6,8 @@ The public repository chengzhag/PanSplat carries one test triplet of PanoGRF's d
 script reads it from a bare git mirror of that repository (or from a folder holding the three
 view folders) and writes, by default, ``data/real/`` (ignored by git)::
 
-    data/real/dataset.json              # index read by `panogrf eval` and benchmarks/real_capture.py
-    data/real/m3d_00000007/             # the scene folder: transforms.json, images/, depths/
+    data/real/dataset.json     # index read by `panogrf eval` and benchmarks/real_capture.py
+    data/real/m3d_00000007/    # the scene folder: transforms.json, images/, depths/
 
 Conventions (checked by ``panogrf scene reproject data/real/m3d_00000007``): the rotations
 are the identity and ``tran.txt`` is the camera centre (0, 0, t_z) in our frame; the depth is
@@ -90,7 +90,10 @@ def main() -> int:
         np.stack(images),
         np.stack(depths),
         names=[f"view_{v}" for v in VIEWS],
-        metadata={"source": f"chengzhag/PanSplat {TRIPLET}", "licence": "Matterport3D, non-commercial research"},
+        metadata={
+            "source": f"chengzhag/PanSplat {TRIPLET}",
+            "licence": "Matterport3D, non-commercial research",
+        },
     )
     index = {"split": "real-dev", "scenes": [{"folder": SCENE, "baseline": 1.0}]}
     (args.out / "dataset.json").write_text(json.dumps(index, indent=2))

@@ -24,7 +24,6 @@ from panogrf.app.synth.layout import (
     LayoutConfig,
     Material,
     SceneObject,
-    SynthScene,
     _box,
     _quad,
     _segment_distance,
@@ -88,7 +87,9 @@ def _window(rng, wall: str, lx: float, lz: float, ha: float, groups) -> list[Sce
             centre_s = s0 - w / 2 + 0.05 if side < 0 else s0 + width + w / 2 - 0.05
             inward = 0.08
             c = at(centre_s, (sill + height + 0.15) / 2 + 0.05, inward)
-            ext = [0.06, sill + height + 0.15, w] if wall == "x0" else [w, sill + height + 0.15, 0.06]
+            ext = (
+                [0.06, sill + height + 0.15, w] if wall == "x0" else [w, sill + height + 0.15, 0.06]
+            )
             out.append(SceneObject(f"curtain_{wall}_{side}", _box(ext, c), cloth))
     return out
 
@@ -137,15 +138,20 @@ def generate_home(seed: int, split: str, groups: dict[str, range], baseline: flo
         objects.append(SceneObject("rug", m, _pick(rng, groups["rug"], (1.5, 3.0))))
     for i in range(int(rng.integers(0, 3))):
         if (m := _floor_quad(rng, lo, hi, (0.4, 1.5), 0.007)) is not None:
-            sun = dataclasses.replace(floor_a, tint=tuple(rng.uniform(1.5, 2.5) * np.asarray(floor_a.tint)))
+            sun = dataclasses.replace(
+                floor_a, tint=tuple(rng.uniform(1.5, 2.5) * np.asarray(floor_a.tint))
+            )
             objects.append(SceneObject(f"sun_patch_{i}", m, sun))
 
     # Beds and shelves against the walls, clear of the camera line (centre from the wall).
     clear = HOME_LAYOUT.camera_clearance
     for i in range(int(rng.integers(0, 3))):
         bed = rng.random() < 0.5
-        w, d = (rng.uniform(0.9, 1.8), rng.uniform(1.9, 2.1)) if bed else (
-            rng.uniform(0.6, 1.6), rng.uniform(0.3, 0.45))
+        w, d = (
+            (rng.uniform(0.9, 1.8), rng.uniform(1.9, 2.1))
+            if bed
+            else (rng.uniform(0.6, 1.6), rng.uniform(0.3, 0.45))
+        )
         h = rng.uniform(0.45, 0.6) if bed else rng.uniform(1.4, min(2.2, ha - 0.2))
         x = float(rng.uniform(w / 2 + 0.05, max(w / 2 + 0.06, lx - w / 2 - 0.05)))
         z = d / 2 + 0.02 if rng.random() < 0.5 else lz - d / 2 - 0.02

@@ -13,6 +13,7 @@ the photometric MSE of the coarse, fine and guided composites.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import math
@@ -75,6 +76,9 @@ class TrainRendererConfig:
     """Load only this many scenes (smoke tests)."""
     init: Path | None = None
     """Start from these weights (same preset) instead of a random initialisation."""
+    surface_loss: bool = True
+    """Also train the depth-guided pass's surface colour (`Sampling.surface`): density that
+    peaks at the surface and blend weights that pick the sources that see it."""
     extra: dict = field(default_factory=dict)
     """Free-form notes stored with the weights."""
 
@@ -195,12 +199,12 @@ def train_renderer(cfg: TrainRendererConfig, estimator: DepthEstimator, log=prin
     gen = torch.Generator().manual_seed(cfg.seed)
     probs = _row_sampler(cfg.height, 2 * cfg.height)
     train_sampling = Sampling(n_coarse=cfg.coarse, n_fine=cfg.fine)
-    fast = QUALITY["fast"]
-    start, running = time.perf_counter(), torch.zeros(3)
+    fast = dataclasses.replace(QUALITY["fast"], surface=cfg.surface_loss)
+    start, running = time.perf_counter(), torch.zeros(4)
     for step in range(1, cfg.steps + 1):
         for group in opt.param_groups:
             group["lr"] = _lr_at(step, cfg.steps, cfg.lr)
-        losses = torch.zeros(3)
+        losses = torch.zeros(4)
         total = 0.0
         for _ in range(cfg.scenes_per_step):
             i = int(train_idx[int(torch.randint(len(train_idx), (1,), generator=gen))])
@@ -215,11 +219,13 @@ def train_renderer(cfg: TrainRendererConfig, estimator: DepthEstimator, log=prin
             guided = render_rays(
                 net, cache, o, d, fast, (px.near.reshape(-1)[pix], px.far.reshape(-1)[pix])
             )
+            blended = guided.blended if guided.blended is not None else guided.final
             parts = torch.stack(
                 [
                     ((paper.coarse.rgb - gt) ** 2).mean(),
                     ((paper.final.rgb - gt) ** 2).mean(),
-                    ((guided.final.rgb - gt) ** 2).mean(),
+                    ((blended.rgb - gt) ** 2).mean(),
+                    ((guided.final.rgb - gt) ** 2).mean() if cfg.surface_loss else gt.new_zeros(()),
                 ]
             )
             total = total + parts.sum() / cfg.scenes_per_step
@@ -231,11 +237,11 @@ def train_renderer(cfg: TrainRendererConfig, estimator: DepthEstimator, log=prin
         running += losses
         if step % cfg.log_every == 0 or step == cfg.steps:
             k = cfg.log_every if step % cfg.log_every == 0 else step % cfg.log_every
-            c, f, g = (running / k).tolist()
-            psnr = [-10 * math.log10(max(x, 1e-10)) for x in (c, f, g)]
+            c, f, g, sf = (running / k).tolist()
+            psnr = [-10 * math.log10(max(x, 1e-10)) for x in (c, f, g, sf)]
             log(
-                f"step {step:5d}  mse coarse {c:.5f} fine {f:.5f} guided {g:.5f}  "
-                f"(PSNR {psnr[0]:.2f}/{psnr[1]:.2f}/{psnr[2]:.2f})  "
+                f"step {step:5d}  mse coarse {c:.5f} fine {f:.5f} guided {g:.5f} surface {sf:.5f}"
+                f"  (PSNR {psnr[0]:.2f}/{psnr[1]:.2f}/{psnr[2]:.2f}/{psnr[3]:.2f})  "
                 f"lr {opt.param_groups[0]['lr']:.2e}  {time.perf_counter() - start:7.1f} s"
             )
             running.zero_()

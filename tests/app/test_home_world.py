@@ -58,7 +58,9 @@ def test_home_layout(index):
 
 def test_home_baselines_reach_past_two_metres():
     _, groups = build_textures("train", 0, 8, world="home")
-    baselines = [generate_home(scene_seed("train", 1, i), "train", groups).baseline for i in range(40)]
+    baselines = [
+        generate_home(scene_seed("train", 1, i), "train", groups).baseline for i in range(40)
+    ]
     assert max(baselines) > 2.5 and min(baselines) < 1.5
 
 
