@@ -23,7 +23,7 @@ from safetensors.torch import load_file, save_file
 from panogrf.renderer.cache import SceneCache
 from panogrf.renderer.methods import Models, SourceViews
 
-FORMAT = "panogrf-scene-cache-1"
+FORMAT = "panogrf-scene-cache-2"  # 2: exposure balance and the photometric sweep
 PRESET, DEPTH_MODE = "panogrf", "full"
 
 

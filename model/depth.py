@@ -7,6 +7,12 @@ resized back. Degenerate input never yields NaN:
 - a source at (nearly) the reference's position: that pair is dropped; with no pair left the
   view falls back to monocular depth, with a warning;
 - depth at the top of the range (outdoor, or beyond ``d_max``): clamped, and flagged per pixel.
+
+The multi-view modes end with a photometric sweep (`panogrf.model.refine.sweep_depth`): every
+pixel of the MVS depth may move to the nearby depth at which its nearest sources agree best, at
+twice the working resolution, where they clearly agree better than at the network's depth. The
+cost volume works at a quarter of 128 rows; the sweep puts back the detail a real capture has.
+``sweep=None`` turns it off (training does, to keep its depth caches cheap).
 """
 
 from __future__ import annotations
@@ -19,6 +25,7 @@ from torch import Tensor, nn
 
 from panogrf.model.mono import MonoDepthNet
 from panogrf.model.mvs import MVSNet
+from panogrf.model.refine import SweepConfig, sweep_depth
 
 MODES = ("full", "mono", "mvs")
 
@@ -41,6 +48,7 @@ class DepthEstimator(nn.Module):
         mvs: dict[str, MVSNet],
         working_height: int = 128,
         min_baseline: float = 0.05,
+        sweep: SweepConfig | None = SweepConfig(),
     ) -> None:
         super().__init__()
         self.mono = mono
@@ -48,14 +56,23 @@ class DepthEstimator(nn.Module):
         self.working_height = working_height
         self.min_baseline = min_baseline
         """Sources closer than this to the reference (metres) carry no parallax: dropped."""
+        self.sweep = sweep
+        """The photometric sweep after the MVS network (None: off)."""
+        self.sweep_sources = 2
+        """The sweep compares each view with at most this many of its nearest sources."""
 
     @property
     def d_max(self) -> float:
         return self.mono.config.d_max
 
     @torch.no_grad()
-    def forward(self, images: Tensor, c2w: Tensor, mode: str = "full") -> DepthEstimate:
-        """images [V, 3, H, W] in [0, 1] (W = 2H), c2w [V, 4, 4] -> `DepthEstimate`."""
+    def forward(
+        self, images: Tensor, c2w: Tensor, mode: str = "full", detail: Tensor | None = None
+    ) -> DepthEstimate:
+        """images [V, 3, H, W] in [0, 1] (W = 2H), c2w [V, 4, 4] -> `DepthEstimate`.
+
+        ``detail``: the same panoramas at a higher resolution for the photometric sweep (by
+        default ``images``), when the caller passes working-resolution images."""
         if mode not in MODES:
             raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
         if mode != "mono" and mode not in self.mvs:
@@ -104,6 +121,16 @@ class DepthEstimator(nn.Module):
                 )
                 depth[ref] = out.depth[0]
         depth = torch.nan_to_num(depth, nan=self.d_max, posinf=self.d_max).clamp(0.05, self.d_max)
+        if mode != "mono" and self.sweep is not None and any(sources):
+            centres = c2w[:, :3, 3]
+            nearest = [
+                sorted(src, key=lambda j, r=r: float((centres[j] - centres[r]).norm()))[
+                    : self.sweep_sources
+                ]
+                for r, src in enumerate(sources)
+            ]
+            pixels = images if detail is None else detail
+            depth = sweep_depth(pixels, c2w, depth, nearest, self.sweep, (0.05, self.d_max))
         mono_depth = mono.depth
         if (h, w) != hw:
             depth = F.interpolate(depth, size=(h, w), mode="bilinear", align_corners=False)

@@ -91,7 +91,7 @@ class SourceViews:
             est = models.estimator(mode)
             small = est.working_height
             with torch.no_grad():
-                out = est(_resize(self.images, small), self.c2w, mode)
+                out = est(_resize(self.images, small), self.c2w, mode, detail=self.images)
             self.depth[mode] = out.depth
             self.seconds[f"depth:{mode}"] = time.perf_counter() - start
         return self.depth[mode]

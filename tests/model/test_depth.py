@@ -73,7 +73,11 @@ def test_depth_is_the_mvs_networks_output(estimator, mode):
     """At the working size, a view's depth is its MVS output with the other views as sources."""
     images = _images(3, WORKING, seed=1)
     c2w = _poses((0, 0, 0), (0.5, 0, 0), (1.0, 0.1, 0))
-    est = estimator(images, c2w, mode=mode)
+    sweep, estimator.sweep = estimator.sweep, None  # the network alone
+    try:
+        est = estimator(images, c2w, mode=mode)
+    finally:
+        estimator.sweep = sweep
     assert est.sources == [[1, 2], [0, 2], [0, 1]]
     net = estimator.mvs[mode]
     with torch.no_grad():

@@ -1,0 +1,100 @@
+"""The photometric sweep and the gradient refinement of depth, on an analytic scene: two cameras
+inside a textured sphere, whose depth is known exactly."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from panogrf.model.erp import erp_directions
+from panogrf.model.refine import (
+    RefineConfig,
+    SweepConfig,
+    photometric_error,
+    refine_depth,
+    sweep_depth,
+    warp_from,
+)
+
+RADIUS = 3.0
+
+
+def _texture(p: torch.Tensor) -> torch.Tensor:
+    """A smooth, detailed colour pattern of world points [..., 3] -> [..., 3] in [0, 1]."""
+    x, y, z = p.unbind(-1)
+    a = torch.sin(7 * x + 3 * y) * torch.cos(5 * z - 2 * x)
+    b = torch.sin(11 * y + 4 * z) * torch.sin(6 * x)
+    c = torch.cos(9 * z + 5 * y + 3 * x)
+    return 0.5 + 0.45 * torch.stack((a, b, c), -1).clamp(-1, 1)
+
+
+def _camera(centre, h):
+    """Image [3, h, 2h] and true spherical depth [1, h, 2h] of a camera at ``centre``."""
+    d = erp_directions(h, 2 * h, dtype=torch.float64)
+    o = torch.tensor(centre, dtype=torch.float64)
+    # |o + t d| = R: t^2 + 2 t (o.d) + |o|^2 - R^2 = 0, the positive root.
+    b = (d * o).sum(-1)
+    t = -b + torch.sqrt(b * b - (o * o).sum() + RADIUS**2)
+    colour = _texture(o + t[..., None] * d)
+    return colour.permute(2, 0, 1).float(), t[None].float()
+
+
+@pytest.fixture(scope="module")
+def scene():
+    torch.set_num_threads(1)
+    h = 64
+    centres = [(0.0, 0.0, 0.0), (0.8, 0.1, 0.0)]
+    imgs, depths = zip(*(_camera(c, h) for c in centres), strict=True)
+    c2w = torch.eye(4).repeat(2, 1, 1)
+    for i, c in enumerate(centres):
+        c2w[i, :3, 3] = torch.tensor(c)
+    return torch.stack(imgs), c2w, torch.stack(depths)
+
+
+def test_true_depth_warps_exactly(scene):
+    images, c2w, depth = scene
+    dirs = erp_directions(64, 128)
+    warped = warp_from(images[1:2], depth[0, 0], c2w[0], c2w[1], dirs)
+    err = photometric_error(warped, images[0:1])
+    wrong = photometric_error(
+        warp_from(images[1:2], 1.3 * depth[0, 0], c2w[0], c2w[1], dirs), images[0:1]
+    )
+    assert err.mean() < 0.5 * wrong.mean()
+
+
+@pytest.mark.parametrize("factor", [1.25, 0.8])
+def test_sweep_recovers_a_wrong_depth(scene, factor):
+    images, c2w, depth = scene
+    small = torch.nn.functional.interpolate(depth, size=(32, 64), mode="area")
+    wrong = small * factor
+    out = sweep_depth(images, c2w, wrong, [[1], [0]], SweepConfig(height=64, window=5))
+    assert out.shape == wrong.shape and torch.isfinite(out).all()
+    before = (wrong - small).abs().mean()
+    after = (out - small).abs().mean()
+    assert after < 0.35 * before
+
+
+def test_sweep_keeps_the_network_depth_where_nothing_is_seen(scene):
+    images, c2w, depth = scene
+    flat = torch.full_like(images, 0.5)  # no texture: no evidence
+    small = torch.nn.functional.interpolate(depth, size=(32, 64), mode="area")
+    out = sweep_depth(flat, c2w, small * 1.2, [[1], [0]], SweepConfig(height=64))
+    torch.testing.assert_close(out, small * 1.2)
+
+
+def test_no_sources_no_change(scene):
+    images, c2w, depth = scene
+    small = torch.nn.functional.interpolate(depth, size=(32, 64), mode="area")
+    torch.testing.assert_close(sweep_depth(images, c2w, small, [[], []]), small)
+    torch.testing.assert_close(refine_depth(images, c2w, small, [[], []]), small)
+
+
+def test_gradient_refinement_reduces_the_error(scene):
+    images, c2w, depth = scene
+    small = torch.nn.functional.interpolate(depth, size=(32, 64), mode="area")
+    wrong = small * 1.1
+    out = refine_depth(images, c2w, wrong, [[1], [0]], RefineConfig(iterations=40, height=64))
+    assert (out - small).abs().mean() < (wrong - small).abs().mean()
+    assert math.isfinite(float(out.sum()))
