@@ -28,6 +28,7 @@ from panogrf.model.mvs import MVSNet
 from panogrf.model.refine import SweepConfig, sweep_depth
 
 MODES = ("full", "mono", "mvs")
+DEFAULT_SWEEP = SweepConfig()
 
 
 @dataclass
@@ -48,7 +49,7 @@ class DepthEstimator(nn.Module):
         mvs: dict[str, MVSNet],
         working_height: int = 128,
         min_baseline: float = 0.05,
-        sweep: SweepConfig | None = SweepConfig(),
+        sweep: SweepConfig | None = DEFAULT_SWEEP,
     ) -> None:
         super().__init__()
         self.mono = mono
