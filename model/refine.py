@@ -134,7 +134,12 @@ def refine_depth(
 
 @dataclass(frozen=True)
 class SweepConfig:
-    """The per-pixel photometric sweep around the networks' depth."""
+    """The per-pixel photometric sweep around the networks' depth.
+
+    Chosen on 12 validation scenes of the train split (8 home, 4 classic; MVS-only depth, mean
+    L1 in metres): no sweep 0.2295, these defaults 0.1940, window 5: 0.1937, window 9: 0.1946,
+    a second pass (span 0.15, 12 candidates) 0.1982, span 0.7 with 32 candidates 0.2038.
+    """
 
     height: int = 256
     """Rows of the photometric comparison."""
