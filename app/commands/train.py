@@ -94,6 +94,11 @@ def register(subparsers) -> None:
     renderer.add_argument("--log", type=Path, default=None, help="also append log lines here")
     renderer.add_argument("--limit-scenes", type=int, default=None, help="load only N scenes")
     renderer.add_argument("--init", type=Path, default=None, help="start from these weights")
+    renderer.add_argument(
+        "--no-surface-loss",
+        action="store_true",
+        help="train only the composited colours (not the surface colour; round 1's behaviour)",
+    )
     renderer.set_defaults(func=run_renderer)
 
 
@@ -141,6 +146,7 @@ def run_renderer(args: argparse.Namespace) -> int:
         seed=args.seed,
         limit_scenes=args.limit_scenes,
         init=args.init,
+        surface_loss=not args.no_surface_loss,
     )
     try:
         train_renderer(cfg, load_depth_estimator(("full",)), log=log)
