@@ -12,6 +12,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from panogrf.app.commands import scene_poses
 from panogrf.app.errors import UserError
 from panogrf.app.scene import TRANSFORMS, SceneReport, inspect_scene
 
@@ -158,13 +159,16 @@ def _add_reproject(sub: argparse._SubParsersAction) -> None:
 _SUBCOMMANDS: dict[str, Callable[[argparse._SubParsersAction], None]] = {
     "check": _add_check,
     "reproject": _add_reproject,
+    "from-panoramas": scene_poses._add_from_panoramas,
+    "import": scene_poses._add_import,
+    "faces": scene_poses._add_faces,
 }
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         "scene",
-        help="inspect and validate scene folders",
+        help="inspect, validate and make scene folders (poses from panoramas or pose files)",
         description=_DESCRIPTION,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )

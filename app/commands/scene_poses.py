@@ -1,0 +1,307 @@
+"""`panogrf scene import | from-panoramas | faces`: scene folders from one's own captures.
+
+Registered under `panogrf scene` by `panogrf.app.commands.scene`. The pose work lives in
+`panogrf.app.poses`; this module reads the panoramas, parses options, writes the scene folder
+(`panogrf.app.scene.write_scene`) and prints the report.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from panogrf.app.errors import UserError
+from panogrf.app.images import read_rgb
+from panogrf.app.poses import scale as sc
+
+_CONVENTIONS = """\
+Written poses: camera-to-world 4x4, OpenGL camera frame (x right, y up, looking down -z),
+world y up (levelled so the cameras' mean up axis is +y), the first view at x = z = 0 facing
+-z, metres once scaled."""
+
+
+def read_panoramas(paths: list[Path]) -> np.ndarray:
+    """Panorama files -> uint8 [V, 3, H, W]; UserError naming the file for any bad one."""
+    images = []
+    for path in paths:
+        img = read_rgb(path)  # ImageReadError (a UserError) names the file
+        h, w = img.shape[:2]
+        if w != 2 * h:
+            raise UserError(f"{path}: {w}x{h} is not a 2:1 equirectangular panorama")
+        if images and img.shape != images[0].shape:
+            first = images[0].shape
+            raise UserError(
+                f"{path}: {w}x{h}, but {paths[0]} is {first[1]}x{first[0]}; "
+                "all panoramas must have the same size"
+            )
+        images.append(img)
+    return np.stack(images).transpose(0, 3, 1, 2)
+
+
+def _check_out(out: Path) -> None:
+    if (out / "transforms.json").exists():
+        raise UserError(f"{out}: already holds a scene (transforms.json); choose another --out")
+    if out.exists() and not out.is_dir():
+        raise UserError(f"{out}: exists and is not a folder")
+
+
+def _baselines(c2w: np.ndarray) -> str:
+    c = c2w[:, :3, 3]
+    return ", ".join(
+        f"{i}-{j} {np.linalg.norm(c[i] - c[j]):.3f}"
+        for i in range(len(c))
+        for j in range(i + 1, len(c))
+    )
+
+
+# --- import -------------------------------------------------------------------------------
+
+
+def _match_images(fmt: str, pose_file: Path, names: list[str] | None, given: list[Path] | None):
+    """Image files in pose order, and the index of the pose each belongs to."""
+    if names is None:  # TUM: images in file order
+        if not given:
+            raise UserError(f"{pose_file}: a TUM trajectory has no image names; pass --images")
+        return given, list(range(len(given)))
+    if given is None:
+        if fmt != "opensfm":
+            raise UserError(f"{pose_file}: pass the panoramas with --images")
+        given = [pose_file.parent / "images" / name for name in names]
+        return given, list(range(len(names)))
+    key = (lambda p: p.name) if fmt == "opensfm" else (lambda p: p.stem)
+    lookup = {n: i for i, n in enumerate(names)}
+    order = []
+    for path in given:
+        if key(path) not in lookup:
+            raise UserError(f"{path}: no pose named {key(path)!r} in {pose_file}")
+        order.append(lookup[key(path)])
+    return given, order
+
+
+def run_import(args: argparse.Namespace) -> int:
+    from panogrf.app.poses.importers import read_poses
+    from panogrf.app.scene import write_scene
+
+    _check_out(args.out)
+    poses = read_poses(args.format, args.pose_file)
+    files, order = _match_images(args.format, args.pose_file, poses.names, args.images)
+    if poses.names is None and len(files) != len(poses.c2w):
+        raise UserError(
+            f"{args.pose_file}: {len(poses.c2w)} poses but {len(files)} --images; "
+            "give one panorama per line, in order"
+        )
+    if len(files) < 2:
+        raise UserError(f"{args.pose_file}: a scene needs at least two panoramas")
+    images = read_panoramas(files)
+    c2w = poses.c2w[order]
+    lines = [f"imported {len(files)} poses from {args.pose_file} ({args.format})"]
+    if not args.keep_world:
+        up = sc.camera_up(c2w)
+        tilt = [np.degrees(np.arccos(np.clip(m[:3, 1] @ up, -1, 1))) for m in c2w]
+        c2w = sc.canonical_frame(c2w, up)
+        lines.append(
+            "levelled: world up = the cameras' mean up axis; camera tilts from it (deg): "
+            + ", ".join(f"{t:.2f}" for t in tilt)
+        )
+    if args.distance:
+        i, j, m = sc.parse_distance(args.distance, len(c2w))
+        s = sc.scale_from_distance(c2w, i, j, m)
+        lines.append(f"scale: views {i} and {j} are {m} m apart (factor {s:.4g})")
+    elif args.scale:
+        s = args.scale
+        lines.append(f"scale: factor {s:.4g} from --scale")
+    else:
+        s = 1.0
+        lines.append("scale: the tool's own units, taken as metres (no --distance or --scale)")
+    c2w = sc.scale_centres(c2w, s)
+    names = [Path(f).stem for f in files]
+    if len(set(names)) != len(names):
+        names = [f"view_{k:03d}" for k in range(len(files))]
+    write_scene(args.out, c2w, images, names=names, metadata={"poses": {"imported": args.format}})
+    lines += [f"  {n}" for n in poses.notes]
+    lines.append(f"baselines (m): {_baselines(c2w)}")
+    lines.append(f"wrote {args.out}")
+    print("\n".join(lines))
+    return 0
+
+
+def _add_import(sub: argparse._SubParsersAction) -> None:
+    parser = sub.add_parser(
+        "import",
+        help="a scene folder from panoramas and a pose file of another tool",
+        description=(
+            "Write a scene folder from panoramas and their poses in a TUM trajectory "
+            "(stella_vslam / OpenVSLAM), an OpenSfM reconstruction.json (spherical cameras) or "
+            "a COLMAP images.txt of cube faces. Conventions: see `panogrf.app.poses.importers`."
+            "\n\n" + _CONVENTIONS
+        ),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=(
+            "examples:\n"
+            "  panogrf scene import --format tum keyframe_trajectory.txt --images a.jpg b.jpg "
+            "--out myroom --distance 0,1=2.5\n"
+            "  panogrf scene import --format opensfm project/reconstruction.json --out myroom\n"
+            "  panogrf scene import --format colmap sparse/images.txt --images a.jpg b.jpg "
+            "--out myroom"
+        ),
+    )
+    parser.add_argument("pose_file", type=Path, metavar="POSE_FILE")
+    parser.add_argument("--format", required=True, choices=("tum", "opensfm", "colmap"))
+    parser.add_argument(
+        "--images",
+        type=Path,
+        nargs="+",
+        default=None,
+        help="the panoramas: TUM in line order; OpenSfM by file name (default: images/ beside "
+        "the JSON); COLMAP by stem (the <panorama> of <panorama>/<face>.png)",
+    )
+    parser.add_argument("--out", type=Path, required=True, help="scene folder to write")
+    group = parser.add_mutually_exclusive_group()
+    group.add_argument("--distance", help="I,J=METRES: views I and J are this far apart")
+    group.add_argument("--scale", type=float, help="multiply the tool's units by this")
+    parser.add_argument(
+        "--keep-world", action="store_true", help="keep the tool's world frame (no levelling)"
+    )
+    parser.set_defaults(func=run_import)
+
+
+# --- faces --------------------------------------------------------------------------------
+
+
+def run_faces(args: argparse.Namespace) -> int:
+    import torch
+
+    from panogrf.app.images import write_rgb
+    from panogrf.model.cubemap import FACE_NAMES, erp_to_cubemap
+
+    images = read_panoramas(args.panoramas)
+    size = args.size or images.shape[3] // 4
+    for path, img in zip(args.panoramas, images, strict=True):
+        erp = torch.from_numpy(img).double()[None] / 255.0
+        faces = erp_to_cubemap(erp, size)[0]
+        folder = args.out / path.stem
+        folder.mkdir(parents=True, exist_ok=True)
+        for name, face in zip(FACE_NAMES, faces, strict=True):
+            write_rgb(folder / f"{name}.png", face.permute(1, 2, 0).numpy())
+    print(
+        f"wrote {len(images)} x 6 faces of {size}x{size} px (90 deg, f = {size / 2} px) "
+        f"to {args.out}/<panorama>/<face>.png"
+    )
+    return 0
+
+
+def _add_faces(sub: argparse._SubParsersAction) -> None:
+    parser = sub.add_parser(
+        "faces",
+        help="split panoramas into the six cube faces the COLMAP import expects",
+        description=(
+            "Write OUT/<panorama stem>/{front,right,back,left,up,down}.png: 90-degree pinhole "
+            "views (focal length = size / 2 px, principal point at the centre). Run COLMAP on "
+            "them (PINHOLE camera, one per size) and import its images.txt with "
+            "`panogrf scene import --format colmap`."
+        ),
+    )
+    parser.add_argument("panoramas", type=Path, nargs="+", metavar="PANORAMA")
+    parser.add_argument("--out", type=Path, required=True, help="output folder")
+    parser.add_argument("--size", type=int, default=0, help="face size in px (default W / 4)")
+    parser.set_defaults(func=run_faces)
+
+
+# --- from-panoramas -----------------------------------------------------------------------
+
+
+def run_from_panoramas(args: argparse.Namespace) -> int:
+    from panogrf.app.poses.estimate import estimate_poses
+    from panogrf.app.scene import write_scene
+
+    files = list(args.panoramas)
+    if len(files) < 2:
+        raise UserError(f"{files[0]}: one panorama; poses need at least two of the same place")
+    _check_out(args.out)
+    images = read_panoramas(files)
+    for a in range(len(files)):
+        for b in range(a + 1, len(files)):
+            if np.array_equal(images[a], images[b]):
+                raise UserError(f"{files[b]}: the same image as {files[a]} (no parallax)")
+    n = len(files)
+    heights = sc.parse_heights(args.camera_height, n) if args.camera_height else None
+    distance = sc.parse_distance(args.distance, n) if args.distance else None
+    est = estimate_poses([img.transpose(1, 2, 0) for img in images])
+    lines = [f"poses from {n} panoramas ({images.shape[3]}x{images.shape[2]}):", "pairs:"]
+    for p in est.pairs:
+        state = (
+            f"ok, {p.inliers} inliers, median residual {p.residual_deg:.3f} deg"
+            if p.ok
+            else f"FAILED: {p.reason}"
+        )
+        lines.append(f"  {files[p.i].name} - {files[p.j].name}: {p.matches} matches; {state}")
+    lines.append("views:")
+    lines += [f"  {f.name}: {note}" for f, note in zip(files, est.view_notes, strict=True)]
+    keep = np.flatnonzero(est.registered)
+    if len(keep) < 2:
+        print("\n".join(lines))
+        reasons = "; ".join(sorted({p.reason for p in est.pairs if not p.ok}))
+        raise UserError(f"{files[0]}: no pair of the panoramas could be posed ({reasons})")
+    if distance is not None:
+        i, j, m = distance
+        if not (est.registered[i] and est.registered[j]):
+            raise UserError(
+                f"--distance {args.distance}: view {i if not est.registered[i] else j} "
+                f"({files[i if not est.registered[i] else j]}) could not be posed"
+            )
+        distance = (int(np.searchsorted(keep, i)), int(np.searchsorted(keep, j)), m)
+    metric = sc.make_metric(
+        est.c2w[keep], est.points, None if heights is None else heights[keep], distance
+    )
+    lines += metric.lines
+    lines.append(f"median residual over all points: {est.residual_deg:.3f} deg")
+    names = [files[k].stem for k in keep]
+    if len(set(names)) != len(names):
+        names = [f"view_{k:03d}" for k in keep]
+    meta = {
+        "poses": {
+            "estimated_from": [str(files[k]) for k in keep],
+            "residual_deg": round(est.residual_deg, 4),
+            "scale": next(x for x in metric.lines if x.startswith("scale:")),
+        }
+    }
+    write_scene(args.out, metric.c2w, images[keep], names=names, metadata=meta)
+    lines.append(f"baselines (m): {_baselines(metric.c2w)}")
+    if len(keep) < n:
+        lines.append(f"left out {n - len(keep)} view(s) that could not be posed (see views)")
+    lines.append(f"wrote {args.out}")
+    print("\n".join(lines))
+    return 0
+
+
+def _add_from_panoramas(sub: argparse._SubParsersAction) -> None:
+    parser = sub.add_parser(
+        "from-panoramas",
+        help="a posed scene folder from plain 360-degree photos (poses estimated)",
+        description=(
+            "Estimate the relative poses of panoramas of one place from their pixels (SIFT on "
+            "cube faces, essential matrix on bearings with RANSAC, bundle adjustment on angular "
+            "residuals), make them upright (floor plane, else level cameras) and metric, and "
+            "write a scene folder for view, render, depth and eval. The report lists matches "
+            "and residuals per pair and which pairs or views failed and why. Metric scale "
+            "comes from --camera-height or --distance; without either the mean camera height "
+            "is assumed to be 1.5 m (said in the report).\n\n" + _CONVENTIONS
+        ),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=(
+            "example: panogrf scene from-panoramas a.jpg b.jpg c.jpg --out myroom "
+            "--camera-height 1.6"
+        ),
+    )
+    parser.add_argument("panoramas", type=Path, nargs="+", metavar="PANORAMA")
+    parser.add_argument("--out", type=Path, required=True, help="scene folder to write")
+    group = parser.add_mutually_exclusive_group()
+    group.add_argument(
+        "--camera-height",
+        metavar="METRES",
+        help="camera height above the floor: one value for all, or one per panorama (a,b,c)",
+    )
+    group.add_argument("--distance", metavar="I,J=METRES", help="views I and J are this far apart")
+    parser.set_defaults(func=run_from_panoramas)

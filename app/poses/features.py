@@ -1,0 +1,153 @@
+"""SIFT features of a panorama as unit bearings, and matches between two panoramas.
+
+The panorama is resampled to six 90-degree cube faces (`panogrf.model.cubemap` directions,
+OpenCV's ``remap`` with the seam wrapped) so that SIFT sees little polar stretching; every
+keypoint goes back to a unit bearing in the panorama's camera frame (OpenGL: x right, y up,
+looking down -z). Matching is brute force on the descriptors with Lowe's ratio test and a
+cross-check (mutual nearest neighbours).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import lru_cache
+
+import cv2
+import numpy as np
+import torch
+
+from panogrf.model.cubemap import face_directions, face_rotations
+from panogrf.model.erp import direction_to_pixel
+
+#: Columns copied across the seam so that bilinear samples near it wrap.
+_PAD = 2
+
+
+@dataclass(frozen=True)
+class Features:
+    """Keypoints of one panorama."""
+
+    bearings: np.ndarray
+    """[K, 3] float64 unit directions, camera frame."""
+    descriptors: np.ndarray
+    """[K, 128] float32 SIFT descriptors."""
+
+
+def face_size_for(width: int) -> int:
+    """Face size (px) that samples the equator at the panorama's resolution, at least 192."""
+    return max(192, int(round(width / math.pi)))
+
+
+@lru_cache(maxsize=4)
+def _face_maps(height: int, width: int, size: int) -> tuple[np.ndarray, np.ndarray]:
+    """remap coordinates of the six faces into a seam-padded panorama: two [6 * F, F] maps."""
+    dirs = face_directions(size, dtype=torch.float64)
+    uv = direction_to_pixel(dirs, height, width).numpy().reshape(6 * size, size, 2)
+    u = np.mod(uv[..., 0] + 0.5, width) - 0.5 + _PAD
+    return u.astype(np.float32), uv[..., 1].astype(np.float32)
+
+
+def cube_faces(gray: np.ndarray, size: int) -> np.ndarray:
+    """A gray panorama [H, W] uint8 -> six faces stacked vertically [6 * F, F] uint8."""
+    h, w = gray.shape
+    padded = np.concatenate([gray[:, -_PAD:], gray, gray[:, :_PAD]], axis=1)
+    map_u, map_v = _face_maps(h, w, size)
+    return cv2.remap(padded, map_u, map_v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+
+
+def face_pixel_to_bearing(face: np.ndarray, x: np.ndarray, y: np.ndarray, size: int) -> np.ndarray:
+    """Keypoint positions (OpenCV pixel coordinates, centres at integers) on faces [K] ->
+    unit bearings [K, 3] in the panorama's camera frame."""
+    tx = (x + 0.5) / size * 2.0 - 1.0
+    ty = 1.0 - (y + 0.5) / size * 2.0
+    local = np.stack((tx, ty, -np.ones_like(tx)), -1)
+    local /= np.linalg.norm(local, axis=1, keepdims=True)
+    rots = face_rotations(torch.float64).numpy()
+    return np.einsum("kij,kj->ki", rots[face], local)
+
+
+def detect(
+    rgb: np.ndarray,
+    *,
+    size: int | None = None,
+    max_per_face: int = 4000,
+    contrast: float = 0.01,
+    clahe: float = 2.0,
+) -> Features:
+    """SIFT keypoints of a panorama [H, W, 3] uint8 (RGB) as bearings and descriptors.
+
+    contrast: SIFT's contrast threshold (low: indoor walls are faintly textured). clahe: the
+    clip limit of a local contrast equalisation of each face before detection (0: none).
+    """
+    h, w = rgb.shape[:2]
+    size = size or face_size_for(w)
+    gray = cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2GRAY)
+    faces = cube_faces(gray, size)
+    if clahe > 0:
+        faces = cv2.createCLAHE(clipLimit=clahe, tileGridSize=(8, 8 * 6)).apply(faces)
+    sift = cv2.SIFT_create(
+        nfeatures=max_per_face, contrastThreshold=contrast, enable_precise_upscale=True
+    )
+    bearings, descs = [], []
+    for k in range(6):
+        kps, desc = sift.detectAndCompute(faces[k * size : (k + 1) * size], None)
+        if not kps:
+            continue
+        xy = np.array([kp.pt for kp in kps], np.float64)
+        bearings.append(face_pixel_to_bearing(np.full(len(kps), k), xy[:, 0], xy[:, 1], size))
+        descs.append(desc)
+    if not bearings:
+        return Features(np.zeros((0, 3)), np.zeros((0, 128), np.float32))
+    return Features(np.concatenate(bearings), np.concatenate(descs).astype(np.float32))
+
+
+def match(a: Features, b: Features, ratio: float = 0.8) -> np.ndarray:
+    """Indices [M, 2] of mutual nearest neighbours that pass the ratio test (a -> b)."""
+    if len(a.descriptors) < 2 or len(b.descriptors) < 2:
+        return np.zeros((0, 2), int)
+    matcher = cv2.BFMatcher(cv2.NORM_L2)
+    ab = matcher.knnMatch(a.descriptors, b.descriptors, k=2)
+    ba = matcher.match(b.descriptors, a.descriptors)
+    back = np.full(len(b.descriptors), -1)
+    for m in ba:
+        back[m.queryIdx] = m.trainIdx
+    pairs = [
+        (m[0].queryIdx, m[0].trainIdx)
+        for m in ab
+        if len(m) == 2
+        and m[0].distance < ratio * m[1].distance
+        and back[m[0].trainIdx] == m[0].queryIdx
+    ]
+    return np.array(pairs, int).reshape(-1, 2)
+
+
+def match_guided(
+    a: Features, b: Features, e: np.ndarray, threshold: float, ratio: float = 0.9
+) -> np.ndarray:
+    """Matches [M, 2] given an essential matrix (b_b^T E b_a = 0): each keypoint's candidates
+    are those within ``threshold`` radians of its epipolar plane in both views; among them the
+    nearest descriptor wins if it passes the ratio test and the choice is mutual."""
+    na = a.bearings @ e.T  # epipolar plane normals in view b, [Na, 3]
+    nb = b.bearings @ e  # and in view a, [Nb, 3]
+    num = np.abs(na @ b.bearings.T)
+    sin_err = np.maximum(
+        num / np.maximum(np.linalg.norm(na, axis=1), 1e-12)[:, None],
+        num / np.maximum(np.linalg.norm(nb, axis=1), 1e-12)[None, :],
+    )
+    da, db = a.descriptors, b.descriptors
+    dist = (da * da).sum(1)[:, None] + (db * db).sum(1)[None] - 2.0 * da @ db.T
+    dist = np.sqrt(np.maximum(dist, 0.0))
+    dist[sin_err > math.sin(threshold)] = np.inf
+    if dist.shape[1] < 2:
+        return np.zeros((0, 2), int)
+    order = np.argpartition(dist, 1, axis=1)[:, :2]
+    rows = np.arange(len(dist))
+    first, second = dist[rows, order[:, 0]], dist[rows, order[:, 1]]
+    swap = second < first
+    best = np.where(swap, order[:, 1], order[:, 0])
+    d1, d2 = np.minimum(first, second), np.maximum(first, second)
+    ok = np.isfinite(d1) & (d1 < ratio * d2)
+    mutual = dist.argmin(0)[best] == rows
+    keep = ok & mutual
+    return np.stack((rows[keep], best[keep]), 1)
