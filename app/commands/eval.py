@@ -1,5 +1,9 @@
 """`panogrf eval DATASET`: novel-view quality and speed of every method on a test split.
 
+DATASET is a dataset made by ``panogrf dataset make`` (its ``dataset.json`` lists the scenes),
+any folder holding scene folders (each with a ``transforms.json`` and three views), or a single
+scene folder.
+
 For every scene (three panoramas on a line) the middle view is rendered from the first and the
 last (the paper's protocol) by each method and scored against the real middle view: PSNR,
 WS-PSNR, SSIM and LPIPS, averaged per baseline (first-to-last distance). Timing per method:
@@ -59,12 +63,18 @@ def register(subparsers) -> None:
     parser = subparsers.add_parser(
         "eval",
         help="score methods on a test split (quality per baseline, ms per panorama)",
-        description=__doc__.split("\n\n")[1],
+        description="\n\n".join(__doc__.split("\n\n")[1:3]),
         epilog=(
             "example: panogrf eval data/test --methods panogrf,meshwarp,nearest --out results.json"
         ),
     )
-    parser.add_argument("dataset", type=Path, metavar="DATASET", help="dataset folder")
+    parser.add_argument(
+        "dataset",
+        type=Path,
+        metavar="DATASET",
+        help="a dataset (dataset.json), a folder of scene folders, or one scene folder; every "
+        "scene has three views and the middle one is scored",
+    )
     parser.add_argument(
         "--methods",
         default="panogrf,meshwarp,nearest",
@@ -73,7 +83,9 @@ def register(subparsers) -> None:
     parser.add_argument("--out", type=Path, required=True, help="results JSON")
     parser.add_argument("--height", type=int, default=None, help="render height (default: data)")
     parser.add_argument(
-        "--baselines", default="1.0,1.5,2.0", help="baselines (m) to score (default 1.0,1.5,2.0)"
+        "--baselines",
+        default=None,
+        help="baselines (m) to score (default: 1.0,1.5,2.0 for a dataset, all for a folder)",
     )
     parser.add_argument(
         "--subset", default="", help="methods run only on the first --subset-size scenes"
@@ -84,31 +96,65 @@ def register(subparsers) -> None:
     parser.set_defaults(func=run)
 
 
-def _scenes(root: Path, baselines: list[float], limit: int | None) -> list[tuple[float, Path]]:
+def _scene_folders(root: Path) -> tuple[list[Path], bool]:
+    """The scene folders under ``root``, and whether they come from a dataset.json index.
+
+    ``root`` is a dataset (``dataset.json`` listing its folders, from `panogrf dataset make`),
+    a single scene folder (``transforms.json``), or a folder of scene folders.
+    """
+    from panogrf.app.scene import TRANSFORMS
+
     index_path = root / "dataset.json"
-    if not index_path.exists():
-        raise UserError(f"{root}: no dataset.json (make one with `panogrf dataset make`)")
-    try:
-        entries = json.loads(index_path.read_text())["scenes"]
-    except (json.JSONDecodeError, KeyError, TypeError) as exc:
-        raise UserError(f"{index_path}: not a dataset index ({exc})") from None
+    if index_path.exists():
+        try:
+            entries = json.loads(index_path.read_text())["scenes"]
+            return [root / entry["folder"] for entry in entries], True
+        except (json.JSONDecodeError, KeyError, TypeError) as exc:
+            raise UserError(f"{index_path}: not a dataset index ({exc})") from None
+    if (root / TRANSFORMS).is_file():
+        return [root], False
+    if not root.is_dir():
+        raise UserError(f"{root}: no such folder")
+    folders = sorted(p for p in root.iterdir() if (p / TRANSFORMS).is_file())
+    if not folders:
+        raise UserError(
+            f"{root}: no dataset.json, no {TRANSFORMS}, and no scene folder with a {TRANSFORMS}"
+        )
+    return folders, False
+
+
+def _scenes(
+    root: Path, baselines: list[float] | None, limit: int | None
+) -> tuple[list[tuple[float, Path]], list[float]]:
+    """(baseline, folder) of every scene to score, and the baselines scored.
+
+    Without ``baselines``: 1.0, 1.5 and 2.0 m for a dataset, every baseline found for a plain
+    folder of scenes.
+    """
     from panogrf.app.scene import load_scene
 
-    out, counts = [], {b: 0 for b in baselines}
-    for entry in entries:
-        folder = root / entry["folder"]
+    folders, indexed = _scene_folders(root)
+    found = []
+    for folder in folders:
         scene = load_scene(folder)
         if scene.num_views != 3:
-            raise UserError(f"{folder}: expected three views on a line, found {scene.num_views}")
+            raise UserError(
+                f"{folder}: expected three views (the middle one is scored), found "
+                f"{scene.num_views}"
+            )
         c = scene.c2w[:, :3, 3]
-        b = round(float(((c[2] - c[0]) ** 2).sum() ** 0.5), 1)
+        found.append((round(float(((c[2] - c[0]) ** 2).sum() ** 0.5), 1), folder))
+    if baselines is None:
+        baselines = [1.0, 1.5, 2.0] if indexed else sorted({b for b, _ in found})
+    out, counts = [], {b: 0 for b in baselines}
+    for b, folder in found:
         if b in counts and (limit is None or counts[b] < limit):
             counts[b] += 1
             out.append((b, folder))
     missing = [b for b, n in counts.items() if n == 0]
     if missing:
         raise UserError(f"{root}: no scene with baseline {missing} m")
-    return out
+    return out, baselines
 
 
 def run(args: argparse.Namespace) -> int:
@@ -121,14 +167,18 @@ def run(args: argparse.Namespace) -> int:
     methods = parse_methods(args.methods)
     subset = {x.strip() for x in args.subset.split(",") if x.strip()}
     try:
-        baselines = [round(float(x), 1) for x in args.baselines.split(",") if x.strip()]
+        baselines = (
+            None
+            if args.baselines is None
+            else [round(float(x), 1) for x in args.baselines.split(",") if x.strip()]
+        )
     except ValueError:
         raise UserError(f"--baselines: expected metres, got {args.baselines!r}") from None
     if args.threads:
         torch.set_num_threads(args.threads)
     if args.out.parent and not args.out.parent.exists():
         raise UserError(f"--out: folder {args.out.parent} does not exist")
-    scenes = _scenes(args.dataset, baselines, args.limit)
+    scenes, baselines = _scenes(args.dataset, baselines, args.limit)
     models = default_models()
     rows = {label(*m): {b: [] for b in baselines} for m in methods}
     seen: dict[float, int] = {b: 0 for b in baselines}

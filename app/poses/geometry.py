@@ -249,7 +249,6 @@ def bundle_adjust(
     rv = Rotation.from_matrix(rots[1:]).as_rotvec()
     x0 = np.concatenate([np.hstack([rv, trans[1:]]).ravel(), points.ravel()])
     m = len(view)
-    rows = np.repeat(np.arange(3 * m), 1)
     sparsity = scipy.sparse.lil_matrix((3 * m + 1, len(x0)), dtype=np.int8)
     obs = np.arange(m)
     for k in range(3):
@@ -261,20 +260,22 @@ def bundle_adjust(
             sparsity[r[moving], 6 * (view[moving] - 1) + c] = 1
     if anchor > 0:
         sparsity[3 * m, 6 * (anchor - 1) : 6 * anchor] = 1
-    del rows
     args = (n_views, view, point, bearing, anchor, anchor_dist, 10.0)
-    res = least_squares(
-        _residuals,
-        x0,
-        jac_sparsity=sparsity.tocsr(),
-        loss="huber",
-        f_scale=loss_scale,
-        x_scale="jac",
-        method="trf",
-        tr_solver="lsmr",
-        max_nfev=max_nfev,
-        args=args,
-    )
+    # A wide loss first: from a rough start a narrow Huber scale converges very slowly.
+    for f_scale in (10 * loss_scale, loss_scale):
+        res = least_squares(
+            _residuals,
+            x0,
+            jac_sparsity=sparsity.tocsr(),
+            loss="huber",
+            f_scale=f_scale,
+            x_scale="jac",
+            method="trf",
+            tr_solver="lsmr",
+            max_nfev=max_nfev,
+            args=args,
+        )
+        x0 = res.x
     poses = res.x[: 6 * (n_views - 1)].reshape(-1, 6)
     out_rots = np.concatenate([np.eye(3)[None], Rotation.from_rotvec(poses[:, :3]).as_matrix()])
     out_trans = np.concatenate([np.zeros((1, 3)), poses[:, 3:]])

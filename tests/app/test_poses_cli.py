@@ -1,0 +1,110 @@
+"""`panogrf scene from-panoramas` on the bundled demo scene and on bad input; `panogrf eval` on
+a plain folder of scenes."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from panogrf.app import cli
+from panogrf.app.commands import render as render_cmd
+from panogrf.app.images import write_rgb
+from panogrf.app.poses import errors as er
+from panogrf.app.scene import load_scene
+from panogrf.assets import path as asset_path
+
+DEMO = asset_path("demo")
+
+
+@pytest.fixture(autouse=True)
+def only_needed_commands(monkeypatch):
+    monkeypatch.setattr(cli, "_COMMANDS", ("scene", "eval"))
+
+
+def test_demo_poses_from_its_pixels(tmp_path, capsys):
+    truth = load_scene(DEMO)
+    images = [str(f.image_path) for f in truth.frames]
+    heights = ",".join(f"{h:.4f}" for h in truth.c2w[:, 1, 3])  # the floor is at y = 0
+    out = tmp_path / "est"
+    assert (
+        cli.main(
+            ["scene", "from-panoramas", *images, "--out", str(out), "--camera-height", heights]
+        )
+        == 0
+    )
+    report = capsys.readouterr().out
+    assert "matches; ok" in report and "median residual" in report and "upright:" in report
+    est = load_scene(out).c2w
+    errors = er.pair_errors(est, truth.c2w)
+    assert max(e["rotation_deg"] for e in errors) < 0.5
+    assert max(e["translation_deg"] for e in errors) < 2.0
+    assert er.scale_error(est, truth.c2w) < 0.05
+    assert cli.main(["scene", "check", str(out)]) == 0
+
+
+def _one_line_error(capsys, args, name):
+    assert cli.main(args) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1, err
+    assert str(name) in err, err
+    return err
+
+
+def test_bad_panoramas_are_one_line_errors_naming_the_file(tmp_path, capsys):
+    frames = load_scene(DEMO).frames
+    a, b = str(frames[0].image_path), str(frames[2].image_path)
+    out = ["--out", str(tmp_path / "s")]
+    cmd = ["scene", "from-panoramas"]
+    assert "one panorama" in _one_line_error(capsys, [*cmd, a, *out], a)
+    assert "same image" in _one_line_error(capsys, [*cmd, a, a, *out], a)
+    square = tmp_path / "square.png"
+    write_rgb(square, np.zeros((16, 16, 3), np.uint8))
+    assert "2:1" in _one_line_error(capsys, [*cmd, a, str(square), *out], square)
+    truncated = tmp_path / "truncated.png"
+    truncated.write_bytes(frames[1].image_path.read_bytes()[:300])
+    _one_line_error(capsys, [*cmd, a, str(truncated), *out], truncated)
+    garbage = tmp_path / "garbage.jpg"
+    garbage.write_bytes(b"not an image at all")
+    _one_line_error(capsys, [*cmd, str(garbage), a, *out], garbage)
+    # Two unrelated panoramas: smooth noise with nothing in common.
+    rng = np.random.default_rng(0)
+    flat = []
+    for k in range(2):
+        path = tmp_path / f"flat{k}.png"
+        write_rgb(
+            path,
+            np.full((128, 256, 3), 90 + 60 * k, np.uint8)
+            + rng.integers(0, 3, (128, 256, 3), dtype=np.uint8),
+        )
+        flat.append(str(path))
+    err = _one_line_error(capsys, [*cmd, *flat, *out], flat[0])
+    assert "could be posed" in err
+    assert "--distance" in _one_line_error(capsys, [*cmd, a, b, *out, "--distance", "0,0=1"], "")
+
+
+def test_eval_on_a_plain_folder_of_scenes_and_on_one_scene(tmp_path, monkeypatch, capsys):
+    from panogrf.renderer.methods import Models
+
+    def no_network(_):
+        raise AssertionError("the nearest method needs no network")
+
+    monkeypatch.setattr(render_cmd, "default_models", lambda: Models(no_network, no_network))
+    folder = tmp_path / "mine"
+    for name in ("kitchen", "hall"):
+        shutil.copytree(DEMO, folder / name)
+    (folder / "notes").mkdir()  # not a scene: ignored
+    out = tmp_path / "r.json"
+    args = ["--out", str(out), "--methods", "nearest", "--height", "32"]
+    assert cli.main(["eval", str(folder), *args]) == 0
+    report = json.loads(out.read_text())
+    (row,) = report["results"]["nearest"].values()
+    assert row["scenes"] == 2
+    assert cli.main(["eval", str(DEMO), *args]) == 0
+    (row,) = json.loads(out.read_text())["results"]["nearest"].values()
+    assert row["scenes"] == 1
+    capsys.readouterr()
+    assert cli.main(["eval", str(tmp_path / "mine" / "notes"), *args]) == 2
+    assert "no scene folder" in capsys.readouterr().err
