@@ -211,6 +211,7 @@ def run_path(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from panogrf.app.camera_path import read_camera_path
+    from panogrf.app.coverage import path_warning
     from panogrf.app.frames import FrameRenderer, render_camera_path
     from panogrf.app.scene import load_scene
     from panogrf.app.video import FrameSink
@@ -232,6 +233,9 @@ def run_path(args: argparse.Namespace) -> int:
     scene = load_scene(args.scene, load_images=True)
     data = scene.images
     views = SourceViews(data.images, data.c2w)
+    warning = path_warning(np.asarray(path.poses, dtype=np.float64), scene.c2w)
+    if warning:
+        print(warning, flush=True)
     models = default_models()
     frames = FrameRenderer(views, models, args.quality, args.method)
     start = time.perf_counter()

@@ -436,6 +436,16 @@ class PanoViewer(mglw.WindowConfig):
         self.ctx.viewport = (0, 0, w, h)
         self.ctx.disable(moderngl.BLEND)
 
+    def _coverage_lines(self) -> list[str]:
+        """A warning line while the camera is outside the region the sources cover."""
+        from panogrf.app.coverage import covered_radius, nearest_source_distance
+
+        sources = self.setup.c2w
+        far = float(nearest_source_distance(self.camera.c2w[None], sources)[0])
+        if far <= covered_radius(sources):
+            return []
+        return [f"WARNING outside the covered region: {far:.2f} m from the nearest source"]
+
     def _update_overlay(self) -> None:
         p = self.camera.position
         recent = self.frame_times[-30:]
@@ -454,6 +464,7 @@ class PanoViewer(mglw.WindowConfig):
             f"{self.mode}{' src ' + str(self.source_index) if self.mode == 'sources' else ''}"
             f"  {f'perspective {self.camera.fov:.0f} deg' if self.perspective else 'panorama'}",
             f"{fps:.0f} fps  {refine}  keyframes {len(self.keyframes)}",
+            *self._coverage_lines(),
             *self.messages,
         ]
         img = np.zeros((18 * len(lines) + 8, 460, 4), np.uint8)

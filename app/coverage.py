@@ -1,0 +1,63 @@
+"""Is a camera inside the region its source panoramas cover?
+
+A view rendered far from every source shows holes and stretched geometry; the viewer and
+``render --camera-path`` warn about it. The covered region: within `FACTOR` times the largest
+spacing between source centres of the nearest source (at least `MIN_RADIUS_M`), which keeps
+the middle of a triplet (half the spacing away) well inside. Poses are camera-to-world [.., 4, 4],
+metres.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: Covered radius around each source, as a multiple of the largest source spacing.
+FACTOR = 0.75
+#: Covered radius never below this (one source, or sources very close together), metres.
+MIN_RADIUS_M = 0.5
+
+
+def covered_radius(sources: np.ndarray) -> float:
+    """Radius (m) around each source centre inside which a camera counts as covered."""
+    c = np.asarray(sources)[:, :3, 3]
+    spacing = float(np.linalg.norm(c[:, None] - c[None], axis=-1).max()) if len(c) > 1 else 0.0
+    return max(FACTOR * spacing, MIN_RADIUS_M)
+
+
+def nearest_source_distance(targets: np.ndarray, sources: np.ndarray) -> np.ndarray:
+    """Distance (m) of every target camera [N, 4, 4] to its nearest source [V, 4, 4]: [N]."""
+    t = np.asarray(targets)[:, None, :3, 3]
+    s = np.asarray(sources)[None, :, :3, 3]
+    return np.linalg.norm(t - s, axis=-1).min(axis=1)
+
+
+def uncovered(targets: np.ndarray, sources: np.ndarray) -> np.ndarray:
+    """[N] bool: the targets outside the covered region."""
+    return nearest_source_distance(targets, sources) > covered_radius(sources)
+
+
+def frame_ranges(indices: np.ndarray) -> str:
+    """[3, 4, 5, 9] -> "3-5, 9"."""
+    out, idx = [], [int(i) for i in indices]
+    start = prev = None
+    for i in [*idx, None]:
+        if start is not None and (i is None or i != prev + 1):
+            out.append(f"{start}-{prev}" if prev != start else f"{start}")
+            start = None
+        if i is not None and start is None:
+            start = i
+        prev = i
+    return ", ".join(out)
+
+
+def path_warning(targets: np.ndarray, sources: np.ndarray) -> str | None:
+    """A one-line warning naming the frames of a camera path outside the covered region."""
+    far = np.flatnonzero(uncovered(targets, sources))
+    if not len(far):
+        return None
+    worst = float(nearest_source_distance(targets[far], sources).max())
+    return (
+        f"warning: {len(far)} of {len(targets)} frames leave the region the sources cover "
+        f"(farther than {covered_radius(sources):.2f} m from every source, up to {worst:.2f} m): "
+        f"frames {frame_ranges(far)}; expect holes and stretched geometry there"
+    )
