@@ -5,22 +5,21 @@
   refused, since a transparent panorama is not a photograph of a place.
 - Depth maps are single-channel 16-bit PNGs holding spherical depth (distance from the camera
   centre) in millimetres; 0 means unknown. In memory they are ``float32`` metres, 0.0 unknown.
-- Every write goes to a temporary file in the destination folder and is then renamed over the
-  destination, so a reader never sees a half-written file.
+- Every write goes through `panogrf.app.atomic` (a temporary beside the destination, then a
+  rename), so a reader never sees a half-written file.
 """
 
 from __future__ import annotations
 
-import json
 import os
 import re
-import uuid
 from pathlib import Path
 
 import cv2
 import numpy as np
 import torch
 
+from panogrf.app.atomic import write_bytes_atomic, write_json_atomic  # noqa: F401 (re-exported)
 from panogrf.app.errors import UserError
 
 #: Largest depth a 16-bit millimetre PNG can hold, in metres.
@@ -36,50 +35,55 @@ class ImageReadError(UserError):
         super().__init__(f"{self.path}: {reason}")
 
 
-def write_bytes_atomic(path: str | os.PathLike[str], data: bytes) -> None:
-    """Write ``data`` to ``path`` through a temporary file in the same folder and a rename."""
-    path = Path(path)
-    # A unique name in the same folder: os.replace is atomic only within one file system.
-    tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex[:12]}.tmp")
-    # os.open with mode 0o666 lets the umask decide the permissions, as for a plain open().
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-
-
-# An innermost JSON list of plain scalars, as json.dumps indents it. The raw newline after "["
-# never occurs inside a JSON string (dumps escapes it), so string contents are never touched.
-_FLAT_LIST = re.compile(r"\[\n\s*([^\[\]{}\"]*?)\n\s*\]")
-
-
-def write_json_atomic(path: str | os.PathLike[str], data: object) -> None:
-    """Write ``data`` as indented JSON (UTF-8), atomically; number lists stay on one line.
-
-    Keeps each matrix row on one line so that poses read well in a text editor. NaN and
-    infinity are refused (they are not JSON).
-    """
-    text = json.dumps(data, indent=2, allow_nan=False)
-    text = _FLAT_LIST.sub(lambda m: "[" + ", ".join(x.strip() for x in m[1].split(",")) + "]", text)
-    write_bytes_atomic(path, (text + "\n").encode("utf-8"))
-
-
-def _imread(path: Path) -> np.ndarray:
+def read_pixels(path: Path) -> np.ndarray:
     """Decode any image file unchanged (channels, bit depth); errors name the file."""
     if not path.exists():
         raise ImageReadError(path, "file not found")
     if not path.is_file():
         raise ImageReadError(path, "not a file")
-    pixels = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise ImageReadError(path, f"cannot read: {exc.strerror or exc}") from None
+    # libjpeg decodes a truncated file with a warning only, its lost part flat grey.
+    if data[:2] == b"\xff\xd8" and _jpeg_truncated(data):
+        raise ImageReadError(path, "truncated JPEG (the file ends before the image does)")
+    pixels = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
     if pixels is None:
         raise ImageReadError(path, "not a readable image (unknown format or corrupt file)")
     return pixels
+
+
+# A marker inside entropy-coded data: 0xFF not followed by a stuffed 0x00, a restart marker
+# (0xD0-0xD7, part of the data) or another fill byte.
+_JPEG_MARKER = re.compile(rb"\xff[^\x00\xd0-\xd7\xff]")
+
+
+def _jpeg_truncated(data: bytes) -> bool:
+    """True when a JPEG stream ends before its end-of-image marker (walks the segments, so an
+    EXIF thumbnail's own end marker does not count)."""
+    pos, n = 2, len(data)
+    while pos + 2 <= n:
+        if data[pos] != 0xFF:
+            return True  # lost sync: not a well-formed stream
+        marker = data[pos + 1]
+        if marker == 0xFF:  # fill byte
+            pos += 1
+            continue
+        if marker == 0xD9:
+            return False
+        if 0xD0 <= marker <= 0xD7 or marker == 0x01:
+            pos += 2
+            continue
+        if pos + 4 > n:
+            return True
+        pos += 2 + int.from_bytes(data[pos + 2 : pos + 4], "big")
+        if marker == 0xDA:  # start of scan: entropy-coded data up to the next marker
+            found = _JPEG_MARKER.search(data, pos)
+            if found is None:
+                return True
+            pos = found.start()
+    return True
 
 
 def _channels(pixels: np.ndarray) -> int:
@@ -94,7 +98,7 @@ def read_rgb_with_notes(path: str | os.PathLike[str]) -> tuple[np.ndarray, list[
     another pixel type, or an alpha channel that is not fully opaque.
     """
     path = Path(path)
-    pixels = _imread(path)
+    pixels = read_pixels(path)
     notes: list[str] = []
     if pixels.dtype == np.uint16:
         full = 65535
@@ -170,7 +174,7 @@ def read_depth(path: str | os.PathLike[str]) -> np.ndarray:
     visualisation or a colour image is never mistaken for depth.
     """
     path = Path(path)
-    pixels = _imread(path)
+    pixels = read_pixels(path)
     if pixels.dtype != np.uint16 or pixels.ndim != 2:
         raise ImageReadError(
             path,

@@ -13,6 +13,7 @@ import numpy as np
 import torch
 
 from panogrf.app.errors import UserError
+from panogrf.app.images import ImageReadError, read_pixels
 from panogrf.model.lpips import MIN_SIZE as LPIPS_MIN_SIZE
 from panogrf.model.metrics import psnr, ssim, ws_psnr
 
@@ -60,9 +61,10 @@ def load_image(path: Path) -> LoadedImage:
     """Read an image with OpenCV as RGB float32 in [0, 1]; UserError if that is not possible."""
     if not path.is_file():
         raise UserError(f"{path}: no such file")
-    raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if raw is None:
-        raise UserError(f"{path}: not an image OpenCV can read")
+    try:
+        raw = read_pixels(path)  # also refuses a truncated JPEG
+    except ImageReadError as exc:
+        raise UserError(f"{path}: not an image OpenCV can read ({exc.reason})") from None
     if raw.dtype == np.uint8:
         depth, scale = "8-bit", 255.0
     elif raw.dtype == np.uint16:

@@ -130,3 +130,11 @@ def test_help_describes_the_metrics(capsys):
     assert exc.value.code == 0
     out = capsys.readouterr().out
     assert "WS-PSNR" in out and "LPIPS" in out and "--json" in out
+
+
+def test_truncated_jpeg_is_refused(pair, tmp_path, capsys):
+    pa, _, a, _ = pair
+    ok, buf = cv2.imencode(".jpg", cv2.cvtColor(a, cv2.COLOR_RGB2BGR))
+    cut = tmp_path / "cut.jpg"
+    cut.write_bytes(buf.tobytes()[: len(buf) // 2])
+    _one_line_error(capsys, [str(pa), str(cut)], "cut.jpg: not an image OpenCV can read (truncated")

@@ -153,3 +153,21 @@ def test_depth_must_be_16_bit_single_channel(tmp_path):
         read_depth(tmp_path / "d3.png")
     with pytest.raises(ValueError, match=r"\.png"):
         write_depth(tmp_path / "d.jpg", np.ones((16, 32)))
+
+
+def _jpeg(rng, params=()) -> bytes:
+    img = rng.integers(0, 256, (32, 64, 3), dtype=np.uint8)
+    ok, buf = cv2.imencode(".jpg", img, list(params))
+    assert ok
+    return buf.tobytes()
+
+
+@pytest.mark.parametrize("params", [(), (cv2.IMWRITE_JPEG_PROGRESSIVE, 1)])
+def test_truncated_jpeg_is_refused_with_the_file_named(tmp_path, rng, params):
+    data = _jpeg(rng, params)
+    (tmp_path / "whole.jpg").write_bytes(data + b"\0" * 16)  # trailing bytes are harmless
+    assert read_rgb(tmp_path / "whole.jpg").shape == (32, 64, 3)
+    for cut in (len(data) // 2, len(data) - 2):
+        (tmp_path / "cut.jpg").write_bytes(data[:cut])
+        with pytest.raises(ImageReadError, match=r"cut\.jpg: truncated JPEG"):
+            read_rgb(tmp_path / "cut.jpg")

@@ -407,3 +407,13 @@ def test_write_scene_validates_its_inputs(tmp_path):
     with pytest.raises(ValueError, match=r"depths must be \[2, 1, 16, 32\]"):
         write_scene(tmp_path, c2w, ok, np.ones((2, H, W)))
     assert not (tmp_path / "transforms.json").exists()
+
+
+def test_truncated_jpeg_is_a_problem(scene_dir):
+    ok, buf = cv2.imencode(".jpg", np.full((H, W, 3), 90, np.uint8))
+    (scene_dir / "images" / "view_001.png").write_bytes(buf.tobytes()[:-40])
+    assert only_problem(scene_dir).startswith(
+        "frames[1].file_path (images/view_001.png): truncated JPEG"
+    )
+    with pytest.raises(UserError, match="view_001.png"):
+        load_scene(scene_dir, load_images=True)

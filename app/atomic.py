@@ -1,0 +1,210 @@
+"""The one way panogrf writes a file or a folder: to a temporary name beside it, then a rename.
+
+A reader, a crash, a kill -9 or a full disk never leaves a half-written file under the real
+name, and never damages the older file there: the temporary is renamed over it only once it
+is complete (and synced). Temporaries carry one recognisable name,
+``.NAME.PID-XXXXXXXX.panogrf-tmp[.SUFFIX]`` (the suffix keeps the format for writers that go
+by it, such as ffmpeg), so that the next write into the same folder sweeps those whose process
+has died. Permissions follow the umask, as for a plain ``open()``.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import errno
+import json
+import math
+import os
+import re
+import shutil
+import time
+import uuid
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+from panogrf.app.errors import UserError
+
+TMP_TAG = "panogrf-tmp"
+_OURS = re.compile(rf"^\..+\.(?P<pid>\d+)-[0-9a-f]{{8}}\.{TMP_TAG}(\.[A-Za-z0-9]+)?$")
+# Names of earlier versions' temporaries (no process id): swept once they are an hour old.
+_LEGACY = re.compile(r"^\..+\.([A-Za-z0-9_]{8}\.partial\.mp4|[a-z0-9_]{8}\.tmp|[0-9a-f]{12}\.tmp)$")
+_LEGACY_AGE_S = 3600.0
+_STALE_AGE_S = 24 * 3600.0  # a live process holding a temporary this long is not ours
+
+
+def temp_path(path: str | os.PathLike[str]) -> Path:
+    """A fresh temporary name in ``path``'s folder (os.replace is atomic within one file system)."""
+    path = Path(path)
+    tag = f"{os.getpid()}-{uuid.uuid4().hex[:8]}"
+    return path.with_name(f".{path.name}.{tag}.{TMP_TAG}{path.suffix}")
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # EPERM: exists, another user's
+        return True
+    return True
+
+
+def _remove(path: Path) -> None:
+    try:
+        if path.is_dir() and not path.is_symlink():
+            shutil.rmtree(path, ignore_errors=True)
+        else:
+            path.unlink(missing_ok=True)
+    except OSError:
+        pass
+
+
+def sweep_stale(folder: str | os.PathLike[str]) -> list[Path]:
+    """Remove the temporaries of our own naming in ``folder`` left by dead processes."""
+    folder = Path(folder)
+    removed: list[Path] = []
+    try:
+        entries = list(os.scandir(folder))
+    except OSError:
+        return removed
+    now = time.time()
+    for entry in entries:
+        if not entry.name.startswith("."):
+            continue
+        try:
+            age = now - entry.stat(follow_symlinks=False).st_mtime
+        except OSError:
+            continue
+        m = _OURS.match(entry.name)
+        if m is not None:
+            pid = int(m["pid"])
+            stale = pid != os.getpid() and (not _alive(pid) or age > _STALE_AGE_S)
+        else:
+            stale = _LEGACY.match(entry.name) is not None and age > _LEGACY_AGE_S
+        if stale:
+            _remove(Path(entry.path))
+            removed.append(Path(entry.path))
+    return removed
+
+
+def _fsync(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+_RENAME_EXCHANGE = 2
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Swap two paths atomically (Linux renameat2); False where the system cannot."""
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        renameat2 = libc.renameat2
+    except (OSError, AttributeError):
+        return False
+    at_fdcwd = -100
+    ok = renameat2(at_fdcwd, os.fsencode(a), at_fdcwd, os.fsencode(b), _RENAME_EXCHANGE)
+    if ok == 0:
+        return True
+    err = ctypes.get_errno()
+    if err in (errno.EINVAL, errno.ENOSYS, errno.ENOTSUP):
+        return False
+    raise OSError(err, os.strerror(err), str(b))
+
+
+def _commit_dir(tmp: Path, path: Path) -> None:
+    if not os.path.lexists(path):
+        os.rename(tmp, path)
+        return
+    if not path.is_dir():
+        raise IsADirectoryError(errno.ENOTDIR, "not a folder", str(path))
+    if _exchange(tmp, path):
+        _remove(tmp)  # now holds the older folder
+        return
+    # No atomic swap here: for a moment the real name is missing, never half-written.
+    old = temp_path(path)
+    os.rename(path, old)
+    os.rename(tmp, path)
+    _remove(old)
+
+
+@contextmanager
+def atomic_output(path: str | os.PathLike[str], directory: bool = False) -> Iterator[Path]:
+    """``with atomic_output(out) as tmp:`` write ``tmp`` (a file, or with ``directory`` a new
+    empty folder); on a clean exit it replaces ``out``, on any error it is removed and ``out``
+    is untouched."""
+    path = Path(path)
+    sweep_stale(path.parent)
+    tmp = temp_path(path)
+    try:
+        if directory:
+            tmp.mkdir()
+        yield tmp
+        if directory:
+            _commit_dir(tmp, path)
+        else:
+            _fsync(tmp)
+            os.replace(tmp, path)
+    except BaseException:
+        _remove(tmp)
+        raise
+
+
+def write_bytes_atomic(path: str | os.PathLike[str], data: bytes) -> None:
+    """Write ``data`` to ``path`` atomically."""
+    with atomic_output(path) as tmp:
+        # O_EXCL: the name is ours alone; mode 0o666 lets the umask decide, as for open().
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+
+
+# An innermost JSON list of plain scalars, as json.dumps indents it. The raw newline after "["
+# never occurs inside a JSON string (dumps escapes it), so string contents are never touched.
+_FLAT_LIST = re.compile(r"\[\n\s*([^\[\]{}\"]*?)\n\s*\]")
+
+
+def nan_to_null(data: object) -> object:
+    """``data`` with every NaN or infinite float replaced by None (JSON null)."""
+    if isinstance(data, float):
+        return data if math.isfinite(data) else None
+    if isinstance(data, dict):
+        return {k: nan_to_null(v) for k, v in data.items()}
+    if isinstance(data, (list, tuple)):
+        return [nan_to_null(v) for v in data]
+    return data
+
+
+def json_text(data: object) -> str:
+    """Indented JSON with number lists on one line (a pose's matrix rows read well)."""
+    text = json.dumps(data, indent=2, allow_nan=False)
+    return _FLAT_LIST.sub(lambda m: "[" + ", ".join(x.strip() for x in m[1].split(",")) + "]", text)
+
+
+def write_json_atomic(path: str | os.PathLike[str], data: object) -> None:
+    """Write ``data`` as indented JSON (UTF-8), atomically; number lists stay on one line.
+
+    NaN and infinity are refused (they are not JSON): pass ``nan_to_null(data)`` where a
+    missing value is meant.
+    """
+    write_bytes_atomic(path, (json_text(data) + "\n").encode("utf-8"))
+
+
+def check_output(path: str | os.PathLike[str], option: str = "--out", folder: bool = False) -> Path:
+    """Refuse, before any work, an output that cannot be written: a missing or read-only
+    folder, or a folder where a file is wanted (and a file where a folder is wanted)."""
+    path = Path(path)
+    parent = path.parent
+    if not parent.is_dir():
+        raise UserError(f"{option}: folder {parent} does not exist")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise UserError(f"{option}: folder {parent} is not writable")
+    if folder and path.exists() and not path.is_dir():
+        raise UserError(f"{option}: {path} is a file, expected a folder")
+    if not folder and path.is_dir():
+        raise UserError(f"{option}: {path} is a folder, expected a file name")
+    return path
