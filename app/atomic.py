@@ -132,6 +132,21 @@ def _commit_dir(tmp: Path, path: Path) -> None:
     _remove(old)
 
 
+def commit(tmp: Path, path: str | os.PathLike[str]) -> None:
+    """Put the finished temporary ``tmp`` (a file or a folder) in place of ``path``."""
+    path = Path(path)
+    if tmp.is_dir():
+        _commit_dir(tmp, path)
+    else:
+        _fsync(tmp)
+        os.replace(tmp, path)
+
+
+def discard(tmp: Path) -> None:
+    """Remove a temporary (file or folder) that will not be committed."""
+    _remove(tmp)
+
+
 @contextmanager
 def atomic_output(path: str | os.PathLike[str], directory: bool = False) -> Iterator[Path]:
     """``with atomic_output(out) as tmp:`` write ``tmp`` (a file, or with ``directory`` a new
@@ -144,11 +159,7 @@ def atomic_output(path: str | os.PathLike[str], directory: bool = False) -> Iter
         if directory:
             tmp.mkdir()
         yield tmp
-        if directory:
-            _commit_dir(tmp, path)
-        else:
-            _fsync(tmp)
-            os.replace(tmp, path)
+        commit(tmp, path)
     except BaseException:
         _remove(tmp)
         raise

@@ -109,7 +109,7 @@ def _novel_view(data, out: Path) -> None:
     frames = FrameRenderer(SourceViews(data.images, data.c2w), models, "preview")
     video = out / "walk_preview.mp4"
     try:
-        with FrameSink(video, 24, 2 * height, height) as sink:
+        with FrameSink(video, 24, 2 * height, height, spherical=True) as sink:
             for pose in poses:
                 sink.write(frames.frame(pose, "equirectangular", 2 * height, height, 75.0))
     finally:

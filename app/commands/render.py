@@ -229,7 +229,8 @@ def run_path(args: argparse.Namespace) -> int:
         )
     if args.threads:
         torch.set_num_threads(args.threads)
-    sink = FrameSink(args.out, path.fps, path.render_width, path.render_height)
+    spherical = path.camera_type == "equirectangular"
+    sink = FrameSink(args.out, path.fps, path.render_width, path.render_height, spherical)
     scene = load_scene(args.scene, load_images=True)
     data = scene.images
     views = SourceViews(data.images, data.c2w)

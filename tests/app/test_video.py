@@ -2,9 +2,14 @@
 
 from __future__ import annotations
 
+import os
+import re
+import subprocess
+
 import cv2
 import numpy as np
 import pytest
+from helpers.disk import fill, tiny_tmpfs
 
 from panogrf.app.errors import UserError
 from panogrf.app.video import FrameSink
@@ -61,3 +66,123 @@ def test_png_folder_and_errors(tmp_path):
         FrameSink(tmp_path / "v.avi", 30, 64, 32)
     with FrameSink(tmp_path / "w.mp4", 30, 64, 32) as sink, pytest.raises(ValueError):
         sink.write(np.zeros((10, 10, 3), np.uint8))
+
+
+def _write_video(out, frames: int = 6, spherical: bool = False) -> None:
+    with FrameSink(out, 24, 64, 32, spherical=spherical) as sink:
+        for i in range(frames):
+            sink.write(_frame(i))
+
+
+def _top_boxes(path) -> list[bytes]:
+    data, kinds, pos = path.read_bytes(), [], 0
+    while pos < len(data):
+        kinds.append(data[pos + 4 : pos + 8])
+        pos += int.from_bytes(data[pos : pos + 4], "big")
+    return kinds
+
+
+def _ffmpeg_info(path) -> str:
+    import imageio_ffmpeg
+
+    done = subprocess.run(
+        [imageio_ffmpeg.get_ffmpeg_exe(), "-hide_banner", "-i", str(path)],
+        capture_output=True,
+        text=True,
+    )
+    return done.stderr
+
+
+def test_mp4_is_shared_fast_start_and_spherical(tmp_path):
+    old = os.umask(0o022)
+    try:
+        _write_video(tmp_path / "v.mp4", spherical=True)
+        _write_video(tmp_path / "flat.mp4")
+    finally:
+        os.umask(old)
+    out = tmp_path / "v.mp4"
+    assert out.stat().st_mode & 0o777 == 0o644  # as the PNGs, not 0600
+    kinds = _top_boxes(out)
+    assert kinds.index(b"moov") < kinds.index(b"mdat")  # index first: plays while loading
+    assert re.search(r"spherical[a-z ]*: equirectangular", _ffmpeg_info(out).lower())
+    assert "spherical" not in _ffmpeg_info(tmp_path / "flat.mp4")
+    cap = cv2.VideoCapture(str(out))  # chunk offsets moved with the larger index
+    n = 0
+    while cap.read()[0]:
+        n += 1
+    assert n == 6
+    done = subprocess.run(
+        [__import__("imageio_ffmpeg").get_ffmpeg_exe(), "-v", "error", "-i", str(out)]
+        + ["-f", "null", "-"],
+        capture_output=True,
+        text=True,
+    )
+    assert done.returncode == 0 and done.stderr == ""
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["flat.mp4", "v.mp4"]
+
+
+FAILING_FFMPEG = """#!/bin/sh
+cat > /dev/null
+echo "[out#0/mp4] Error writing trailer: No space left on device" >&2
+exit 1
+"""
+
+
+def test_ffmpeg_failure_keeps_the_older_video(tmp_path, monkeypatch):
+    import imageio_ffmpeg
+
+    out = tmp_path / "v.mp4"
+    _write_video(out)
+    good = out.read_bytes()
+    fake = tmp_path / "bin" / "ffmpeg"
+    fake.parent.mkdir()
+    fake.write_text(FAILING_FFMPEG)
+    fake.chmod(0o755)
+    monkeypatch.setattr(imageio_ffmpeg, "get_ffmpeg_exe", lambda: str(fake))
+    for spherical in (False, True):
+        with pytest.raises(UserError, match="ffmpeg failed writing .*No space left on device"):
+            _write_video(out, spherical=spherical)
+        assert out.read_bytes() == good
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["bin", "v.mp4"]
+
+
+def test_really_full_disk_keeps_the_older_video(tmp_path):
+    with tiny_tmpfs(tmp_path / "disk", "256k") as disk:
+        out = disk / "v.mp4"
+        _write_video(out, frames=2)
+        good = out.read_bytes()
+        fill(disk)
+        rng = np.random.default_rng(0)
+        with pytest.raises(UserError, match="No space left"):
+            with FrameSink(out, 24, 64, 32) as sink:
+                for _ in range(40):  # noise does not compress: more than the disk holds
+                    sink.write(rng.integers(0, 256, (32, 64, 3), dtype=np.uint8))
+        assert out.read_bytes() == good
+        assert sorted(p.name for p in disk.iterdir()) == ["ballast", "v.mp4"]
+
+
+def test_out_naming_a_folder_is_refused_before_the_work(tmp_path):
+    (tmp_path / "v.mp4").mkdir()
+    with pytest.raises(UserError, match="is a folder"):
+        FrameSink(tmp_path / "v.mp4", 24, 64, 32)
+    assert [p.name for p in tmp_path.iterdir()] == ["v.mp4"]
+
+
+def test_frames_folder_holds_only_the_latest_render(tmp_path):
+    out = tmp_path / "frames"
+    with FrameSink(out, 30, 64, 32) as sink:
+        for i in range(5):
+            sink.write(_frame(i))
+    with FrameSink(out, 30, 64, 32) as sink:
+        for i in range(2):
+            sink.write(_frame(i))
+    assert sorted(p.name for p in out.iterdir()) == ["frame_00000.png", "frame_00001.png"]
+    with pytest.raises(RuntimeError):
+        with FrameSink(out, 30, 64, 32) as sink:
+            sink.write(_frame(0))
+            raise RuntimeError("interrupted")
+    assert sorted(p.name for p in out.iterdir()) == ["frame_00000.png", "frame_00001.png"]
+    assert [p.name for p in tmp_path.iterdir()] == ["frames"]
+    (out / "notes.txt").write_text("mine")
+    with pytest.raises(UserError, match="holds other files than frames"):
+        FrameSink(out, 30, 64, 32)
