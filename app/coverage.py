@@ -1,10 +1,11 @@
-"""Is a camera inside the region its source panoramas cover?
+"""Is a camera inside the region its source panoramas cover, and not inside an object?
 
 A view rendered far from every source shows holes and stretched geometry; the viewer and
 ``render --camera-path`` warn about it. The covered region: within `FACTOR` times the largest
 spacing between source centres of the nearest source (at least `MIN_RADIUS_M`), which keeps
-the middle of a triplet (half the spacing away) well inside. Poses are camera-to-world [.., 4, 4],
-metres.
+the middle of a triplet (half the spacing away) well inside. A camera behind the surface that
+its nearest source sees in its direction is inside an object or behind a wall
+(`behind_surface`; the viewer warns). Poses are camera-to-world [.., 4, 4], metres.
 """
 
 from __future__ import annotations
@@ -61,3 +62,31 @@ def path_warning(targets: np.ndarray, sources: np.ndarray) -> str | None:
         f"(farther than {covered_radius(sources):.2f} m from every source, up to {worst:.2f} m): "
         f"frames {frame_ranges(far)}; expect holes and stretched geometry there"
     )
+
+
+#: A camera farther than this factor times the surface its nearest source sees in its
+#: direction is behind that surface (the margin absorbs the estimated depth's error).
+BEHIND_FACTOR = 1.15
+
+
+def behind_surface(
+    position: np.ndarray, sources: np.ndarray, depth: np.ndarray
+) -> tuple[int, float, float] | None:
+    """Is a camera at ``position`` [3] (world, metres) behind the surface its nearest source
+    [V, 4, 4] sees in its direction? depth [V, h, w]: each source's distance per ERP pixel
+    (metres, 0 unknown). Returns (source, camera distance, surface distance) or None."""
+    centres = np.asarray(sources)[:, :3, 3]
+    k = int(np.argmin(np.linalg.norm(centres - position, axis=-1)))
+    v = np.asarray(sources[k])[:3, :3].T @ (np.asarray(position, np.float64) - centres[k])
+    dist = float(np.linalg.norm(v))
+    if dist < 1e-6:
+        return None
+    h, w = depth.shape[1:]
+    lon = np.arctan2(v[0], -v[2])
+    lat = np.arcsin(np.clip(v[1] / dist, -1.0, 1.0))
+    row = min(int((0.5 - lat / np.pi) * h), h - 1)
+    col = min(int((lon / (2 * np.pi) + 0.5) * w), w - 1)
+    surface = float(depth[k, row, col])
+    if surface <= 0 or dist <= BEHIND_FACTOR * surface:
+        return None
+    return k, dist, surface

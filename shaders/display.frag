@@ -5,11 +5,16 @@
 // texture holds distances in its red channel, metres) are defined at compile time: a CPU
 // rasteriser would otherwise pay for both sides of each branch on every pixel. FILL (1: u_pano
 // is the GL preview's blend, rgb premultiplied by coverage, and u_coarse its filled next
-// coarser level) does the preview's last push-pull step here.
+// coarser level) does the preview's last push-pull step here. ROTATE (1: u_pano is in another
+// camera's frame, a source view) turns each viewing direction by u_rot first, so the source
+// view follows the camera's heading. The image fills the viewport at u_origin (window pixels,
+// a letterbox keeps the whole panorama 2:1).
 uniform sampler2D u_pano;
 uniform sampler2D u_coarse;
 uniform float u_fov;           // vertical field of view (radians)
-uniform vec2 u_size;           // window size in pixels
+uniform vec2 u_size;           // viewport size in pixels
+uniform vec2 u_origin;         // viewport's bottom-left corner in window pixels
+uniform mat3 u_rot;            // ROTATE: viewing direction -> the texture's camera frame
 uniform float u_max_depth;
 out vec4 out_color;
 
@@ -26,12 +31,21 @@ vec3 turbo(float x) {  // a compact approximation of the Turbo colour map
 }
 
 void main() {
-    vec2 p = gl_FragCoord.xy / u_size;  // (0, 0) bottom left
+    vec2 p = (gl_FragCoord.xy - u_origin) / u_size;  // (0, 0) bottom left
     vec2 uv;
+#if PERSPECTIVE || ROTATE
 #if PERSPECTIVE
     float f = 0.5 / tan(0.5 * u_fov);
     float aspect = u_size.x / u_size.y;
     vec3 d = normalize(vec3((p.x - 0.5) * aspect, p.y - 0.5, -f));
+#else
+    float lon0 = (p.x - 0.5) * 2.0 * PI;
+    float lat0 = (p.y - 0.5) * PI;
+    vec3 d = vec3(cos(lat0) * sin(lon0), sin(lat0), -cos(lat0) * cos(lon0));
+#endif
+#if ROTATE
+    d = u_rot * d;
+#endif
     float lon = atan(d.x, -d.z);
     float lat = asin(clamp(d.y, -1.0, 1.0));
     uv = vec2(lon / (2.0 * PI) + 0.5, 0.5 - lat / PI);

@@ -159,7 +159,7 @@ def _scenes(
 
 def run(args: argparse.Namespace) -> int:
     from panogrf.app.commands.render import default_models
-    from panogrf.app.images import write_json_atomic
+    from panogrf.app.atomic import check_output, json_text, nan_to_null, write_json_atomic
     from panogrf.app.scene import load_scene
     from panogrf.app.scoring import image_scores
     from panogrf.renderer.methods import SourceViews, prepare, render_view
@@ -176,8 +176,7 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--baselines: expected metres, got {args.baselines!r}") from None
     if args.threads:
         torch.set_num_threads(args.threads)
-    if args.out.parent and not args.out.parent.exists():
-        raise UserError(f"--out: folder {args.out.parent} does not exist")
+    check_output(args.out)  # before the work: an hour of rendering must not end unwritable
     scenes, baselines = _scenes(args.dataset, baselines, args.limit)
     models = default_models()
     rows = {label(*m): {b: [] for b in baselines} for m in methods}
@@ -234,8 +233,15 @@ def run(args: argparse.Namespace) -> int:
         "machine": f"{platform.machine()}, {torch.get_num_threads()} torch threads, CPU",
         "seconds": round(time.perf_counter() - start_all, 1),
     }
-    write_json_atomic(args.out, report)
+    report = nan_to_null(report)  # a metric undefined at this size (LPIPS below 31 rows)
     print(format_table(results, baselines))
+    try:
+        write_json_atomic(args.out, report)
+    except OSError as exc:  # e.g. the disk filled up meanwhile: the results go to stdout
+        print(json_text(report))
+        raise UserError(
+            f"cannot write {args.out} ({exc.strerror or exc}); the results are printed above"
+        ) from None
     print(f"wrote {args.out}")
     return 0
 

@@ -22,9 +22,10 @@ def _size(text: str) -> tuple[int, int]:
 
 KEYS = (
     "Keys: W/A/S/D move, Q/E down/up, arrows or mouse drag look, [ ] speed, - = field of view, "
-    "V panorama/perspective, 1 refined, 2 preview, 3 distance, 4 source views (Tab: next), "
-    "K add keyframe, C clear keyframes, P play the path, O save it (camera_path.json), "
-    "X screenshot, H overlay, Esc quit."
+    "V panorama/perspective, 1 refined, 2 preview, 3 distance, 4 source views (Tab: next, "
+    "J: jump there), R reset the view, K add keyframe, G go to the next keyframe, Backspace "
+    "delete it, , . its transition -/+ 0.5 s, C clear keyframes, P play/stop the path (real "
+    "time), O save it (camera_path.json), X screenshot, F clean 2:1 panorama, H overlay, Esc quit."
 )
 
 
@@ -111,6 +112,7 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
     import torch
 
+    from panogrf.app.viewer.screen import refine_summary
     from panogrf.app.viewer.window import ViewerSetup, parse_script, run_viewer
     from panogrf.app.viewer.worker import RenderWorker
 
@@ -124,8 +126,8 @@ def run(args: argparse.Namespace) -> int:
         torch.set_num_threads(args.threads)
     try:
         script = parse_script(args.script)
-    except ValueError:
-        raise UserError(f"--script: cannot read {args.script!r}") from None
+    except ValueError as exc:
+        raise UserError(f"--script: {exc} (keys: {_script_keys()})") from None
     scene, views, models, _ = prepare_scene(args.scene, args.cache_dir)
     if not 0 <= args.start_frame < scene.num_views:
         raise UserError(f"--start-frame: the scene has frames 0..{scene.num_views - 1}")
@@ -155,13 +157,20 @@ def run(args: argparse.Namespace) -> int:
         stats = [f"median frame {1000 * float(np.median(times)):.1f} ms"]
         if moving:
             stats.append(f"while moving {1000 * float(np.median(moving)):.1f} ms")
-        for level, seconds in config.refine_log[-2:]:
-            stats.append(f"refined level {level} {seconds:.2f} s after stopping")
+        if worker is not None:
+            stats += refine_summary(config.refine_log, len(worker.levels))
         print(
             f"closed after {config.frame_count} frames in {time.perf_counter() - start:.1f} s "
             f"({', '.join(stats)})"
         )
     return 0
+
+
+def _script_keys() -> str:
+    """The names a --script may use, for its error message."""
+    from panogrf.app.viewer.window import KEY_NAMES
+
+    return ", ".join(k.lower() for k in KEY_NAMES) + ", wait, refined"
 
 
 def _has_display() -> bool:

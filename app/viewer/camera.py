@@ -38,6 +38,15 @@ class FlyCamera:
         m[:3, 3] = self.position
         return m
 
+    @property
+    def level_c2w(self) -> np.ndarray:
+        """The pose with the pitch dropped: the heading's frame, horizon level."""
+        cy, sy = math.cos(self.yaw), math.sin(self.yaw)
+        m = np.eye(4)
+        m[:3, :3] = [[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]]
+        m[:3, 3] = self.position
+        return m
+
     def look(self, d_yaw: float, d_pitch: float) -> None:
         self.yaw = (self.yaw + d_yaw + math.pi) % (2 * math.pi) - math.pi
         self.pitch = float(np.clip(self.pitch + d_pitch, -1.5, 1.5))

@@ -6,26 +6,36 @@ cancelled and the GL preview redrawn; once the camera has been still for a momen
 is asked to refine the pose and its newest finished level replaces the preview on screen.
 The display is the whole panorama or a perspective view, in colour or as distance.
 
+Panorama mode shows the whole sphere, so there is nothing to look up or down to: as in any 360
+degree photo viewer, the panorama stays level (horizon straight), yaw scrolls it, and vertical
+look input is ignored (the pitch set in perspective mode is kept for it); the panorama keeps
+2:1 in any window (black bars). The source views (4) turn with the camera's heading. A
+camera path plays in real time, by the transitions of its keyframes (`--fixed-step` advances
+a fixed time per frame instead, for deterministic sessions).
+
 Keys: W/A/S/D move, Q/E down/up, arrows or mouse drag look, [ ] speed, - = field of view,
-V panorama/perspective, 1 refined, 2 preview, 3 distance, 4 source views (Tab: next source),
-K add keyframe, C clear keyframes, P play the path, O save it (camera_path.json), X screenshot,
+V panorama/perspective, 1 refined, 2 preview, 3 distance, 4 source views (Tab: next source,
+J: jump to it), R reset the view, K add keyframe, G go to the next keyframe, Backspace delete
+the selected keyframe, , . its transition -/+ 0.5 s, C clear keyframes, P play/stop the path,
+O save it (camera_path.json), X screenshot (the window), F clean panorama (2:1, no overlay),
 H toggle the overlay, Esc quit.
 """
 
 from __future__ import annotations
 
 import math
+import textwrap
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import cv2
 import moderngl
 import moderngl_window as mglw
 import numpy as np
 
-from panogrf.app.trajectory import interpolate_keyframes
+from panogrf.app.viewer import recording, screen
 from panogrf.app.viewer.camera import FlyCamera
+from panogrf.app.viewer.recording import Keyframe
 from panogrf.shaders import load as load_shader
 
 MODES = ("refined", "preview", "distance", "sources")
@@ -37,6 +47,11 @@ STILL_DELAY = 0.1
 REFINING_FPS = 15.0
 LOOK_SPEED = 1.5  # radians per second for the arrow keys
 DRAG_SPEED = 0.004  # radians per pixel of mouse drag
+#: The keys the viewer reacts to (moderngl-window's names; scripts use them in lower case).
+KEY_NAMES = (
+    "W A S D Q E K C P O X H V F G J R TAB LEFT RIGHT UP DOWN ESCAPE MINUS EQUAL LEFT_BRACKET "
+    "RIGHT_BRACKET NUMBER_1 NUMBER_2 NUMBER_3 NUMBER_4 BACKSPACE DELETE COMMA PERIOD"
+).split()
 
 
 @dataclass
@@ -94,7 +109,7 @@ class PanoViewer(mglw.WindowConfig):
             self.ctx, s.images, s.depth, s.c2w, mesh_height=s.mesh_height, max_views=s.max_views
         )
         # One display program per (perspective, distance, fill) mode, made when first needed.
-        self.displays: dict[tuple[int, int, int], tuple] = {}
+        self.displays: dict[tuple[int, int, int, int], tuple] = {}
         self.overlay_prog = self.ctx.program(
             vertex_shader=load_shader("fullscreen.vert"),
             fragment_shader=load_shader("overlay.frag"),
@@ -105,6 +120,8 @@ class PanoViewer(mglw.WindowConfig):
         self.refined_tex = self.ctx.texture((2 * h, h), 3)
         self.refined_tex.repeat_x = True
         self.refined_gen = -1
+        self.refined_rgb: np.ndarray | None = None
+        self.shown_level: int | None = None  # the refined level on screen (None: not refined)
         self.overlay_tex = None
         self.overlay_img = None
         self.camera = FlyCamera.from_c2w(s.start_pose)
@@ -113,9 +130,12 @@ class PanoViewer(mglw.WindowConfig):
         self.show_overlay = True
         self.source_index = 0
         self.held: set[str] = set()
-        self.keyframes: list[np.ndarray] = []
-        self.playback: np.ndarray | None = None
-        self.play_index = 0
+        self.keyframes: list[Keyframe] = []
+        self.selected: int | None = None  # the keyframe G went to or K added
+        self.playback: list[Keyframe] | None = None
+        self.play_time = 0.0
+        self.play_pose: np.ndarray | None = None
+        self.warned: tuple[bool, bool] = (False, False)  # (outside, inside) last logged
         self.last_pose = None
         self.still_since = time.perf_counter()
         self.requested = False
@@ -142,18 +162,27 @@ class PanoViewer(mglw.WindowConfig):
 
     def _make_keymap(self) -> dict:
         k = self.wnd.keys
-        names = "W A S D Q E K C P O X H V TAB LEFT RIGHT UP DOWN ESCAPE MINUS EQUAL"
-        names += " LEFT_BRACKET RIGHT_BRACKET NUMBER_1 NUMBER_2 NUMBER_3 NUMBER_4"
         out = {}
-        for name in names.split():
+        for name in KEY_NAMES:
             code = getattr(k, name, None)
             if code is not None:
                 out[code] = name
         return out
 
     def say(self, text: str) -> None:
-        self.messages = (self.messages + [text])[-3:]
+        """A message on the overlay (wrapped, the last few lines) and in the terminal."""
+        self.messages = (self.messages + textwrap.wrap(text, 72))[-4:]
         self.setup.log(text)
+
+    def view_pose(self) -> np.ndarray:
+        """The pose on screen [4, 4]: the path's while playing; level in panorama mode."""
+        if self.play_pose is not None:
+            return self.play_pose
+        return self.camera.c2w if self.perspective else self.camera.level_c2w
+
+    def _go_to(self, c2w: np.ndarray, fov: float | None = None) -> None:
+        cam = self.camera
+        self.camera = FlyCamera.from_c2w(c2w, speed=cam.speed, fov=cam.fov if fov is None else fov)
 
     # -- input ---------------------------------------------------------------------------------
     def on_key_event(self, key, action, modifiers) -> None:
@@ -185,28 +214,90 @@ class PanoViewer(mglw.WindowConfig):
             self.source_index = (self.source_index + 1) % len(self.sources)
         elif name == "H":
             self.show_overlay = not self.show_overlay
-        elif name == "K":
-            self.keyframes.append(cam.c2w)
-            self.say(f"keyframe {len(self.keyframes)} added")
-        elif name == "C":
-            self.keyframes.clear()
-            self.say("keyframes cleared")
+        elif name == "J":
+            self._go_to(self.setup.c2w[self.source_index])
+            self.say(f"at source view {self.source_index} (Tab: next source)")
+        elif name == "R":
+            self.camera = FlyCamera.from_c2w(self.setup.start_pose)
+            self.say("view reset to the start")
+        elif name in ("K", "C", "G", "BACKSPACE", "DELETE", "COMMA", "PERIOD"):
+            self.edit_keyframes(name)
         elif name == "P":
-            if len(self.keyframes) < 2:
-                self.say("add at least two keyframes (K) to play a path")
-            else:
-                frames = max(2, int(self.setup.fps * 2 * (len(self.keyframes) - 1)))
-                self.playback = interpolate_keyframes(np.stack(self.keyframes), frames)
-                self.play_index = 0
+            self.toggle_playback()
         elif name == "O":
             self.save_path()
         elif name == "X":
             self.request_screenshot = True
+        elif name == "F":
+            self.request_export = True
 
     request_screenshot = False
+    request_export = False
+
+    def edit_keyframes(self, name: str) -> None:
+        """K add, C clear, G go to the next, Backspace/Delete delete the selected, , . retime."""
+        keys, cam = self.keyframes, self.camera
+        if name == "K":
+            keys.append(Keyframe(self.view_pose(), cam.fov))
+            self.selected = len(keys) - 1
+            self.say(f"keyframe {len(keys)} added (fov {cam.fov:.0f} deg)")
+            return
+        if not keys:
+            self.say("no keyframes (K adds one)")
+            return
+        sel = len(keys) - 1 if self.selected is None else min(self.selected, len(keys) - 1)
+        if name == "C":
+            keys.clear()
+            self.selected = None
+            self.say("keyframes cleared")
+        elif name == "G":
+            sel = 0 if self.selected is None else (self.selected + 1) % len(keys)
+            self.selected = sel
+            self._go_to(keys[sel].c2w, keys[sel].fov)
+            self.say(f"at keyframe {sel + 1}/{len(keys)}")
+        elif name in ("BACKSPACE", "DELETE"):
+            keys.pop(sel)
+            self.selected = min(sel, len(keys) - 1) if keys else None
+            self.say(f"keyframe {sel + 1} deleted, {len(keys)} left")
+        else:
+            step = recording.RETIME_STEP_S * (1 if name == "PERIOD" else -1)
+            keys[sel].transition = max(recording.RETIME_STEP_S, keys[sel].transition + step)
+            total = float(recording.durations(keys).sum())
+            self.say(
+                f"keyframe {sel + 1}: {keys[sel].transition:.1f} s to the next (path {total:.1f} s)"
+            )
+
+    def toggle_playback(self) -> None:
+        if self.playback is not None:
+            self._stop_playback()
+            self.say("playback stopped")
+        elif len(self.keyframes) < 2:
+            self.say("add at least two keyframes (K) to play a path")
+        else:
+            self.playback = [Keyframe(k.c2w.copy(), k.fov, k.transition) for k in self.keyframes]
+            self.play_time = 0.0
+            seconds = float(recording.durations(self.playback).sum())
+            self.say(f"playing {len(self.playback)} keyframes, {seconds:.1f} s")
+
+    def _stop_playback(self) -> None:
+        if self.play_pose is not None:
+            self._go_to(self.play_pose)
+        self.playback, self.play_pose = None, None
+
+    def _advance_playback(self, dt: float) -> np.ndarray:
+        """The path's pose at the playback time, then advance that time by ``dt`` seconds."""
+        end = float(recording.durations(self.playback).sum())
+        t = min(self.play_time, end)
+        self.play_pose, self.camera.fov = recording.pose_at(self.playback, t)
+        pose = self.play_pose
+        self.play_time += dt
+        if t >= end:
+            self._stop_playback()
+        return pose
 
     def on_mouse_drag_event(self, x, y, dx, dy) -> None:
-        self.camera.look(-dx * DRAG_SPEED, -dy * DRAG_SPEED)
+        # Panorama mode shows every direction: only the heading turns it (module docstring).
+        self.camera.look(-dx * DRAG_SPEED, -dy * DRAG_SPEED if self.perspective else 0.0)
 
     def _apply_held(self, dt: float) -> None:
         h, cam = self.held, self.camera
@@ -216,7 +307,7 @@ class PanoViewer(mglw.WindowConfig):
         if fwd or right or up:
             cam.move(fwd, right, up, dt)
         yaw = ("LEFT" in h) - ("RIGHT" in h)
-        pitch = ("UP" in h) - ("DOWN" in h)
+        pitch = (("UP" in h) - ("DOWN" in h)) if self.perspective else 0
         if yaw or pitch:
             cam.look(yaw * LOOK_SPEED * dt, pitch * LOOK_SPEED * dt)
 
@@ -244,48 +335,62 @@ class PanoViewer(mglw.WindowConfig):
 
     # -- camera paths and screenshots ----------------------------------------------------------
     def save_path(self) -> None:
-        from panogrf.app.camera_path import CameraPath, write_camera_path
+        """O: the keyframes' path to ``--path-out``; a failed write is reported, never fatal."""
+        from panogrf.app.coverage import path_warning
 
         if len(self.keyframes) < 1:
             self.say("no keyframes to save (K adds one)")
             return
-        fps = self.setup.fps
-        frames = max(1, int(fps * 2 * (len(self.keyframes) - 1))) if len(self.keyframes) > 1 else 1
-        poses = interpolate_keyframes(np.stack(self.keyframes), frames)
-        keyframes = [
-            {"matrix": k.T.reshape(16).tolist(), "fov": self.camera.fov, "aspect": 2.0}
-            for k in self.keyframes
-        ]
-        h = self.setup.preview_height
-        path = CameraPath(
-            poses=poses,
-            camera_type="perspective" if self.perspective else "equirectangular",
-            render_width=2 * h if not self.perspective else 1280,
-            render_height=h if not self.perspective else 720,
-            fps=fps,
-            fov=np.full(len(poses), self.camera.fov),
-            aspect=np.full(len(poses), 2.0 if not self.perspective else 1280 / 720),
-            keyframes=keyframes,
+        w, h = self.wnd.buffer_size
+        path = recording.recorded_path(
+            self.keyframes, self.perspective, self.setup.preview_height, self.setup.fps, w / h
         )
-        write_camera_path(self.setup.path_out, path)
-        self.say(f"saved {len(poses)} cameras to {self.setup.path_out}")
+        ok, message = recording.save_path_file(self.setup.path_out, path)
+        self.say(message)
+        warning = path_warning(path.poses, self.setup.c2w) if ok else None
+        if warning:
+            self.say(warning)
+
+    def _image_name(self, kind: str) -> Path:
+        stamp = time.strftime("%Y%m%d_%H%M%S")
+        return self.setup.screenshot_dir / f"panogrf_{kind}{stamp}_{self.frame_count:05d}.png"
 
     def _screenshot(self) -> None:
+        """X: the window as it is (overlay included; F saves the clean panorama)."""
         w, h = self.wnd.buffer_size
         data = self.wnd.fbo.read(viewport=(0, 0, w, h), components=3)
         img = np.frombuffer(data, np.uint8).reshape(h, w, 3)[::-1]
-        out = (
-            self.setup.screenshot_dir
-            / f"panogrf_{time.strftime('%Y%m%d_%H%M%S')}_{self.frame_count:05d}.png"
-        )
-        from panogrf.app.images import write_rgb
-
-        write_rgb(out, np.ascontiguousarray(img))
-        p, c = self.camera.position, self.camera
+        out = self._image_name("")
+        ok, problem = recording.save_image_file(out, img)
+        if not ok:
+            self.say(f"cannot save the screenshot {out}: {problem}")
+            return
+        c = FlyCamera.from_c2w(self.view_pose())
+        p = c.position
         self.say(
             f"screenshot {out} at {p[0]:+.3f} {p[1]:+.3f} {p[2]:+.3f} "
             f"yaw {math.degrees(c.yaw):+.1f} pitch {math.degrees(c.pitch):+.1f}"
         )
+
+    def _export_panorama(self, pose: np.ndarray) -> None:
+        """F: the panorama of the pose on screen, 2:1 at its own resolution, no overlay: the
+        refined frame when it is shown, the source in source mode, else the GL preview."""
+        if self.mode == "sources":
+            rgb, what = self.setup.images[self.source_index], f"source view {self.source_index}"
+        elif self.shown_level is not None and self.refined_rgb is not None:
+            total = len(self.setup.worker.levels)
+            rgb, what = self.refined_rgb, f"refined level {self.shown_level + 1}/{total}"
+        else:
+            rgb, _ = self.preview.render(pose, self.setup.preview_height)
+            self.preview_key = None  # its textures were drawn again
+            what = "GL preview"
+            self.wnd.use()
+        out = self._image_name("pano_")
+        ok, problem = recording.save_image_file(out, rgb)
+        if not ok:
+            self.say(f"cannot save the panorama {out}: {problem}")
+        else:
+            self.say(f"panorama {out} ({rgb.shape[1]}x{rgb.shape[0]}, {what}, no overlay)")
 
     # -- frame ---------------------------------------------------------------------------------
     def on_render(self, time_s: float, frame_time: float) -> None:
@@ -299,15 +404,11 @@ class PanoViewer(mglw.WindowConfig):
         self.last_start = start
         dt = self.setup.fixed_step or min(frame_time, 0.1)
         self._run_script()
-        if self.playback is not None:
-            pose = self.playback[self.play_index]
-            self.camera = FlyCamera.from_c2w(pose, speed=self.camera.speed, fov=self.camera.fov)
-            self.play_index += 1
-            if self.play_index >= len(self.playback):
-                self.playback = None
+        if self.playback is not None:  # real time: the wall clock's whole frame time
+            pose = self._advance_playback(self.setup.fixed_step or frame_time)
         else:
             self._apply_held(dt)
-        pose = self.camera.c2w
+            pose = self.view_pose()
         moved = self.last_pose is None or not np.allclose(pose, self.last_pose, atol=1e-9)
         worker = self.setup.worker
         now = time.perf_counter()
@@ -323,7 +424,7 @@ class PanoViewer(mglw.WindowConfig):
             self.requested = True
 
         # What to show; the GL preview is drawn only when it is shown (or shown through).
-        refined = None
+        refined, self.shown_level = None, None
         if self.mode == "refined" and worker is not None and self.requested:
             done = worker.latest()
             if done is not None and done.generation == self.request_gen:
@@ -334,7 +435,7 @@ class PanoViewer(mglw.WindowConfig):
                     self._upload_refined(done.rgb)
                     self.refined_gen = done.generation
                     self.refine_log.append((done.level, time.perf_counter() - self.still_since))
-                refined = self.refined_tex
+                refined, self.shown_level = self.refined_tex, done.level
         coarse, is_depth, fill = None, False, False
         if self.mode == "sources":
             pano = self.sources[self.source_index]
@@ -355,19 +456,30 @@ class PanoViewer(mglw.WindowConfig):
                 pano, coarse, fill = out.blend, out.coarse, True
         self.wnd.use()
         w, hh = self.wnd.buffer_size
-        self.ctx.viewport = (0, 0, w, hh)
+        # The panorama keeps 2:1 (black bars); a perspective view fills the window.
+        box = (0, 0, w, hh) if self.perspective else screen.letterbox(w, hh)
+        self.ctx.viewport = box
         pano.use(location=0)
-        d, quad = self._display(int(self.perspective), int(is_depth), int(fill))
+        rotate = self.mode == "sources"
+        d, quad = self._display(int(self.perspective), int(is_depth), int(fill), int(rotate))
         d["u_pano"].value = 0
         if fill:
             coarse.use(location=1)
             d["u_coarse"].value = 1
         if self.perspective:
             d["u_fov"].value = math.radians(self.camera.fov)
-        d["u_size"].value = (float(w), float(hh))
+        if rotate:  # view directions into the source's frame; GL reads matrices column-major
+            rot = self.setup.c2w[self.source_index][:3, :3].T @ pose[:3, :3]
+            d["u_rot"].write(np.ascontiguousarray(rot.T, np.float32).tobytes())
+        d["u_origin"].value = (float(box[0]), float(box[1]))
+        d["u_size"].value = (float(box[2]), float(box[3]))
         if is_depth:
-            d["u_max_depth"].value = 10.0
+            d["u_max_depth"].value = screen.MAX_DISTANCE_M
         quad.render(moderngl.TRIANGLES, vertices=3)
+        self.ctx.viewport = (0, 0, w, hh)
+        if self.request_export:
+            self.request_export = False
+            self._export_panorama(pose)
         if self.show_overlay:
             self._draw_overlay(w, hh)
         if self.request_screenshot:
@@ -379,10 +491,10 @@ class PanoViewer(mglw.WindowConfig):
         if self.setup.frames is not None and self.frame_count >= self.setup.frames:
             self.wnd.close()
 
-    def _display(self, perspective: int, depth: int, fill: int) -> tuple:
-        key = (perspective, depth, fill)
+    def _display(self, perspective: int, depth: int, fill: int, rotate: int) -> tuple:
+        key = (perspective, depth, fill, rotate)
         if key not in self.displays:
-            defines = {"PERSPECTIVE": perspective, "DEPTH": depth, "FILL": fill}
+            defines = {"PERSPECTIVE": perspective, "DEPTH": depth, "FILL": fill, "ROTATE": rotate}
             prog = self.ctx.program(
                 vertex_shader=load_shader("fullscreen.vert"),
                 fragment_shader=load_shader("display.frag", defines),
@@ -414,6 +526,7 @@ class PanoViewer(mglw.WindowConfig):
             self.refined_tex.repeat_x = True
             self.refined_tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
         self.refined_tex.write(np.ascontiguousarray(rgb))
+        self.refined_rgb = rgb
 
     def _draw_overlay(self, w: int, h: int) -> None:
         now = time.perf_counter()
@@ -436,50 +549,57 @@ class PanoViewer(mglw.WindowConfig):
         self.ctx.viewport = (0, 0, w, h)
         self.ctx.disable(moderngl.BLEND)
 
-    def _coverage_lines(self) -> list[str]:
-        """A warning line while the camera is outside the region the sources cover."""
-        from panogrf.app.coverage import covered_radius, nearest_source_distance
+    def _coverage_lines(self, pose: np.ndarray) -> list[str]:
+        """Warnings while the camera is outside the region the sources cover or inside an
+        object (behind the surface its nearest source sees); logged once when they start."""
+        from panogrf.app.coverage import behind_surface, covered_radius, nearest_source_distance
 
         sources = self.setup.c2w
-        far = float(nearest_source_distance(self.camera.c2w[None], sources)[0])
-        if far <= covered_radius(sources):
-            return []
-        return [f"WARNING outside the covered region: {far:.2f} m from the nearest source"]
+        lines = []
+        far = float(nearest_source_distance(pose[None], sources)[0])
+        outside = far > covered_radius(sources)
+        if outside:
+            lines.append(f"WARNING outside the covered region: {far:.2f} m from a source")
+        inside = behind_surface(pose[:3, 3], sources, self.setup.depth)
+        if inside is not None:
+            k, dist, surface = inside
+            lines.append(
+                f"WARNING inside an object: {dist:.2f} m from source {k}, whose surface "
+                f"there is {surface:.2f} m away"
+            )
+        state = (outside, inside is not None)
+        if state != self.warned:
+            self.warned = state
+            for line in lines:
+                self.setup.log(line)
+        return lines
 
     def _update_overlay(self) -> None:
-        p = self.camera.position
+        pose = self.view_pose()
+        p = pose[:3, 3]
         recent = self.frame_times[-30:]
         fps = len(recent) / max(sum(recent), 1e-6) if recent else 0.0
         worker = self.setup.worker
-        if worker is None:
-            refine = "refinement off"
-        elif not self.requested:
-            refine = "moving: preview"
-        else:
-            done, frac = worker.status
-            total = len(worker.levels)
-            refine = f"refined {done}/{total}" + (f" ({frac:.0%})" if done < total else "")
+        levels = worker.levels if worker is not None else []
+        done, frac = worker.status if worker is not None else (0, 0.0)
+        status = screen.refine_status(worker is not None, self.requested, done, frac, levels)
+        shown = screen.shown_label(self.mode, self.shown_level, len(levels), self.source_index)
+        view = f"perspective {self.camera.fov:.0f} deg" if self.perspective else "panorama"
+        keys = f"keyframes {len(self.keyframes)}"
+        if self.selected is not None and self.keyframes:
+            sel = min(self.selected, len(self.keyframes) - 1)
+            keys += f" (at {sel + 1}, {self.keyframes[sel].transition:.1f} s)"
+        if self.playback is not None:
+            keys += f"  playing {self.play_time:.1f} s"
         lines = [
             f"pos {p[0]:+.2f} {p[1]:+.2f} {p[2]:+.2f} m  speed {self.camera.speed:.2f} m/s",
-            f"{self.mode}{' src ' + str(self.source_index) if self.mode == 'sources' else ''}"
-            f"  {f'perspective {self.camera.fov:.0f} deg' if self.perspective else 'panorama'}",
-            f"{fps:.0f} fps  {refine}  keyframes {len(self.keyframes)}",
-            *self._coverage_lines(),
+            f"{shown}  {view}",
+            f"{fps:.0f} fps  {status}",
+            keys,
+            *self._coverage_lines(pose),
             *self.messages,
         ]
-        img = np.zeros((18 * len(lines) + 8, 460, 4), np.uint8)
-        img[..., 3] = 140
-        for i, line in enumerate(lines):
-            cv2.putText(
-                img,
-                line,
-                (6, 18 * i + 17),
-                cv2.FONT_HERSHEY_SIMPLEX,
-                0.45,
-                (255, 255, 255, 255),
-                1,
-                cv2.LINE_AA,
-            )
+        img = screen.overlay_image(lines, legend=self.mode == "distance")
         self.overlay_img = img
         if self.overlay_tex is None or self.overlay_tex.size != (img.shape[1], img.shape[0]):
             if self.overlay_tex is not None:
@@ -494,7 +614,9 @@ class PanoViewer(mglw.WindowConfig):
 
 def parse_script(text: str) -> list[tuple[str, int]]:
     """ "w*30,x,wait*10" -> [("W", 30), ("X", 0), ("WAIT", 10)]: hold a key for N frames, or
-    press it once (no count); "refined" waits until the render worker has refined the view."""
+    press it once (no count); "refined" waits until the render worker has refined the view.
+    A token that is no key of the viewer, or a count that is no whole number of frames > 0,
+    raises ValueError naming it: a typo would otherwise do nothing, silently."""
     names = {str(i): f"NUMBER_{i}" for i in range(1, 5)}
     names |= {
         "[": "LEFT_BRACKET",
@@ -506,9 +628,13 @@ def parse_script(text: str) -> list[tuple[str, int]]:
     }
     out = []
     for token in (t.strip() for t in text.split(",") if t.strip()):
-        key, _, count = token.partition("*")
+        key, star, count = (t.strip() for t in token.partition("*"))
         name = names.get(key.lower(), key.upper())
-        out.append((name, int(count) if count else 0))
+        if name not in (*KEY_NAMES, "WAIT", "REFINED"):
+            raise ValueError(f"unknown key {key!r} in {token!r}")
+        if star and not (count.isdigit() and int(count) > 0):
+            raise ValueError(f"{token!r}: the count after * must be a whole number of frames > 0")
+        out.append((name, int(count) if star else 0))
     return out
 
 

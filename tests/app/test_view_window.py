@@ -166,3 +166,47 @@ def test_view_errors(tmp_path):
         text=True,
     )
     assert run.returncode == 2 and "Traceback" not in run.stderr
+
+
+def test_headless_session_survives_a_failed_save_and_plays_in_real_time(tmp_path):
+    """O into a missing folder is reported and the session goes on; P plays the 2 s transition
+    in real time (20 steps of 0.05 s: half way); F writes a clean 2:1 panorama; the wide
+    window letterboxes the panorama; looking up in panorama mode leaves it level; the source
+    view turns with the heading."""
+    cmd = [
+        PANOGRF,
+        "view",
+        str(DEMO),
+        "--window",
+        "headless",
+        "--size",
+        "300x100",
+        "--no-refine",
+        "--screenshot-dir",
+        str(tmp_path),
+        "--cache-dir",
+        str(tmp_path / "c"),
+        "--frames",
+        "150",
+        "--fixed-step",
+        "0.05",
+        "--path-out",
+        str(tmp_path / "missing" / "path.json"),
+        "--script",
+        "x,k,d*20,k,o,f,p,wait*20,x,p,h,x,up*10,x,4,x,left*10,x,esc",
+    ]
+    run = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr
+    assert "cannot save the camera path" in run.stdout and "does not exist" in run.stdout
+    shots = SHOT.findall(run.stdout)
+    assert len(shots) == 6, run.stdout
+    start, mid = (np.array(s[1:4], float) for s in shots[:2])
+    assert np.linalg.norm(mid - start) == pytest.approx(0.525, abs=0.05)  # 1.05 s of 2 s
+    pano = list(tmp_path.glob("panogrf_pano_*.png"))
+    assert len(pano) == 1 and read_rgb(pano[0]).shape == (512, 1024, 3)
+    img = [read_rgb(s[0]).astype(int) for s in shots]
+    assert img[2].shape == (100, 300, 3)
+    assert img[2][:, :48].max() == 0 and img[2][:, -48:].max() == 0  # the bars
+    assert img[2][:, 60:240].mean() > 10
+    assert np.array_equal(img[2], img[3])  # looking up: the panorama stays level
+    assert np.abs(img[4] - img[5]).mean() > 3  # the source view turned with the camera

@@ -1,0 +1,150 @@
+"""Keyframes recorded in the viewer: the camera path through them, and the viewer's file writes.
+
+A keyframe keeps what the camera showed when it was added (pose, field of view) and how long
+the transition to the next one lasts. The recorded path samples the smooth path through the
+keyframes (`panogrf.app.trajectory`) at the path's fps, in real time: ``seconds`` is the sum of
+the transitions and the path holds ``seconds x fps`` cameras, one per video frame, each with the
+field of view interpolated between its keyframes and the aspect of the recorded image.
+
+Saving never takes the viewer down: a camera path or an image that cannot be written (a missing
+or unwritable folder, a folder where the file should be) gives a message that says why, and the
+keyframes stay in the session.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from panogrf.app.camera_path import CameraPath, write_camera_path
+from panogrf.app.trajectory import frame_times, sample_keyframes, sample_values
+
+#: Seconds of a new keyframe's transition to the next one (nerfstudio's default).
+DEFAULT_TRANSITION_S = 2.0
+#: Step of the retime keys (, and .), and the shortest transition, seconds.
+RETIME_STEP_S = 0.5
+#: Height of a perspective path recorded from the viewer; the width follows the window.
+PERSPECTIVE_HEIGHT = 720
+
+
+@dataclass
+class Keyframe:
+    """One recorded keyframe."""
+
+    c2w: np.ndarray
+    """[4, 4] camera-to-world, OpenGL frame, metres."""
+    fov: float
+    """Vertical field of view, degrees (perspective paths)."""
+    transition: float = DEFAULT_TRANSITION_S
+    """Seconds from this keyframe to the next one."""
+
+
+def durations(keys: list[Keyframe]) -> np.ndarray:
+    """[K - 1] seconds of the segments between consecutive keyframes."""
+    return np.array([k.transition for k in keys[:-1]], np.float64)
+
+
+def pose_at(keys: list[Keyframe], t: float) -> tuple[np.ndarray, float]:
+    """(c2w [4, 4], fov in degrees) on the path through ``keys`` at ``t`` seconds."""
+    c2w = np.stack([k.c2w for k in keys])
+    d = durations(keys)
+    pose = sample_keyframes(c2w, [t], d)[0]
+    fov = float(sample_values([k.fov for k in keys], [t], d)[0])
+    return pose, fov
+
+
+def recorded_path(
+    keys: list[Keyframe], perspective: bool, pano_height: int, fps: float, aspect: float
+) -> CameraPath:
+    """The nerfstudio camera path through ``keys`` (K >= 1): ``seconds x fps`` cameras.
+
+    ``pano_height``: rows of an equirectangular path (2:1). ``aspect``: width / height of a
+    perspective path (the window's); cameras and keyframes carry the same aspect."""
+    if not keys:
+        raise ValueError("a camera path needs at least one keyframe")
+    d = durations(keys)
+    seconds = float(d.sum())
+    frames = max(1, round(seconds * fps))
+    times = frame_times(frames, seconds)
+    poses = sample_keyframes(np.stack([k.c2w for k in keys]), times, d)
+    fov = sample_values([k.fov for k in keys], times, d)
+    if perspective:
+        height = PERSPECTIVE_HEIGHT
+        width = max(2, 2 * round(height * aspect / 2))
+    else:
+        height, width = pano_height, 2 * pano_height
+    aspect = width / height
+    keyframes = [
+        {
+            # nerfstudio's keyframes hold the three.js matrix: column-major.
+            "matrix": k.c2w.T.reshape(16).tolist(),
+            "fov": float(k.fov),
+            "aspect": aspect,
+            "override_transition_enabled": True,
+            "override_transition_sec": float(k.transition),
+        }
+        for k in keys
+    ]
+    return CameraPath(
+        poses=poses,
+        camera_type="perspective" if perspective else "equirectangular",
+        render_width=width,
+        render_height=height,
+        fps=fps,
+        seconds=frames / fps,
+        fov=fov,
+        aspect=np.full(frames, aspect),
+        keyframes=keyframes,
+        extra={"default_fov": float(keys[0].fov), "default_transition_sec": DEFAULT_TRANSITION_S},
+    )
+
+
+def output_problem(path: Path) -> str | None:
+    """Why a file cannot be written at ``path`` (None: no reason known before trying)."""
+    path = Path(path)
+    parent = path.parent
+    if path.is_dir():
+        return "it is a folder"
+    if not parent.exists():
+        return f"the folder {parent} does not exist"
+    if not parent.is_dir():
+        return f"{parent} is not a folder"
+    if not os.access(parent, os.W_OK | os.X_OK):
+        return f"the folder {parent} is not writable"
+    return None
+
+
+def _reason(exc: Exception) -> str:
+    return getattr(exc, "strerror", None) or str(exc)
+
+
+def save_path_file(out: Path, path: CameraPath) -> tuple[bool, str]:
+    """Write ``path`` to ``out``; (written, a message saying what happened or why not)."""
+    problem = output_problem(out)
+    if problem is None:
+        try:
+            write_camera_path(out, path)
+        except (OSError, ValueError) as exc:
+            problem = _reason(exc)
+    if problem is not None:
+        return False, f"cannot save the camera path to {out}: {problem} (keyframes kept)"
+    return True, (
+        f"saved {len(path)} cameras ({path.seconds:.1f} s at {path.fps:g} fps, "
+        f"{path.camera_type} {path.render_width}x{path.render_height}) to {out}"
+    )
+
+
+def save_image_file(out: Path, rgb: np.ndarray) -> tuple[bool, str | None]:
+    """Write RGB uint8 [H, W, 3] to ``out``; (written, why not or None)."""
+    from panogrf.app.images import write_rgb
+
+    problem = output_problem(out)
+    if problem is None:
+        try:
+            write_rgb(out, np.ascontiguousarray(rgb))
+        except (OSError, ValueError) as exc:
+            problem = _reason(exc)
+    return problem is None, problem

@@ -1,0 +1,119 @@
+"""Viewer logic without a window: recorded paths, failed saves, overlay text, layout, warnings."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from panogrf.app.camera_path import read_camera_path
+from panogrf.app.coverage import behind_surface
+from panogrf.app.viewer import recording, screen
+from panogrf.app.viewer.camera import FlyCamera
+from panogrf.app.viewer.recording import Keyframe
+
+
+def _key(x: float, yaw: float, fov: float, transition: float = 2.0) -> Keyframe:
+    return Keyframe(FlyCamera(np.array([x, 0.0, 0.0]), yaw=yaw).c2w, fov, transition)
+
+
+KEYS = [_key(0.0, 0.0, 60.0, 1.0), _key(1.0, 0.5, 90.0, 3.0), _key(2.0, 1.0, 40.0)]
+
+
+def test_recorded_path_keeps_each_keyframes_fov_time_and_one_aspect(tmp_path):
+    path = recording.recorded_path(KEYS, perspective=True, pano_height=256, fps=10, aspect=2.0)
+    assert path.seconds == pytest.approx(4.0) and len(path) == 40  # real time: seconds x fps
+    assert path.fov[0] == pytest.approx(60.0) and path.fov[-1] == pytest.approx(40.0)
+    assert 60.0 < path.fov[5] < 90.0  # between the first two keyframes' fovs
+    assert [k["fov"] for k in path.keyframes] == [60.0, 90.0, 40.0]
+    assert [k["override_transition_sec"] for k in path.keyframes] == [1.0, 3.0, 2.0]
+    aspect = path.render_width / path.render_height
+    assert aspect == pytest.approx(2.0)
+    assert np.allclose(path.aspect, aspect) and all(k["aspect"] == aspect for k in path.keyframes)
+    pano = recording.recorded_path(KEYS, perspective=False, pano_height=256, fps=10, aspect=1.7)
+    assert (pano.render_width, pano.render_height) == (512, 256)
+    assert np.allclose(pano.aspect, 2.0) and all(k["aspect"] == 2.0 for k in pano.keyframes)
+    ok, message = recording.save_path_file(tmp_path / "p.json", path)
+    assert ok and "saved 40 cameras" in message
+    back = read_camera_path(tmp_path / "p.json")
+    assert back.seconds == pytest.approx(len(back) / back.fps)
+    assert np.allclose(back.fov, path.fov)
+
+
+def test_playback_pose_at_a_time_follows_the_transitions():
+    pose, fov = recording.pose_at(KEYS, 1.0)  # the second keyframe, reached after 1 s
+    assert np.allclose(pose, KEYS[1].c2w, atol=1e-9) and fov == pytest.approx(90.0)
+    pose, fov = recording.pose_at(KEYS, 2.5)  # half way through the 3 s transition
+    assert 1.0 < pose[0, 3] < 2.0 and fov == pytest.approx(65.0)
+
+
+@pytest.mark.parametrize("where", ["missing", "folder", "file_parent"])
+def test_failed_saves_say_why_and_do_not_raise(tmp_path, where):
+    (tmp_path / "a_file").write_text("x")
+    (tmp_path / "a_folder").mkdir()
+    out = {
+        "missing": tmp_path / "nope" / "path.json",
+        "folder": tmp_path / "a_folder",
+        "file_parent": tmp_path / "a_file" / "path.json",
+    }[where]
+    path = recording.recorded_path(KEYS, False, 64, 10, 2.0)
+    ok, message = recording.save_path_file(out, path)
+    assert not ok and str(out) in message and "keyframes kept" in message
+    assert {"missing": "does not exist", "folder": "is a folder", "file_parent": "not a folder"}[
+        where
+    ] in message
+    ok, problem = recording.save_image_file(
+        out.with_suffix(".png") if where != "folder" else out, np.zeros((4, 8, 3), np.uint8)
+    )
+    assert not ok and problem
+
+
+def test_letterbox_keeps_two_to_one():
+    assert screen.letterbox(1024, 512) == (0, 0, 1024, 512)
+    assert screen.letterbox(1000, 800) == (0, 150, 1000, 500)  # bars above and below
+    assert screen.letterbox(1600, 400) == (400, 0, 800, 400)  # bars left and right
+
+
+def test_overlay_says_refined_only_when_shown_with_overall_progress():
+    levels = [(256, "draft", 2), (512, "fast", None)]
+    assert screen.shown_label("refined", None, 2, 0).startswith("GL preview")
+    assert screen.shown_label("preview", None, 2, 0) == "GL preview"
+    assert screen.shown_label("refined", 0, 2, 0) == "refined level 1/2"
+    assert screen.shown_label("sources", None, 2, 3) == "source view 3"
+    # Level 1 done, half of level 2: the overall share counts level 2's four times the pixels.
+    status = screen.refine_status(True, True, 1, 0.5, levels)
+    assert "refining level 2/2 (50%)" in status and "60% overall" in status
+    assert screen.overall_progress(0, 0.5, screen.level_weights(levels)) == pytest.approx(0.1)
+    assert "refined" not in screen.refine_status(True, False, 0, 0.0, levels)
+
+
+def test_distance_legend_and_exit_summary_in_level_order():
+    plain = screen.overlay_image(["a", "b"])
+    legend = screen.overlay_image(["a", "b"], legend=True)
+    assert legend.shape[0] == plain.shape[0] + screen.ROW
+    bar = legend[2 * screen.ROW + 10, 40:240, :3].astype(int)
+    assert bar[0, 2] > bar[0, 0] and bar[-1, 0] > bar[-1, 2]  # blue (near) to red (far)
+    log = [(1, 1.5), (0, 0.4), (0, 0.6), (1, 1.7)]
+    lines = screen.refine_summary(log, 2)
+    assert lines[0].startswith("refined level 1/2 0.50 s") and lines[1].startswith("level 2/2", 8)
+
+
+def test_level_pose_drops_the_pitch():
+    cam = FlyCamera(np.array([1.0, 2.0, 3.0]), yaw=0.4, pitch=0.7)
+    level = FlyCamera.from_c2w(cam.level_c2w)
+    assert level.yaw == pytest.approx(0.4) and level.pitch == pytest.approx(0.0)
+    assert np.allclose(cam.level_c2w[:3, 3], cam.position)
+
+
+def test_behind_surface_finds_a_camera_inside_an_object():
+    sources = np.tile(np.eye(4), (2, 1, 1))
+    sources[1, 0, 3] = 5.0
+    depth = np.full((2, 8, 16), 3.0)  # every source sees a surface 3 m away all round
+    assert behind_surface(np.array([1.0, 0.0, 0.0]), sources, depth) is None
+    found = behind_surface(np.array([0.0, 0.0, -4.0]), sources, depth)
+    assert found is not None and found[0] == 0 and found[1] == pytest.approx(4.0)
+    assert found[2] == pytest.approx(3.0)
+    depth[0] = 0.0  # unknown depth: no claim
+    assert behind_surface(np.array([0.0, 0.0, -4.0]), sources, depth) is None
+    assert math.isfinite(found[1])
