@@ -158,8 +158,8 @@ def _scenes(
 
 
 def run(args: argparse.Namespace) -> int:
-    from panogrf.app.commands.render import default_models
     from panogrf.app.atomic import check_output, json_text, nan_to_null, write_json_atomic
+    from panogrf.app.commands.render import default_models
     from panogrf.app.scene import load_scene
     from panogrf.app.scoring import image_scores
     from panogrf.renderer.methods import SourceViews, prepare, render_view
