@@ -242,6 +242,21 @@ def read_camera_path(path: str | os.PathLike[str]) -> CameraPath:
     )
 
 
+def duration_note(path: CameraPath) -> str | None:
+    """A note when the path's ``seconds`` disagrees with its cameras: a video has one frame per
+    camera at ``fps``, so it lasts ``len(path) / fps`` whatever ``seconds`` says (nerfstudio
+    writes ``seconds x fps`` cameras; a hand-edited file may not). None when they agree to
+    within a frame."""
+    video = len(path) / path.fps
+    if abs(video - path.seconds) <= 1.0 / path.fps + 1e-9:
+        return None
+    return (
+        f"note: the path says seconds {path.seconds:g} but holds {len(path)} cameras at "
+        f"{path.fps:g} fps: the video has one frame per camera and lasts {video:.2f} s "
+        f"(to change its length, resample the path; to change its speed, its fps)"
+    )
+
+
 def camera_path_to_json(path: CameraPath) -> dict[str, Any]:
     """The JSON object nerfstudio reads (optional fields only where set)."""
     data: dict[str, Any] = dict(path.extra)

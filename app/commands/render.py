@@ -210,7 +210,7 @@ def run_path(args: argparse.Namespace) -> int:
     """``--camera-path``: every camera of the path to a video or a folder of frames."""
     from tqdm import tqdm
 
-    from panogrf.app.camera_path import read_camera_path
+    from panogrf.app.camera_path import duration_note, read_camera_path
     from panogrf.app.coverage import path_warning
     from panogrf.app.frames import FrameRenderer, render_camera_path
     from panogrf.app.scene import load_scene
@@ -222,6 +222,8 @@ def run_path(args: argparse.Namespace) -> int:
     if args.quality == "preview" and args.method != "panogrf":
         raise UserError("--quality preview is the GL depth-mesh preview: use it without --method")
     path = read_camera_path(args.camera_path)
+    if note := duration_note(path):
+        print(note, flush=True)
     if path.camera_type == "equirectangular" and path.render_width != 2 * path.render_height:
         raise UserError(
             f"{args.camera_path}: an equirectangular path needs render_width = 2 x "

@@ -10,6 +10,7 @@ import pytest
 from panogrf.app.camera_path import (
     DEFAULT_FOV_DEG,
     CameraPath,
+    duration_note,
     read_camera_path,
     write_camera_path,
 )
@@ -221,3 +222,15 @@ def test_constructor_refuses_bad_poses():
         CameraPath(poses=np.zeros((1, 4, 4)) + np.diag([1, 1, 0, 1]))
     with pytest.raises(ValueError, match="camera_type"):
         CameraPath(poses=np.eye(4)[None], camera_type="fisheye")
+
+
+def test_seconds_that_disagree_with_the_cameras_are_reported(tmp_path):
+    # nerfstudio's snippet: 2 cameras at 30 fps but "seconds": 2.0. A video has one frame per
+    # camera, so it lasts 0.07 s: said, not silently ignored.
+    file = tmp_path / "camera_path.json"
+    file.write_text(NERFSTUDIO_SNIPPET)
+    note = duration_note(read_camera_path(file))
+    assert note is not None and "seconds 2" in note and "2 cameras" in note and "0.07 s" in note
+    poses = np.stack([_yaw(0.1 * i, [0, 0, 0]) for i in range(60)])
+    assert duration_note(CameraPath(poses, fps=30.0, seconds=2.0)) is None
+    assert duration_note(CameraPath(poses, fps=30.0)) is None  # seconds from the cameras
