@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import hashlib
 import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -20,11 +19,14 @@ import torch
 from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 
+from panogrf.app.atomic import atomic_output
 from panogrf.renderer.cache import SceneCache
 from panogrf.renderer.methods import Models, SourceViews
 
 FORMAT = "panogrf-scene-cache-2"  # 2: exposure balance and the photometric sweep
 PRESET, DEPTH_MODE = "panogrf", "full"
+#: Largest plausible depth in a cache (metres): far beyond any room or street scene.
+MAX_DEPTH_M = 1000.0
 
 
 def default_cache_dir() -> Path:
@@ -52,22 +54,35 @@ class CacheResult:
     seconds: float
 
 
-def _problem(tensors: dict, key: str, views: SourceViews) -> str | None:
+def _problem(tensors: dict, key: str, views: SourceViews, channels: int) -> str | None:
+    """Why a loaded cache cannot be trusted (None: it can). ``channels``: the renderer's
+    feature channels; maps hold features, 6 visibility parameters and the depth."""
     meta_key = tensors.get("__key__")
     if meta_key is None:
         return "no key"
+    if meta_key.dtype != torch.uint8 or meta_key.ndim != 1:
+        return "malformed key"
     if bytes(meta_key.tolist()).decode(errors="replace") != key:
         return "stale (another scene or other weights)"
     depth, maps = tensors.get("depth"), tensors.get("maps")
     v = views.images.shape[0]
     if depth is None or maps is None:
         return "missing tensors"
-    if depth.ndim != 4 or depth.shape[:2] != (v, 1) or maps.shape[0] != v:
-        return f"wrong shapes {tuple(depth.shape)}, {tuple(maps.shape)}"
-    if maps.shape[-2:] != depth.shape[-2:]:
-        return "maps and depth disagree in size"
+    if depth.dtype != torch.float32 or maps.dtype != torch.float32:
+        return f"wrong dtypes {depth.dtype}, {maps.dtype} (expected float32)"
+    if depth.ndim != 4 or depth.shape[:2] != (v, 1) or depth.shape[-1] != 2 * depth.shape[-2]:
+        return f"wrong depth shape {tuple(depth.shape)} (expected [{v}, 1, h, 2h])"
+    if maps.shape != (v, channels + 7, *depth.shape[-2:]):
+        return (
+            f"wrong maps shape {tuple(maps.shape)} "
+            f"(expected {(v, channels + 7, *depth.shape[-2:])})"
+        )
     if not (torch.isfinite(depth).all() and torch.isfinite(maps).all()):
         return "non-finite values"
+    if (depth < 0).any() or depth.max() > MAX_DEPTH_M:
+        return f"depth out of range (expected 0 to {MAX_DEPTH_M:g} m)"
+    if not torch.equal(maps[:, -1:], depth):
+        return "maps and depth disagree"
     return None
 
 
@@ -83,14 +98,14 @@ def prepare_cached(
     key = content_key(views.images, views.c2w, weight_files)
     path = cache_dir / f"{key}.safetensors"
     why = None
+    c = models.renderer(PRESET).config.feature_channels
     if path.exists():
         try:
             tensors = load_file(str(path))
-            why = _problem(tensors, key, views)
+            why = _problem(tensors, key, views, c)
         except (SafetensorError, OSError, ValueError, RuntimeError) as exc:
             why = f"unreadable ({type(exc).__name__})"
         if why is None:
-            c = models.renderer(PRESET).config.feature_channels
             views.depth[DEPTH_MODE] = tensors["depth"]
             views.caches[(PRESET, DEPTH_MODE)] = SceneCache(
                 views.images, views.c2w, tensors["depth"], tensors["maps"], c
@@ -105,14 +120,10 @@ def prepare_cached(
     status = "built" if why is None else f"rebuilt: {why}"
     try:
         cache_dir.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=cache_dir, prefix=f".{key}.", suffix=".tmp")
-        os.close(fd)
-        try:
-            save_file(tensors, tmp, metadata={"format": FORMAT})
-            os.replace(tmp, path)
-        finally:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-    except OSError as exc:  # a read-only or full disk costs the cache, not the session
-        status += f" (not saved: {exc.strerror or exc})"
+        with atomic_output(path) as tmp:
+            save_file(tensors, str(tmp), metadata={"format": FORMAT})
+    # A read-only or full disk (safetensors reports it as its own error) costs the cache only.
+    except (OSError, SafetensorError) as exc:
+        reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc
+        status += f" (not saved: {reason})"
     return CacheResult(path, status, time.perf_counter() - start)

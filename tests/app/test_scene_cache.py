@@ -2,7 +2,12 @@
 
 from __future__ import annotations
 
+import subprocess
+
 import torch
+from helpers.disk import fill, tiny_tmpfs
+from safetensors import SafetensorError
+from safetensors.torch import load_file, save_file
 
 from panogrf.app.scene_cache import content_key, prepare_cached
 from panogrf.model.depth import DepthEstimator
@@ -87,3 +92,73 @@ def test_unwritable_cache_folder_costs_only_the_cache(tmp_path):
     r = prepare_cached(views, _models(), blocker / "cache", [weights])
     assert "not saved" in r.status
     assert ("panogrf", "full") in views.caches
+
+
+def _rewrite(path, **changes) -> None:
+    tensors = load_file(str(path))
+    tensors.update(changes)
+    save_file({k: v.contiguous() for k, v in tensors.items()}, str(path))
+
+
+def test_right_key_but_wrong_contents_is_rebuilt(tmp_path):
+    weights = tmp_path / "w"
+    weights.write_bytes(b"w")
+    models = _models()
+    r = prepare_cached(_views(), models, tmp_path, [weights])
+    good = load_file(str(r.path))
+    depth, maps = good["depth"], good["maps"]
+    bad = {
+        "wrong maps shape": {"maps": maps[:, :-2]},  # channel count of other weights
+        "wrong dtypes": {"maps": maps.half()},
+        "wrong depth shape": {"depth": depth[..., :-2], "maps": maps[..., :-2]},  # not 2:1
+        "depth out of range": {"depth": -depth, "maps": torch.cat((maps[:, :-1], -depth), 1)},
+        "maps and depth disagree": {"depth": depth * 2},
+    }
+    for why, change in bad.items():
+        _rewrite(r.path, **change)
+        views = _views()
+        status = prepare_cached(views, models, tmp_path, [weights]).status
+        assert status.startswith(f"rebuilt: {why}"), (why, status)
+        assert torch.equal(views.caches[("panogrf", "full")].maps, maps)
+        assert prepare_cached(_views(), models, tmp_path, [weights]).status == "loaded"
+
+
+def test_full_disk_costs_only_the_cache(tmp_path, monkeypatch):
+    from panogrf.app import scene_cache
+
+    weights = tmp_path / "w"
+    weights.write_bytes(b"w")
+
+    def full(tensors, filename, metadata=None):
+        with open(filename, "wb") as f:
+            f.write(b"\0" * 100)  # what a full disk leaves of the write
+        raise SafetensorError("Error while serializing: I/O error: No space left on device")
+
+    monkeypatch.setattr(scene_cache, "save_file", full)
+    views = _views()
+    r = prepare_cached(views, _models(), tmp_path / "cache", [weights])
+    assert "not saved" in r.status and "No space left" in r.status
+    assert ("panogrf", "full") in views.caches
+    assert list((tmp_path / "cache").iterdir()) == []
+
+
+def test_really_full_disk_costs_only_the_cache(tmp_path):
+    weights = tmp_path / "w"
+    weights.write_bytes(b"w")
+    with tiny_tmpfs(tmp_path / "disk") as disk:
+        fill(disk)
+        r = prepare_cached(_views(), _models(), disk, [weights])
+        assert "not saved" in r.status
+        assert [p.name for p in disk.iterdir()] == ["ballast"]
+
+
+def test_a_killed_write_is_swept_by_the_next_run(tmp_path):
+    weights = tmp_path / "w"
+    weights.write_bytes(b"w")
+    dead = subprocess.Popen(["true"])  # a process id that no longer runs
+    dead.wait()
+    key = content_key(_views().images, _views().c2w, [weights])
+    stale = tmp_path / f".{key}.safetensors.{dead.pid}-0123abcd.panogrf-tmp.safetensors"
+    stale.write_bytes(b"\0" * 1000)
+    r = prepare_cached(_views(), _models(), tmp_path, [weights])
+    assert [p.name for p in tmp_path.iterdir() if p.name != "w"] == [r.path.name]
