@@ -1,9 +1,9 @@
-"""Frames of a camera path: equirectangular or perspective, at preview, fast or paper quality.
+"""Frames of a camera path: equirectangular or perspective, at preview or a neural quality.
 
 One place turns a pose into an RGB frame for the video export and the viewer's recording:
 ``preview`` draws the sources' depth meshes on GL (headless EGL unless a context is given),
-``fast`` and ``paper`` run the neural renderer (`render_view`). Perspective frames are cut out
-of a panorama rendered at the angular resolution they need.
+``draft``, ``fast`` and ``paper`` run the neural renderer (`render_view`). Perspective frames
+are cut out of a panorama rendered at the angular resolution they need.
 """
 
 from __future__ import annotations
@@ -14,11 +14,14 @@ from collections.abc import Callable
 import numpy as np
 import torch
 
+from panogrf.app.errors import UserError
 from panogrf.app.images import to_uint8
 from panogrf.model.perspective import erp_to_perspective
 from panogrf.renderer.methods import Models, SourceViews, prepare, render_view
+from panogrf.renderer.render import QUALITY
 
-QUALITIES = ("preview", "fast", "paper")
+#: ``preview`` (GL) and every sampling of the neural renderer (what `render --help` offers).
+QUALITIES = ("preview", *QUALITY)
 
 
 def erp_height_for(camera_type: str, width: int, height: int, fov_deg: float) -> int:
@@ -49,13 +52,36 @@ class FrameRenderer:
         else:
             prepare(self.method, self.views, self.models)
 
+    def _context(self):
+        if self._ctx is None:
+            from panogrf.renderer.gl_preview import create_headless_context
+
+            self._ctx = create_headless_context()
+        return self._ctx
+
+    def check_height(self, height: int, what: str = "--height") -> None:
+        """Refuse, before any work, a panorama height this quality cannot draw: the GL preview
+        draws its sources' layers side by side in one texture, which the GL limits in width."""
+        if self.quality != "preview":
+            return
+        from panogrf.renderer.gl_preview import MAX_VIEWS
+
+        limit = int(self._context().info["GL_MAX_TEXTURE_SIZE"])
+        views = min(self.views.images.shape[0], MAX_VIEWS)
+        if 2 * height * views > limit:
+            raise UserError(
+                f"{what} {height}: --quality preview draws {views} sources x {2 * height} "
+                f"columns in one texture, over this GL's limit of {limit}; use at most "
+                f"{limit // (2 * views)} rows or fewer sources"
+            )
+
     def _preview_renderer(self):
         if self._preview is None:
-            from panogrf.renderer.gl_preview import PreviewRenderer, create_headless_context
+            from panogrf.renderer.gl_preview import PreviewRenderer
 
             depth = self.views.depth_for("full", self.models)[:, 0].numpy()
             images = to_uint8(self.views.images)
-            self._ctx = create_headless_context()
+            self._context()
             self._preview = PreviewRenderer(self._ctx, images, depth, self.views.c2w.numpy())
         return self._preview
 

@@ -31,3 +31,16 @@ def keep_freed_memory() -> bool:
     ok &= mallopt(_M_TOP_PAD, 64 * _MB) == 1
     ok &= mallopt(_M_ARENA_MAX, 1) == 1
     return bool(ok)
+
+
+def thread_count(text: str) -> int:
+    """argparse type of ``--threads``: 0 (torch's default, every core) or a positive count."""
+    import argparse
+
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected 0 (all cores) or more, got {value}")
+    return value

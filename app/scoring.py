@@ -2,17 +2,42 @@
 
 from __future__ import annotations
 
+import math
+
 import torch
 
 from panogrf.app.lpips_weights import load_lpips
 from panogrf.model.lpips import MIN_SIZE
 from panogrf.model.metrics import psnr, ssim, ws_psnr
 
+#: Side of `ssim`'s Gaussian window: smaller images have no SSIM (NaN, like LPIPS below its size).
+SSIM_WINDOW = 11
+#: Pixels per channel of one band of rows in `banded_ssim`. The whole-image SSIM holds about 20
+#: float copies of the image (2.5 GB at 1024 x 2048 rows, 32 GB at 4096); a band, a few MB.
+SSIM_BAND_PIXELS = 1 << 19
+
+
+def banded_ssim(x: torch.Tensor, y: torch.Tensor) -> float:
+    """`ssim` of [1, C, H, W] images in [0, 1], computed band of rows by band of rows (each
+    band overlaps the next by the window, so the mean over the valid pixels is the same); NaN
+    when H or W is below the window."""
+    h, w = x.shape[-2:]
+    if min(h, w) < SSIM_WINDOW:
+        return math.nan
+    valid, pad = h - (SSIM_WINDOW - 1), SSIM_WINDOW - 1
+    rows = max(1, SSIM_BAND_PIXELS // w)  # valid rows per band
+    total = 0.0
+    for r in range(0, valid, rows):
+        n = min(rows, valid - r)
+        band = slice(r, r + n + pad)
+        total += n * float(ssim(x[..., band, :], y[..., band, :]))
+    return total / valid
+
 
 def image_scores(rgb: torch.Tensor, reference: torch.Tensor) -> dict[str, float]:
     """PSNR, WS-PSNR (dB), SSIM and LPIPS (AlexNet) of a render [3, H, W] in [0, 1] against
-    ``reference`` [1, 3, H', W'] (area-resized to the render's size when they differ); LPIPS is
-    NaN below its minimum size."""
+    ``reference`` [1, 3, H', W'] (area-resized to the render's size when they differ); SSIM and
+    LPIPS are NaN below their minimum sizes."""
     from panogrf.renderer.cache import resize_erp
 
     gt = resize_erp(reference, rgb.shape[-2]).clamp(0, 1)
@@ -24,6 +49,6 @@ def image_scores(rgb: torch.Tensor, reference: torch.Tensor) -> dict[str, float]
     return {
         "psnr": float(psnr(x, gt)),
         "ws_psnr": float(ws_psnr(x, gt)),
-        "ssim": float(ssim(x, gt)),
+        "ssim": banded_ssim(x, gt),
         "lpips": lp,
     }

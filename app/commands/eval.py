@@ -27,6 +27,7 @@ from pathlib import Path
 import torch
 
 from panogrf.app.errors import UserError
+from panogrf.app.runtime import thread_count
 from panogrf.renderer.methods import METHODS
 from panogrf.renderer.render import QUALITY
 
@@ -92,7 +93,9 @@ def register(subparsers) -> None:
     )
     parser.add_argument("--subset-size", type=int, default=5, help="scenes per baseline")
     parser.add_argument("--limit", type=int, default=None, help="at most N scenes per baseline")
-    parser.add_argument("--threads", type=int, default=0, help="torch threads (default: all)")
+    parser.add_argument(
+        "--threads", type=thread_count, default=0, help="torch threads (default: all)"
+    )
     parser.set_defaults(func=run)
 
 
@@ -106,11 +109,7 @@ def _scene_folders(root: Path) -> tuple[list[Path], bool]:
 
     index_path = root / "dataset.json"
     if index_path.exists():
-        try:
-            entries = json.loads(index_path.read_text())["scenes"]
-            return [root / entry["folder"] for entry in entries], True
-        except (json.JSONDecodeError, KeyError, TypeError) as exc:
-            raise UserError(f"{index_path}: not a dataset index ({exc})") from None
+        return _read_index(index_path), True
     if (root / TRANSFORMS).is_file():
         return [root], False
     if not root.is_dir():
@@ -121,6 +120,34 @@ def _scene_folders(root: Path) -> tuple[list[Path], bool]:
             f"{root}: no dataset.json, no {TRANSFORMS}, and no scene folder with a {TRANSFORMS}"
         )
     return folders, False
+
+
+def _read_index(index_path: Path) -> list[Path]:
+    """The scene folders a ``dataset.json`` lists: {"scenes": [{"folder": NAME, ...}, ...]}."""
+    try:
+        data = json.loads(index_path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise UserError(f"{index_path}: cannot read ({exc.strerror or exc})") from None
+    except UnicodeDecodeError:
+        raise UserError(f"{index_path}: not UTF-8 text") from None
+    except json.JSONDecodeError as exc:
+        raise UserError(f"{index_path}: not JSON ({exc})") from None
+    scenes = data.get("scenes") if isinstance(data, dict) else None
+    if not isinstance(scenes, list):
+        raise UserError(f'{index_path}: not a dataset index (expected {{"scenes": [...]}})')
+    folders = []
+    for i, entry in enumerate(scenes):
+        name = entry.get("folder") if isinstance(entry, dict) else None
+        if not isinstance(name, str) or not name.strip():
+            got = json.dumps(entry)
+            raise UserError(
+                f'{index_path}: scenes[{i}]: expected {{"folder": NAME, ...}}, got '
+                f"{got if len(got) <= 60 else got[:57] + '...'}"
+            )
+        if index_path.parent / name in folders:
+            raise UserError(f"{index_path}: scenes[{i}]: folder {name!r} is listed twice")
+        folders.append(index_path.parent / name)
+    return folders
 
 
 def _scenes(
@@ -159,7 +186,7 @@ def _scenes(
 
 def run(args: argparse.Namespace) -> int:
     from panogrf.app.atomic import check_output, json_text, nan_to_null, write_json_atomic
-    from panogrf.app.commands.render import default_models
+    from panogrf.app.commands.render import MAX_HEIGHT, default_models
     from panogrf.app.scene import load_scene
     from panogrf.app.scoring import image_scores
     from panogrf.renderer.methods import SourceViews, prepare, render_view
@@ -174,6 +201,12 @@ def run(args: argparse.Namespace) -> int:
         )
     except ValueError:
         raise UserError(f"--baselines: expected metres, got {args.baselines!r}") from None
+    if args.height is not None and not 8 <= args.height <= MAX_HEIGHT:
+        raise UserError(f"--height must be between 8 and {MAX_HEIGHT}, got {args.height}")
+    if args.limit is not None and args.limit < 1:
+        raise UserError(f"--limit must be at least 1 scene per baseline, got {args.limit}")
+    if args.subset_size < 0:
+        raise UserError(f"--subset-size must be 0 or more, got {args.subset_size}")
     if args.threads:
         torch.set_num_threads(args.threads)
     check_output(args.out)  # before the work: an hour of rendering must not end unwritable

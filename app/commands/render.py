@@ -17,8 +17,14 @@ import numpy as np
 import torch
 
 from panogrf.app.errors import UserError
+from panogrf.app.runtime import thread_count
 from panogrf.renderer.methods import METHODS
 from panogrf.renderer.render import QUALITY
+
+#: Largest panorama height (rows; width = 2x) of a render, single or along a camera path.
+MAX_HEIGHT = 4096
+#: Largest frame of a camera path (columns x rows): a 2:1 panorama of `MAX_HEIGHT` rows.
+MAX_FRAME = (2 * MAX_HEIGHT, MAX_HEIGHT)
 
 
 def _indices(text: str) -> list[int]:
@@ -105,7 +111,9 @@ def register(subparsers) -> None:
         help="preview (GL depth-mesh warp), fast (depth-guided neural, default) or paper "
         "(neural, 64 + 64 samples)",
     )
-    parser.add_argument("--threads", type=int, default=0, help="torch threads (default: all)")
+    parser.add_argument(
+        "--threads", type=thread_count, default=0, help="torch threads (default: all)"
+    )
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
     parser.set_defaults(func=run)
 
@@ -136,8 +144,8 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--out: folder {args.out.parent} does not exist")
     if args.quality == "preview" and args.method != "panogrf":
         raise UserError("--quality preview is the GL depth-mesh preview: use it without --method")
-    if args.height is not None and not 8 <= args.height <= 4096:
-        raise UserError(f"--height must be between 8 and 4096, got {args.height}")
+    if args.height is not None and not 8 <= args.height <= MAX_HEIGHT:
+        raise UserError(f"--height must be between 8 and {MAX_HEIGHT}, got {args.height}")
     if args.threads:
         torch.set_num_threads(args.threads)
     scene = load_scene(args.scene, load_images=True)
@@ -165,6 +173,7 @@ def run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     frames = FrameRenderer(views, models, args.quality, args.method)
     try:
+        frames.check_height(height)
         frames.prepare()
         prep = time.perf_counter() - start
         start = time.perf_counter()
@@ -191,7 +200,7 @@ def run(args: argparse.Namespace) -> int:
         gt = data.images[args.target_frame : args.target_frame + 1]
         summary["metrics"] = image_scores(rgb, gt)
     if args.json:
-        print(json.dumps(summary, indent=2))
+        print(json.dumps(_json_safe(summary), indent=2, allow_nan=False))
         return 0
     print(
         f"wrote {args.out} ({height}x{2 * height}, {args.method}, {args.quality}): "
@@ -206,13 +215,38 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _json_safe(data):
+    """``data`` with NaN and infinite floats (a score below its minimum size) as None: null."""
+    if isinstance(data, dict):
+        return {k: _json_safe(v) for k, v in data.items()}
+    if isinstance(data, list):
+        return [_json_safe(v) for v in data]
+    if isinstance(data, float) and not np.isfinite(data):
+        return None
+    return data
+
+
+def _check_path_size(path, name: Path) -> None:
+    """Refuse, in one line, a path whose frames are too small or too large to render."""
+    w, h = path.render_width, path.render_height
+    if path.camera_type == "equirectangular" and w != 2 * h:
+        raise UserError(
+            f"{name}: an equirectangular path needs render_width = 2 x render_height, got {w}x{h}"
+        )
+    if w > MAX_FRAME[0] or h > MAX_FRAME[1] or min(w, h) < 8:
+        raise UserError(
+            f"{name}: frames of {w}x{h} are out of range: render_width up to {MAX_FRAME[0]}, "
+            f"render_height up to {MAX_FRAME[1]} (as --height of single renders), both at least 8"
+        )
+
+
 def run_path(args: argparse.Namespace) -> int:
     """``--camera-path``: every camera of the path to a video or a folder of frames."""
     from tqdm import tqdm
 
     from panogrf.app.camera_path import duration_note, read_camera_path
     from panogrf.app.coverage import path_warning
-    from panogrf.app.frames import FrameRenderer, render_camera_path
+    from panogrf.app.frames import FrameRenderer, erp_height_for, render_camera_path
     from panogrf.app.scene import load_scene
     from panogrf.app.video import FrameSink
     from panogrf.renderer.methods import SourceViews
@@ -224,11 +258,7 @@ def run_path(args: argparse.Namespace) -> int:
     path = read_camera_path(args.camera_path)
     if note := duration_note(path):
         print(note, flush=True)
-    if path.camera_type == "equirectangular" and path.render_width != 2 * path.render_height:
-        raise UserError(
-            f"{args.camera_path}: an equirectangular path needs render_width = 2 x "
-            f"render_height, got {path.render_width}x{path.render_height}"
-        )
+    _check_path_size(path, args.camera_path)
     if args.threads:
         torch.set_num_threads(args.threads)
     spherical = path.camera_type == "equirectangular"
@@ -243,6 +273,11 @@ def run_path(args: argparse.Namespace) -> int:
     frames = FrameRenderer(views, models, args.quality, args.method)
     start = time.perf_counter()
     try:
+        erp_rows = max(
+            erp_height_for(path.camera_type, path.render_width, path.render_height, float(fov))
+            for fov in path.fov
+        )
+        frames.check_height(erp_rows, f"{args.camera_path}: panoramas of")
         frames.prepare()
         prep = time.perf_counter() - start
         start = time.perf_counter()

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import itertools
+import math
 from collections.abc import Callable
 
 import numpy as np
@@ -99,6 +100,11 @@ def run_reproject(args: argparse.Namespace) -> int:
     from panogrf.app.consistency import reprojection_check
     from panogrf.app.scene import load_scene
 
+    if not (math.isfinite(args.occlusion_tol) and args.occlusion_tol > 0):
+        raise UserError(
+            f"--occlusion-tol must be a positive relative depth difference (e.g. 0.05), "
+            f"got {args.occlusion_tol}"
+        )
     scene = load_scene(args.dir, load_images=True)
     data = scene.images
     if data.depths is None:
@@ -126,6 +132,13 @@ def run_reproject(args: argparse.Namespace) -> int:
     return 0
 
 
+def _view_list(text: str) -> list[int]:
+    try:
+        return [int(x) for x in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated views, got {text!r}") from None
+
+
 def _add_reproject(sub: argparse._SubParsersAction) -> None:
     parser = sub.add_parser(
         "reproject",
@@ -142,7 +155,7 @@ def _add_reproject(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--target", type=int, default=None, help="target view (default: middle)")
     parser.add_argument(
         "--sources",
-        type=lambda s: [int(x) for x in s.split(",")],
+        type=_view_list,
         default=None,
         help="comma-separated source views (default: all others)",
     )

@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from panogrf.app.errors import UserError
+from panogrf.app.runtime import thread_count
 
 
 def register(subparsers) -> None:
@@ -43,7 +44,9 @@ def register(subparsers) -> None:
         default="full",
         help="stage mvs: full (mono-guided) or mvs (N_mono=0, N_uni=64, no mono input)",
     )
-    depth.add_argument("--threads", type=int, default=0, help="torch threads (default: all)")
+    depth.add_argument(
+        "--threads", type=thread_count, default=0, help="torch threads (default: all)"
+    )
     depth.add_argument("--log", type=Path, default=None, help="also append log lines here")
     depth.add_argument("--limit-scenes", type=int, default=None, help="load only N scenes")
     depth.add_argument("--init", type=Path, default=None, help="start from these weights")
@@ -90,7 +93,9 @@ def register(subparsers) -> None:
         "--height", type=int, default=256, help="panorama height (default 256; depth at half)"
     )
     renderer.add_argument("--seed", type=int, default=0, help="seed (default 0)")
-    renderer.add_argument("--threads", type=int, default=0, help="torch threads (default: all)")
+    renderer.add_argument(
+        "--threads", type=thread_count, default=0, help="torch threads (default: all)"
+    )
     renderer.add_argument("--log", type=Path, default=None, help="also append log lines here")
     renderer.add_argument("--limit-scenes", type=int, default=None, help="load only N scenes")
     renderer.add_argument("--init", type=Path, default=None, help="start from these weights")

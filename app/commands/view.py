@@ -8,6 +8,7 @@ import time
 from pathlib import Path
 
 from panogrf.app.errors import UserError
+from panogrf.app.runtime import thread_count
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -78,7 +79,9 @@ def register(subparsers) -> None:
         default=None,
         help="seconds of camera motion per frame (default: the wall clock)",
     )
-    parser.add_argument("--threads", type=int, default=0, help="torch threads (default: all)")
+    parser.add_argument(
+        "--threads", type=thread_count, default=0, help="torch threads (default: all)"
+    )
     parser.set_defaults(func=run)
 
 
@@ -127,7 +130,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         script = parse_script(args.script)
     except ValueError as exc:
-        raise UserError(f"--script: {exc} (keys: {_script_keys()})") from None
+        raise UserError(f"--script: {exc}") from None
     scene, views, models, _ = prepare_scene(args.scene, args.cache_dir)
     if not 0 <= args.start_frame < scene.num_views:
         raise UserError(f"--start-frame: the scene has frames 0..{scene.num_views - 1}")
@@ -164,13 +167,6 @@ def run(args: argparse.Namespace) -> int:
             f"({', '.join(stats)})"
         )
     return 0
-
-
-def _script_keys() -> str:
-    """The names a --script may use, for its error message."""
-    from panogrf.app.viewer.window import KEY_NAMES
-
-    return ", ".join(k.lower() for k in KEY_NAMES) + ", wait, refined"
 
 
 def _has_display() -> bool:

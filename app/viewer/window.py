@@ -631,7 +631,8 @@ def parse_script(text: str) -> list[tuple[str, int]]:
         key, star, count = (t.strip() for t in token.partition("*"))
         name = names.get(key.lower(), key.upper())
         if name not in (*KEY_NAMES, "WAIT", "REFINED"):
-            raise ValueError(f"unknown key {key!r} in {token!r}")
+            known = ", ".join(k.lower() for k in (*KEY_NAMES, "WAIT", "REFINED"))
+            raise ValueError(f"unknown key {key!r} in {token!r} (keys: {known})")
         if star and not (count.isdigit() and int(count) > 0):
             raise ValueError(f"{token!r}: the count after * must be a whole number of frames > 0")
         out.append((name, int(count) if star else 0))
