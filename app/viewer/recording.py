@@ -148,3 +148,88 @@ def save_image_file(out: Path, rgb: np.ndarray) -> tuple[bool, str | None]:
         except (OSError, ValueError) as exc:
             problem = _reason(exc)
     return problem is None, problem
+
+
+class KeyframeSession:
+    """The keyframes of a viewer session and their playback, without a window.
+
+    The window forwards the keys (K add, C clear, G go to the next, Backspace/Delete delete
+    the selected, , . retime it, P play/stop) and shows the messages these methods return."""
+
+    def __init__(self) -> None:
+        self.keys: list[Keyframe] = []
+        self.selected: int | None = None  # the keyframe G went to or K added
+        self.playback: list[Keyframe] | None = None  # a copy: edits do not disturb it
+        self.play_time = 0.0
+        self.play_pose: np.ndarray | None = None
+
+    def edit(self, name: str, pose: np.ndarray, fov: float) -> tuple[str, Keyframe | None]:
+        """Apply key ``name`` at the camera's ``pose`` and ``fov``: (message, the keyframe
+        the camera should go to, or None)."""
+        keys = self.keys
+        if name == "K":
+            keys.append(Keyframe(np.array(pose, np.float64), float(fov)))
+            self.selected = len(keys) - 1
+            return f"keyframe {len(keys)} added (fov {fov:.0f} deg)", None
+        if not keys:
+            return "no keyframes (K adds one)", None
+        sel = len(keys) - 1 if self.selected is None else min(self.selected, len(keys) - 1)
+        if name == "C":
+            keys.clear()
+            self.selected = None
+            return "keyframes cleared", None
+        if name == "G":
+            sel = 0 if self.selected is None else (self.selected + 1) % len(keys)
+            self.selected = sel
+            return f"at keyframe {sel + 1}/{len(keys)}", keys[sel]
+        if name in ("BACKSPACE", "DELETE"):
+            keys.pop(sel)
+            self.selected = min(sel, len(keys) - 1) if keys else None
+            return f"keyframe {sel + 1} deleted, {len(keys)} left", None
+        if name in ("COMMA", "PERIOD"):
+            step = RETIME_STEP_S * (1 if name == "PERIOD" else -1)
+            keys[sel].transition = max(RETIME_STEP_S, keys[sel].transition + step)
+            total = float(durations(keys).sum())
+            return (
+                f"keyframe {sel + 1}: {keys[sel].transition:.1f} s to the next (path {total:.1f} s)"
+            ), None
+        raise ValueError(f"not a keyframe key: {name}")
+
+    def toggle_playback(self) -> str:
+        """P: play the path from its start, or stop it where it is."""
+        if self.playback is not None:
+            self.stop()
+            return "playback stopped"
+        if len(self.keys) < 2:
+            return "add at least two keyframes (K) to play a path"
+        self.playback = [Keyframe(k.c2w.copy(), k.fov, k.transition) for k in self.keys]
+        self.play_time = 0.0
+        return f"playing {len(self.playback)} keyframes, {durations(self.playback).sum():.1f} s"
+
+    def advance(self, dt: float) -> tuple[np.ndarray, float, bool]:
+        """(pose, fov, finished) at the playback time, which then advances by ``dt`` seconds
+        (the frame's wall-clock time: playback in real time)."""
+        end = float(durations(self.playback).sum())
+        t = min(self.play_time, end)
+        self.play_pose, fov = pose_at(self.playback, t)
+        pose = self.play_pose
+        self.play_time += dt
+        if t >= end:
+            self.stop()
+        return pose, fov, t >= end
+
+    def stop(self) -> np.ndarray | None:
+        """End the playback; returns the pose it had reached (None: none)."""
+        pose = self.play_pose
+        self.playback, self.play_pose = None, None
+        return pose
+
+    def status(self) -> str:
+        """The overlay's keyframe line."""
+        text = f"keyframes {len(self.keys)}"
+        if self.selected is not None and self.keys:
+            sel = min(self.selected, len(self.keys) - 1)
+            text += f" (at {sel + 1}, {self.keys[sel].transition:.1f} s)"
+        if self.playback is not None:
+            text += f"  playing {self.play_time:.1f} s"
+        return text

@@ -35,7 +35,6 @@ import numpy as np
 
 from panogrf.app.viewer import recording, screen
 from panogrf.app.viewer.camera import FlyCamera
-from panogrf.app.viewer.recording import Keyframe
 from panogrf.shaders import load as load_shader
 
 MODES = ("refined", "preview", "distance", "sources")
@@ -130,11 +129,7 @@ class PanoViewer(mglw.WindowConfig):
         self.show_overlay = True
         self.source_index = 0
         self.held: set[str] = set()
-        self.keyframes: list[Keyframe] = []
-        self.selected: int | None = None  # the keyframe G went to or K added
-        self.playback: list[Keyframe] | None = None
-        self.play_time = 0.0
-        self.play_pose: np.ndarray | None = None
+        self.path = recording.KeyframeSession()
         self.warned: tuple[bool, bool] = (False, False)  # (outside, inside) last logged
         self.last_pose = None
         self.still_since = time.perf_counter()
@@ -176,8 +171,8 @@ class PanoViewer(mglw.WindowConfig):
 
     def view_pose(self) -> np.ndarray:
         """The pose on screen [4, 4]: the path's while playing; level in panorama mode."""
-        if self.play_pose is not None:
-            return self.play_pose
+        if self.path.play_pose is not None:
+            return self.path.play_pose
         return self.camera.c2w if self.perspective else self.camera.level_c2w
 
     def _go_to(self, c2w: np.ndarray, fov: float | None = None) -> None:
@@ -221,9 +216,14 @@ class PanoViewer(mglw.WindowConfig):
             self.camera = FlyCamera.from_c2w(self.setup.start_pose)
             self.say("view reset to the start")
         elif name in ("K", "C", "G", "BACKSPACE", "DELETE", "COMMA", "PERIOD"):
-            self.edit_keyframes(name)
+            message, go_to = self.path.edit(name, self.view_pose(), cam.fov)
+            if go_to is not None:
+                self._go_to(go_to.c2w, go_to.fov)
+            self.say(message)
         elif name == "P":
-            self.toggle_playback()
+            if self.path.play_pose is not None:  # stopped where it is
+                self._go_to(self.path.play_pose)
+            self.say(self.path.toggle_playback())
         elif name == "O":
             self.save_path()
         elif name == "X":
@@ -233,67 +233,6 @@ class PanoViewer(mglw.WindowConfig):
 
     request_screenshot = False
     request_export = False
-
-    def edit_keyframes(self, name: str) -> None:
-        """K add, C clear, G go to the next, Backspace/Delete delete the selected, , . retime."""
-        keys, cam = self.keyframes, self.camera
-        if name == "K":
-            keys.append(Keyframe(self.view_pose(), cam.fov))
-            self.selected = len(keys) - 1
-            self.say(f"keyframe {len(keys)} added (fov {cam.fov:.0f} deg)")
-            return
-        if not keys:
-            self.say("no keyframes (K adds one)")
-            return
-        sel = len(keys) - 1 if self.selected is None else min(self.selected, len(keys) - 1)
-        if name == "C":
-            keys.clear()
-            self.selected = None
-            self.say("keyframes cleared")
-        elif name == "G":
-            sel = 0 if self.selected is None else (self.selected + 1) % len(keys)
-            self.selected = sel
-            self._go_to(keys[sel].c2w, keys[sel].fov)
-            self.say(f"at keyframe {sel + 1}/{len(keys)}")
-        elif name in ("BACKSPACE", "DELETE"):
-            keys.pop(sel)
-            self.selected = min(sel, len(keys) - 1) if keys else None
-            self.say(f"keyframe {sel + 1} deleted, {len(keys)} left")
-        else:
-            step = recording.RETIME_STEP_S * (1 if name == "PERIOD" else -1)
-            keys[sel].transition = max(recording.RETIME_STEP_S, keys[sel].transition + step)
-            total = float(recording.durations(keys).sum())
-            self.say(
-                f"keyframe {sel + 1}: {keys[sel].transition:.1f} s to the next (path {total:.1f} s)"
-            )
-
-    def toggle_playback(self) -> None:
-        if self.playback is not None:
-            self._stop_playback()
-            self.say("playback stopped")
-        elif len(self.keyframes) < 2:
-            self.say("add at least two keyframes (K) to play a path")
-        else:
-            self.playback = [Keyframe(k.c2w.copy(), k.fov, k.transition) for k in self.keyframes]
-            self.play_time = 0.0
-            seconds = float(recording.durations(self.playback).sum())
-            self.say(f"playing {len(self.playback)} keyframes, {seconds:.1f} s")
-
-    def _stop_playback(self) -> None:
-        if self.play_pose is not None:
-            self._go_to(self.play_pose)
-        self.playback, self.play_pose = None, None
-
-    def _advance_playback(self, dt: float) -> np.ndarray:
-        """The path's pose at the playback time, then advance that time by ``dt`` seconds."""
-        end = float(recording.durations(self.playback).sum())
-        t = min(self.play_time, end)
-        self.play_pose, self.camera.fov = recording.pose_at(self.playback, t)
-        pose = self.play_pose
-        self.play_time += dt
-        if t >= end:
-            self._stop_playback()
-        return pose
 
     def on_mouse_drag_event(self, x, y, dx, dy) -> None:
         # Panorama mode shows every direction: only the heading turns it (module docstring).
@@ -338,12 +277,12 @@ class PanoViewer(mglw.WindowConfig):
         """O: the keyframes' path to ``--path-out``; a failed write is reported, never fatal."""
         from panogrf.app.coverage import path_warning
 
-        if len(self.keyframes) < 1:
+        if not self.path.keys:
             self.say("no keyframes to save (K adds one)")
             return
         w, h = self.wnd.buffer_size
         path = recording.recorded_path(
-            self.keyframes, self.perspective, self.setup.preview_height, self.setup.fps, w / h
+            self.path.keys, self.perspective, self.setup.preview_height, self.setup.fps, w / h
         )
         ok, message = recording.save_path_file(self.setup.path_out, path)
         self.say(message)
@@ -404,8 +343,10 @@ class PanoViewer(mglw.WindowConfig):
         self.last_start = start
         dt = self.setup.fixed_step or min(frame_time, 0.1)
         self._run_script()
-        if self.playback is not None:  # real time: the wall clock's whole frame time
-            pose = self._advance_playback(self.setup.fixed_step or frame_time)
+        if self.path.playback is not None:  # real time: the wall clock's whole frame time
+            pose, self.camera.fov, finished = self.path.advance(self.setup.fixed_step or frame_time)
+            if finished:
+                self._go_to(pose)
         else:
             self._apply_held(dt)
             pose = self.view_pose()
@@ -486,7 +427,7 @@ class PanoViewer(mglw.WindowConfig):
             self.request_screenshot = False
             self._screenshot()
         self.frame_count += 1
-        if not moved and self.playback is None:
+        if not moved and self.path.playback is None:
             self._idle(start)
         if self.setup.frames is not None and self.frame_count >= self.setup.frames:
             self.wnd.close()
@@ -585,17 +526,11 @@ class PanoViewer(mglw.WindowConfig):
         status = screen.refine_status(worker is not None, self.requested, done, frac, levels)
         shown = screen.shown_label(self.mode, self.shown_level, len(levels), self.source_index)
         view = f"perspective {self.camera.fov:.0f} deg" if self.perspective else "panorama"
-        keys = f"keyframes {len(self.keyframes)}"
-        if self.selected is not None and self.keyframes:
-            sel = min(self.selected, len(self.keyframes) - 1)
-            keys += f" (at {sel + 1}, {self.keyframes[sel].transition:.1f} s)"
-        if self.playback is not None:
-            keys += f"  playing {self.play_time:.1f} s"
         lines = [
             f"pos {p[0]:+.2f} {p[1]:+.2f} {p[2]:+.2f} m  speed {self.camera.speed:.2f} m/s",
             f"{shown}  {view}",
             f"{fps:.0f} fps  {status}",
-            keys,
+            self.path.status(),
             *self._coverage_lines(pose),
             *self.messages,
         ]

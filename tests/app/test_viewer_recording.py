@@ -117,3 +117,43 @@ def test_behind_surface_finds_a_camera_inside_an_object():
     depth[0] = 0.0  # unknown depth: no claim
     assert behind_surface(np.array([0.0, 0.0, -4.0]), sources, depth) is None
     assert math.isfinite(found[1])
+
+
+def test_keyframes_can_be_gone_to_deleted_and_retimed():
+    session = recording.KeyframeSession()
+    assert "no keyframes" in session.edit("G", np.eye(4), 75.0)[0]
+    for k in KEYS:
+        session.edit("K", k.c2w, k.fov)
+    assert session.selected == 2
+    message, go = session.edit("G", np.eye(4), 75.0)  # from the last added: wraps to the first
+    assert go is session.keys[0] and "1/3" in message
+    message, go = session.edit("G", np.eye(4), 75.0)
+    assert go is session.keys[1] and go.fov == 90.0
+    message, _ = session.edit("PERIOD", np.eye(4), 75.0)
+    assert session.keys[1].transition == 2.5 and "path 4.5 s" in message
+    for _ in range(10):
+        session.edit("COMMA", np.eye(4), 75.0)
+    assert session.keys[1].transition == recording.RETIME_STEP_S  # never below one step
+    message, _ = session.edit("BACKSPACE", np.eye(4), 75.0)
+    assert (
+        len(session.keys) == 2 and session.keys[1].fov == 40.0 and "keyframe 2 deleted" in message
+    )
+    assert session.selected == 1
+
+
+def test_playback_runs_on_the_clock_and_stops_where_it_is():
+    session = recording.KeyframeSession()
+    session.edit("K", KEYS[0].c2w, 60.0)
+    assert "at least two" in session.toggle_playback()
+    session.edit("K", KEYS[1].c2w, 90.0)  # a 2 s transition
+    assert "2.0 s" in session.toggle_playback()
+    pose, fov, done = session.advance(0.5)
+    assert np.allclose(pose, KEYS[0].c2w) and not done
+    pose, fov, done = session.advance(0.5)  # 0.5 s in: a quarter of the way, by the clock
+    assert fov == pytest.approx(67.5) and not done
+    session.advance(10.0)
+    pose, fov, done = session.advance(0.1)
+    assert done and np.allclose(pose, KEYS[1].c2w, atol=1e-9) and session.playback is None
+    session.toggle_playback()
+    session.advance(0.3)
+    assert session.toggle_playback() == "playback stopped" and session.play_pose is None
