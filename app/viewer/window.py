@@ -524,6 +524,8 @@ class PanoViewer(mglw.WindowConfig):
         levels = worker.levels if worker is not None else []
         done, frac = worker.status if worker is not None else (0, 0.0)
         status = screen.refine_status(worker is not None, self.requested, done, frac, levels)
+        if worker is not None and worker.error:  # the worker died: say why, on screen
+            status = f"refinement stopped: {worker.error}"
         shown = screen.shown_label(self.mode, self.shown_level, len(levels), self.source_index)
         view = f"perspective {self.camera.fov:.0f} deg" if self.perspective else "panorama"
         lines = [

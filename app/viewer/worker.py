@@ -8,6 +8,7 @@ stale pose is never finished. `latest` hands the newest finished frame to the wi
 
 from __future__ import annotations
 
+import sys
 import threading
 import time
 from dataclasses import dataclass
@@ -62,6 +63,7 @@ class RenderWorker:
         self._progress = 0.0
         self._level = -1
         self._stop = False
+        self._error: str | None = None
         self._thread = threading.Thread(target=self._run, name="panogrf-render", daemon=True)
 
     def start(self) -> RenderWorker:
@@ -135,7 +137,23 @@ class RenderWorker:
             should_stop=lambda: self._stop or self._pose is not None,
         )
 
+    @property
+    def error(self) -> str | None:
+        """Why refinement stopped for good (None while it works): the window shows it."""
+        with self._lock:
+            return self._error
+
     def _run(self) -> None:
+        try:
+            self._serve()
+        except Exception as exc:  # shown on screen and in the terminal, never swallowed
+            message = f"{type(exc).__name__}: {exc}"
+            with self._lock:
+                self._error = message
+                self._published.notify_all()
+            print(f"panogrf view: refinement stopped: {message}", file=sys.stderr, flush=True)
+
+    def _serve(self) -> None:
         if self.threads:
             torch.set_num_threads(self.threads)
         self._warm_up()
