@@ -35,6 +35,9 @@ import numpy as np
 
 from panogrf.app.viewer import recording, screen
 from panogrf.app.viewer.camera import FlyCamera
+from panogrf.app.viewer.script import KEY_NAMES, ScriptPlayer, parse_script
+
+__all__ = ["PanoViewer", "ViewerSetup", "parse_script", "run_viewer"]
 from panogrf.shaders import load as load_shader
 
 MODES = ("refined", "preview", "distance", "sources")
@@ -46,11 +49,6 @@ STILL_DELAY = 0.1
 REFINING_FPS = 15.0
 LOOK_SPEED = 1.5  # radians per second for the arrow keys
 DRAG_SPEED = 0.004  # radians per pixel of mouse drag
-#: The keys the viewer reacts to (moderngl-window's names; scripts use them in lower case).
-KEY_NAMES = (
-    "W A S D Q E K C P O X H V F G J R TAB LEFT RIGHT UP DOWN ESCAPE MINUS EQUAL LEFT_BRACKET "
-    "RIGHT_BRACKET NUMBER_1 NUMBER_2 NUMBER_3 NUMBER_4 BACKSPACE DELETE COMMA PERIOD"
-).split()
 
 
 @dataclass
@@ -143,7 +141,7 @@ class PanoViewer(mglw.WindowConfig):
         self.last_moved = False
         self.preview_key = None
         self.preview_out = None
-        self.script = list(s.script)
+        self.script = ScriptPlayer(s.script)
         self.last_overlay = 0.0
         self.messages: list[str] = []
         self._keymap = self._make_keymap()
@@ -250,27 +248,10 @@ class PanoViewer(mglw.WindowConfig):
         if yaw or pitch:
             cam.look(yaw * LOOK_SPEED * dt, pitch * LOOK_SPEED * dt)
 
-    def _run_script(self) -> None:
-        """Scripted input (headless sessions, tests, benchmarks): one step per frame."""
-        if not self.script:
-            return
-        name, frames = self.script[0]
-        if name == "REFINED":  # wait until the worker has refined every level (tests, benchmarks)
-            worker = self.setup.worker
-            if worker is None or (self.requested and worker.status[0] >= len(worker.levels)):
-                self.script.pop(0)
-            return
-        if name != "WAIT":
-            if frames == 0:  # a press: one-shot action
-                self.press(name)
-            else:
-                self.held.add(name)
-        if frames <= 1:
-            self.script.pop(0)
-            if name != "WAIT":
-                self.held.discard(name)
-        else:
-            self.script[0] = (name, frames - 1)
+    def _refined_all(self) -> bool:
+        """Has the worker refined every level of the still view (a script's "refined")?"""
+        worker = self.setup.worker
+        return worker is None or (self.requested and worker.status[0] >= len(worker.levels))
 
     # -- camera paths and screenshots ----------------------------------------------------------
     def save_path(self) -> None:
@@ -342,7 +323,7 @@ class PanoViewer(mglw.WindowConfig):
                 self.moving_frame_times.append(start - self.last_start)
         self.last_start = start
         dt = self.setup.fixed_step or min(frame_time, 0.1)
-        self._run_script()
+        self.script.step(self.press, self.held, self._refined_all)
         if self.path.playback is not None:  # real time: the wall clock's whole frame time
             pose, self.camera.fov, finished = self.path.advance(self.setup.fixed_step or frame_time)
             if finished:
@@ -547,33 +528,6 @@ class PanoViewer(mglw.WindowConfig):
     def on_close(self) -> None:
         if self.setup.worker is not None:
             self.setup.worker.stop()
-
-
-def parse_script(text: str) -> list[tuple[str, int]]:
-    """ "w*30,x,wait*10" -> [("W", 30), ("X", 0), ("WAIT", 10)]: hold a key for N frames, or
-    press it once (no count); "refined" waits until the render worker has refined the view.
-    A token that is no key of the viewer, or a count that is no whole number of frames > 0,
-    raises ValueError naming it: a typo would otherwise do nothing, silently."""
-    names = {str(i): f"NUMBER_{i}" for i in range(1, 5)}
-    names |= {
-        "[": "LEFT_BRACKET",
-        "]": "RIGHT_BRACKET",
-        "-": "MINUS",
-        "=": "EQUAL",
-        "esc": "ESCAPE",
-        "tab": "TAB",
-    }
-    out = []
-    for token in (t.strip() for t in text.split(",") if t.strip()):
-        key, star, count = (t.strip() for t in token.partition("*"))
-        name = names.get(key.lower(), key.upper())
-        if name not in (*KEY_NAMES, "WAIT", "REFINED"):
-            known = ", ".join(k.lower() for k in (*KEY_NAMES, "WAIT", "REFINED"))
-            raise ValueError(f"unknown key {key!r} in {token!r} (keys: {known})")
-        if star and not (count.isdigit() and int(count) > 0):
-            raise ValueError(f"{token!r}: the count after * must be a whole number of frames > 0")
-        out.append((name, int(count) if star else 0))
-    return out
 
 
 def run_viewer(setup: ViewerSetup, window: str = "pyglet", size: tuple[int, int] = (1024, 512)):
