@@ -174,6 +174,26 @@ def write_bytes_atomic(path: str | os.PathLike[str], data: bytes) -> None:
             f.write(data)
 
 
+def write_text_atomic(path: str | os.PathLike[str], text: str) -> None:
+    """Write ``text`` (UTF-8) to ``path`` atomically."""
+    write_bytes_atomic(path, text.encode("utf-8"))
+
+
+def save_tensors_atomic(
+    path: str | os.PathLike[str], tensors: dict, metadata: dict[str, str] | None = None
+) -> None:
+    """Write a safetensors file atomically. A full disk raises OSError (safetensors reports
+    it as its own error type, which callers would otherwise have to know)."""
+    from safetensors import SafetensorError
+    from safetensors.torch import save_file
+
+    with atomic_output(path) as tmp:
+        try:
+            save_file(tensors, str(tmp), metadata=metadata)
+        except SafetensorError as exc:
+            raise OSError(f"cannot write {path}: {exc}") from exc
+
+
 # An innermost JSON list of plain scalars, as json.dumps indents it. The raw newline after "["
 # never occurs inside a JSON string (dumps escapes it), so string contents are never touched.
 _FLAT_LIST = re.compile(r"\[\n\s*([^\[\]{}\"]*?)\n\s*\]")

@@ -38,6 +38,7 @@ import numpy as np
 import torch
 from scipy.spatial.transform import Rotation
 
+from panogrf.app.atomic import write_text_atomic
 from panogrf.app.errors import UserError
 from panogrf.app.poses import CV_TO_GL
 from panogrf.model.cubemap import FACE_NAMES, face_rotations
@@ -104,7 +105,7 @@ def write_tum(path: str | Path, c2w: np.ndarray, timestamps: list[float] | None 
         q = Rotation.from_matrix(m[:3, :3] @ CV_TO_GL).as_quat()
         ts = float(i if timestamps is None else timestamps[i])
         lines.append(" ".join(f"{x:.9f}" for x in (ts, *m[:3, 3], *q)))
-    Path(path).write_text("\n".join(lines) + "\n")
+    write_text_atomic(path, "\n".join(lines) + "\n")
 
 
 # --- OpenSfM ------------------------------------------------------------------------------
@@ -169,7 +170,7 @@ def write_opensfm(
             "translation": (-rot_w2c @ m[:3, 3]).tolist(),
         }
     camera = {"projection_type": "spherical", "width": width, "height": height}
-    Path(path).write_text(json.dumps([{"cameras": {"pano": camera}, "shots": shots}], indent=1))
+    write_text_atomic(path, json.dumps([{"cameras": {"pano": camera}, "shots": shots}], indent=1))
 
 
 # --- COLMAP -------------------------------------------------------------------------------
@@ -250,7 +251,7 @@ def write_colmap(
                 " ".join(str(x) for x in (k, qw, qx, qy, qz, *t, 1, f"{name}/{face}.png")),
                 "",
             ]
-    Path(path).write_text("\n".join(lines) + "\n")
+    write_text_atomic(path, "\n".join(lines) + "\n")
 
 
 def read_poses(fmt: str, path: str | Path) -> ImportedPoses:

@@ -17,8 +17,6 @@ train and 1 for test, so the splits never share a seed; their textures are disjo
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -27,6 +25,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from panogrf.app.atomic import write_text_atomic
 from panogrf.app.images import write_depth, write_rgb
 from panogrf.app.synth.gl_render import PanoramaRenderer
 from panogrf.app.synth.layout import LayoutConfig, SynthScene, generate_layout
@@ -103,10 +102,7 @@ def build_scene(
 
 
 def _write_json_atomic(path: Path, obj: dict) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    with os.fdopen(fd, "w", encoding="utf-8") as f:
-        json.dump(obj, f, indent=2)
-    os.replace(tmp, path)
+    write_text_atomic(path, json.dumps(obj, indent=2))
 
 
 def transforms_dict(scene: SynthScene, height: int, names: list[str]) -> dict:
@@ -152,9 +148,7 @@ def make_dataset(cfg: MakeConfig, progress: bool = True) -> dict:
         ThreadPoolExecutor(max_workers=2) as pool,
         tqdm(total=cfg.count * 3, unit="pano", disable=not progress, desc=f"{cfg.split}") as bar,
     ):
-        textures, groups = build_textures(
-            cfg.split, cfg.seed, cfg.procedural_textures, cfg.world
-        )
+        textures, groups = build_textures(cfg.split, cfg.seed, cfg.procedural_textures, cfg.world)
         renderer.set_textures(textures)
         previous = None  # (folder, transforms, write futures) of the scene still being written
 

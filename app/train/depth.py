@@ -11,17 +11,15 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import sys
-import tempfile
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import torch
-from safetensors.torch import save_file
 from torch import Tensor
 
+from panogrf.app.atomic import save_tensors_atomic
 from panogrf.app.train.augment import corrupt_mono, photometric
 from panogrf.app.train.data import TripletSet, load_triplets, yaw_roll
 from panogrf.model.erp import latitude_weights
@@ -130,15 +128,7 @@ def save_weights(module: torch.nn.Module, path: Path, metadata: dict) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     state = {k: v.detach().contiguous().cpu() for k, v in module.state_dict().items()}
     meta = {k: v if isinstance(v, str) else json.dumps(v) for k, v in metadata.items()}
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    os.close(fd)
-    try:
-        save_file(state, tmp, metadata=meta)
-        os.chmod(tmp, 0o644)  # mkstemp makes it private; weights are shared files
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    save_tensors_atomic(path, state, meta)
 
 
 def train_mono(cfg: TrainDepthConfig, log=print) -> dict:

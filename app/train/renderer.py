@@ -23,10 +23,11 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import torch
-from safetensors.torch import load_file, save_file
+from safetensors.torch import load_file
 from torch import Tensor
 from tqdm import tqdm
 
+from panogrf.app.atomic import save_tensors_atomic
 from panogrf.app.train.data import TripletSet, load_triplets, yaw_roll
 from panogrf.app.train.depth import _init, _lr_at, save_weights
 from panogrf.model.depth import DepthEstimator
@@ -119,9 +120,7 @@ def pair_depths(
             out.setdefault(f"r{a}s{b}", []).append(est.depth[0:1].half())
             out.setdefault(f"r{b}s{a}", []).append(est.depth[1:2].half())
     result = {k: torch.cat(v) for k, v in out.items()}
-    tmp = path.with_suffix(".tmp")
-    save_file(result, str(tmp))
-    tmp.replace(path)
+    save_tensors_atomic(path, result)
     return result
 
 

@@ -166,3 +166,59 @@ def test_check_output_refuses_before_the_work(tmp_path):
     finally:
         ro.chmod(0o700)
     assert check_output(tmp_path / "r.json") == tmp_path / "r.json"
+
+
+def _writers():
+    """(name, write(path)) for every kind of file panogrf writes but video (tests/app/test_video)
+    and the scene cache (tests/app/test_scene_cache)."""
+    import numpy as np
+    import torch
+
+    from panogrf.app.camera_path import CameraPath, write_camera_path
+    from panogrf.app.images import write_depth, write_rgb
+    from panogrf.app.poses.importers import write_tum
+    from panogrf.app.train.depth import save_weights
+
+    rng = np.random.default_rng(0)
+    noise = rng.integers(0, 256, (128, 256, 3), dtype=np.uint8)  # does not compress
+    poses = np.stack([np.eye(4)] * 2)
+    return {
+        "png": ("a.png", lambda p: write_rgb(p, noise)),
+        "depth png": ("d.png", lambda p: write_depth(p, rng.uniform(1, 60, (128, 256)))),
+        "json": ("a.json", lambda p: write_json_atomic(p, {"x": list(range(30000))})),
+        "camera path": (
+            "path.json",
+            lambda p: write_camera_path(
+                p, CameraPath(poses=np.stack([np.eye(4)] * 3000), fov=np.full(3000, 90.0))
+            ),
+        ),
+        "weights": ("w.safetensors", lambda p: save_weights(torch.nn.Linear(200, 200), p, {})),
+        "poses": ("poses.txt", lambda p: write_tum(p, np.concatenate([poses] * 1000))),
+    }
+
+
+@pytest.mark.parametrize("kind", list(_writers()))
+def test_every_writer_keeps_the_older_file_on_a_full_disk(tmp_path, kind):
+    name, write = _writers()[kind]
+    with tiny_tmpfs(tmp_path / "disk", "512k") as disk:
+        out = disk / name
+        out.write_bytes(b"older")
+        fill(disk)
+        with pytest.raises(OSError):
+            write(out)
+        assert out.read_bytes() == b"older"
+        assert sorted(p.name for p in disk.iterdir()) == sorted([name, "ballast"])
+
+
+def test_safetensors_errors_become_oserror(tmp_path, monkeypatch):
+    import safetensors.torch
+    import torch
+    from safetensors import SafetensorError
+
+    def full(tensors, filename, metadata=None):
+        raise SafetensorError("I/O error: No space left on device (os error 28)")
+
+    monkeypatch.setattr(safetensors.torch, "save_file", full)
+    with pytest.raises(OSError, match="No space left"):
+        atomic.save_tensors_atomic(tmp_path / "w.safetensors", {"a": torch.zeros(2)})
+    assert list(tmp_path.iterdir()) == []
