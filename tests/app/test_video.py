@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import re
 import subprocess
+import time
 
 import cv2
 import numpy as np
@@ -186,3 +187,39 @@ def test_frames_folder_holds_only_the_latest_render(tmp_path):
     (out / "notes.txt").write_text("mine")
     with pytest.raises(UserError, match="holds other files than frames"):
         FrameSink(out, 30, 64, 32)
+
+
+_KILLED_EXPORT = """
+import sys
+import numpy as np
+from pathlib import Path
+from panogrf.app.video import FrameSink
+with FrameSink(Path(sys.argv[1]), 24, 64, 32, spherical=True) as sink:
+    for i in range(3):
+        sink.write(np.zeros((32, 64, 3), np.uint8))
+    print("ready", flush=True)
+    sys.stdin.read()
+"""
+
+
+def test_kill_9_during_export_keeps_the_older_video_and_the_next_export_sweeps(tmp_path):
+    import signal
+    import sys
+
+    out = tmp_path / "v.mp4"
+    _write_video(out)
+    good = out.read_bytes()
+    proc = subprocess.Popen(
+        [sys.executable, "-c", _KILLED_EXPORT, str(out)],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    assert proc.stdout.readline() == "ready\n"
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    time.sleep(0.5)  # ffmpeg sees its input close and exits
+    assert out.read_bytes() == good
+    assert len(list(tmp_path.iterdir())) > 1  # the killed export's temporaries
+    _write_video(out, frames=2)
+    assert [p.name for p in tmp_path.iterdir()] == ["v.mp4"]
