@@ -30,6 +30,10 @@ WEIGHTS = {
 }
 
 
+#: The MVS networks each depth mode runs: "full" fuses the mono-guided network's depth with the
+#: unguided one's (`panogrf.model.depth.DepthEstimator.fuse`).
+NETWORKS = {"mono": (), "mvs": ("mvs",), "full": ("full", "mvs")}
+
 RENDERER_WEIGHTS = {
     "panogrf": "renderer_panogrf.safetensors",
     "no_geometry": "renderer_no_geometry.safetensors",

@@ -23,7 +23,7 @@ from panogrf.app.atomic import atomic_output
 from panogrf.renderer.cache import SceneCache
 from panogrf.renderer.methods import Models, SourceViews
 
-FORMAT = "panogrf-scene-cache-2"  # 2: exposure balance and the photometric sweep
+FORMAT = "panogrf-scene-cache-3"  # 3: mono-guided and unguided MVS fused by the sweep
 PRESET, DEPTH_MODE = "panogrf", "full"
 #: Largest plausible depth in a cache (metres): far beyond any room or street scene.
 MAX_DEPTH_M = 1000.0

@@ -28,12 +28,12 @@ REPEATS = 5
 def _child(scene: Path, mode: str) -> dict:
     import torch
 
-    from panogrf.app.depth_weights import load_depth_estimator
+    from panogrf.app.depth_weights import NETWORKS, load_depth_estimator
     from panogrf.app.images import write_depth
     from panogrf.app.scene import load_scene
 
     t0 = time.perf_counter()
-    estimator = load_depth_estimator(() if mode == "mono" else (mode,))
+    estimator = load_depth_estimator(NETWORKS[mode])
     load_s = time.perf_counter() - t0
     times, net_times = [], []
     with tempfile.TemporaryDirectory() as out:

@@ -61,10 +61,45 @@ class DepthEstimator(nn.Module):
         """The photometric sweep after the MVS network (None: off)."""
         self.sweep_sources = 2
         """The sweep compares each view with at most this many of its nearest sources."""
+        self.fuse = True
+        """Mode "full" with the unguided network loaded too: both depths enter the sweep, each
+        pixel keeping the one its sources agree with (see `sweep_depth`'s ``others``)."""
+        self.switch_gain = 0.0
+        """How much better the unguided depth must match to replace the mono-guided one."""
 
     @property
     def d_max(self) -> float:
         return self.mono.config.d_max
+
+    def _fuses(self, mode: str) -> bool:
+        """Mono-guided depth is fused with the unguided network's by the photometric sweep."""
+        return self.fuse and mode == "full" and "mvs" in self.mvs and self.sweep is not None
+
+    def _clean(self, depth: Tensor) -> Tensor:
+        return torch.nan_to_num(depth, nan=self.d_max, posinf=self.d_max).clamp(0.05, self.d_max)
+
+    def _mvs(self, mode, small, c2w, mono, sources, depth: Tensor) -> Tensor:
+        """``depth`` with every view that has sources replaced by network ``mode``'s estimate."""
+        net = self.mvs[mode]
+        cfg = net.config
+        for ref, src in enumerate(sources):
+            if not src:
+                continue
+            mono_kw = {}
+            if cfg.use_mono or cfg.n_mono > 0:
+                mono_kw = {
+                    "mono_depth": mono.depth[ref : ref + 1],
+                    "mono_features": mono.features[ref : ref + 1],
+                }
+            out = net(
+                small[ref : ref + 1],
+                small[src][None],
+                c2w[ref : ref + 1],
+                c2w[src][None],
+                **mono_kw,
+            )
+            depth[ref] = out.depth[0]
+        return depth
 
     @torch.no_grad()
     def forward(
@@ -87,11 +122,11 @@ class DepthEstimator(nn.Module):
         warnings: list[str] = []
         sources: list[list[int]] = [[] for _ in range(v)]
         depth = mono.depth.clone()
+        others: tuple[Tensor, ...] = ()
         if mode != "mono":
             if v == 1:
                 warnings.append("one view only: monocular depth (no multi-view stereo)")
             centres = c2w[:, :3, 3]
-            net = self.mvs[mode]
             for ref in range(v):
                 dist = torch.linalg.vector_norm(centres - centres[ref], dim=-1)
                 src = [j for j in range(v) if j != ref and float(dist[j]) >= self.min_baseline]
@@ -106,22 +141,10 @@ class DepthEstimator(nn.Module):
                         warnings.append(f"view {ref}: no usable source, monocular depth")
                     continue
                 sources[ref] = src
-                cfg = net.config
-                mono_kw = {}
-                if cfg.use_mono or cfg.n_mono > 0:
-                    mono_kw = {
-                        "mono_depth": mono.depth[ref : ref + 1],
-                        "mono_features": mono.features[ref : ref + 1],
-                    }
-                out = net(
-                    small[ref : ref + 1],
-                    small[src][None],
-                    c2w[ref : ref + 1],
-                    c2w[src][None],
-                    **mono_kw,
-                )
-                depth[ref] = out.depth[0]
-        depth = torch.nan_to_num(depth, nan=self.d_max, posinf=self.d_max).clamp(0.05, self.d_max)
+            depth = self._mvs(mode, small, c2w, mono, sources, depth)
+            if self._fuses(mode):
+                others = (self._mvs("mvs", small, c2w, mono, sources, mono.depth.clone()),)
+        depth = self._clean(depth)
         if mode != "mono" and self.sweep is not None and any(sources):
             centres = c2w[:, :3, 3]
             nearest = [
@@ -131,7 +154,17 @@ class DepthEstimator(nn.Module):
                 for r, src in enumerate(sources)
             ]
             pixels = images if detail is None else detail
-            depth = sweep_depth(pixels, c2w, depth, nearest, self.sweep, (0.05, self.d_max))
+            clean = tuple(self._clean(o) for o in others)
+            depth = sweep_depth(
+                pixels,
+                c2w,
+                depth,
+                nearest,
+                self.sweep,
+                (0.05, self.d_max),
+                others=clean,
+                switch_gain=self.switch_gain,
+            )
         mono_depth = mono.depth
         if (h, w) != hw:
             depth = F.interpolate(depth, size=(h, w), mode="bilinear", align_corners=False)

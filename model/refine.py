@@ -167,35 +167,51 @@ def sweep_depth(
     sources: list[list[int]],
     config: SweepConfig = SweepConfig(),
     d_range: tuple[float, float] = (0.1, 10.0),
+    others: tuple[Tensor, ...] = (),
+    switch_gain: float = 0.0,
 ) -> Tensor:
     """Depth [V, 1, h, w] moved, pixel by pixel, to the candidate around it whose warp from the
     sources matches best (window-summed SSIM + L1, minimum over sources), where that match is
-    clearly better than at the network's depth; elsewhere the network's depth stays."""
+    clearly better than at the network's depth; elsewhere the network's depth stays.
+
+    ``others``: further depth hypotheses [V, 1, h, w] (e.g. another network's). Each pixel
+    starts from the hypothesis whose own depth matches best, ``depth`` keeping the pixel unless
+    another one matches better by more than ``switch_gain``; the search then runs around the
+    hypothesis it started from. This is how mono-guided and unguided MVS are fused: where the
+    monocular prior misplaced the candidates, the sources themselves say so.
+    """
     v, _, h, w = depth.shape
     hh, ww = config.height, 2 * config.height
     mode = "area" if images.shape[-2] > hh else "bilinear"
     img = F.interpolate(images, size=(hh, ww), mode=mode)
     dirs = erp_directions(hh, ww, device=depth.device, dtype=depth.dtype)
-    log_d0 = F.interpolate(torch.log(depth.clamp(*d_range)), size=(hh, ww), mode="bilinear")
+    hyps = (depth, *others)
+    log_hyp = torch.stack(
+        [
+            F.interpolate(torch.log(d.clamp(*d_range)), size=(hh, ww), mode="bilinear")[:, 0]
+            for d in hyps
+        ]
+    )  # [K, V, H, W]
     offsets = torch.linspace(-config.span, config.span, config.candidates, dtype=depth.dtype)
+    centre = int(torch.argmin(offsets.abs()))
+    step = float(offsets[1] - offsets[0])
     out = depth.clone()
     for r in range(v):
         if not sources[r]:
             continue
-        costs = []
-        for off in offsets.tolist():
-            d = torch.exp(log_d0[r, 0] + off).clamp(*d_range)
-            errs = [
-                photometric_error(
-                    warp_from(img[s : s + 1], d, c2w[r], c2w[s], dirs), img[r : r + 1]
-                )
-                for s in sources[r]
+        cost = torch.stack(
+            [
+                _sweep_costs(img, c2w, r, sources[r], log_hyp[k, r], offsets, dirs, config, d_range)
+                for k in range(len(hyps))
             ]
-            err = torch.stack(errs).amin(0)  # [1, H, W]
-            costs.append(_box(err[None], config.window)[0, 0] + config.prior * abs(off))
-        cost = torch.stack(costs)  # [D, H, W]
+        )  # [K, D, H, W]
+        # The hypothesis each pixel starts from; the first keeps it within switch_gain.
+        at_centre = cost[:, centre].clone()
+        at_centre[1:] += switch_gain + 1e-4  # exact ties (no texture) keep the first
+        start = at_centre.argmin(0)  # [H, W]
+        cost = cost.gather(0, start[None, None].expand(1, *cost.shape[1:]))[0]  # [D, H, W]
+        base = log_hyp[:, r].gather(0, start[None])[0]
         best = cost.argmin(0)
-        centre = int(torch.argmin(offsets.abs()))
         gain = cost[centre] - cost.gather(0, best[None])[0]
         # Sub-candidate position from a parabola through the best and its neighbours.
         lo, hi = (best - 1).clamp(min=0), (best + 1).clamp(max=len(offsets) - 1)
@@ -203,10 +219,25 @@ def sweep_depth(
         denom = c0 - 2 * c1 + c2
         frac = torch.where(denom > 1e-6, 0.5 * (c0 - c2) / denom, torch.zeros_like(denom))
         frac = torch.where((best > 0) & (best < len(offsets) - 1), frac.clamp(-0.5, 0.5), 0 * frac)
-        step = float(offsets[1] - offsets[0])
         off = offsets[best] + frac * step
         moved = torch.where(gain > config.min_gain, off, torch.zeros_like(off))
-        # The move, averaged down to the depth's grid (unmoved pixels stay exactly as given).
-        small = F.interpolate(moved[None, None], size=(h, w), mode="area")[0]
+        # The change against ``depth``, averaged down to the depth's grid: pixels that keep
+        # the first hypothesis and do not move stay exactly as given.
+        change = base + moved - log_hyp[0, r]
+        small = F.interpolate(change[None, None], size=(h, w), mode="area")[0]
         out[r] = (depth[r] * torch.exp(small)).clamp(*d_range)
     return out
+
+
+def _sweep_costs(img, c2w, r, sources, log_d0, offsets, dirs, config, d_range) -> Tensor:
+    """Window-summed photometric cost [D, H, W] of view r at log depths log_d0 + offsets."""
+    costs = []
+    for off in offsets.tolist():
+        d = torch.exp(log_d0 + off).clamp(*d_range)
+        errs = [
+            photometric_error(warp_from(img[s : s + 1], d, c2w[r], c2w[s], dirs), img[r : r + 1])
+            for s in sources
+        ]
+        err = torch.stack(errs).amin(0)  # [1, H, W]
+        costs.append(_box(err[None], config.window)[0, 0] + config.prior * abs(off))
+    return torch.stack(costs)

@@ -121,10 +121,10 @@ def _estimate_depth(data) -> dict:
     """Depth of every view by mode, with its error against the ground truth printed."""
     import time
 
-    from panogrf.app.depth_weights import load_depth_estimator
+    from panogrf.app.depth_weights import NETWORKS, load_depth_estimator
     from panogrf.model.metrics import depth_metrics
 
-    estimator = load_depth_estimator(("full",))
+    estimator = load_depth_estimator(NETWORKS["full"])
     print("depth estimation (each view uses the others as sources), error vs ground truth:")
     out = {}
     for mode in ("mono", "full"):

@@ -30,7 +30,6 @@ MODES = ("full", "mono", "mvs")
 #: Top-level key of the output transforms.json that describes the estimation.
 METADATA_KEY = "panogrf_depth"
 #: MVS networks each mode needs (the monocular network is always loaded).
-_MVS_NETWORKS = {"full": ("full",), "mono": (), "mvs": ("mvs",)}
 _METRIC_COLUMNS = (("L1", "l1"), ("RMSE", "rmse"), ("WS-L1", "ws_l1"), ("WS-RMSE", "ws_rmse"))
 
 _DESCRIPTION = """\
@@ -117,7 +116,7 @@ def run(args: argparse.Namespace) -> int:
     # Scene and output folder problems first: they need no networks.
     _prepare_out_dir(args.scene, args.out)
     scene = load_scene(args.scene, load_images=True)
-    modes = _MVS_NETWORKS[args.mode]
+    modes = depth_weights.NETWORKS[args.mode]
     estimator = depth_weights.load_depth_estimator(modes, str(device))
     weights = {name: depth_weights.WEIGHTS[name] for name in ("mono", *modes)}
     result = estimate_scene(scene, args.out, estimator, args.mode, weights=weights)

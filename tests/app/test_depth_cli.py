@@ -24,7 +24,7 @@ from panogrf.model.mono import MonoDepthConfig, MonoDepthNet
 from panogrf.model.mvs import PRESETS, MVSNet
 
 DEMO = asset_path("demo")
-SHIPPED = [asset_path(depth_weights.WEIGHTS[name]) for name in ("mono", "full")]
+SHIPPED = [asset_path(depth_weights.WEIGHTS[name]) for name in ("mono", "full", "mvs")]
 MISSING = [p.name for p in SHIPPED if not p.exists()]
 
 
@@ -109,7 +109,11 @@ def test_cli_prints_metrics_time_and_writes_the_scene(tmp_path, capsys, random_w
     assert all(len(r) == 5 and all(math.isfinite(float(x)) for x in r[1:]) for r in rows)
     assert check_scene(out) == []
     weights = json.loads((out / "transforms.json").read_text())[METADATA_KEY]["weights"]
-    assert weights == {"mono": "depth_mono.safetensors", "full": "depth_mvs_full.safetensors"}
+    assert weights == {
+        "mono": "depth_mono.safetensors",
+        "full": "depth_mvs_full.safetensors",
+        "mvs": "depth_mvs_only.safetensors",  # fused with the mono-guided depth
+    }
     # Running again into its own output folder is allowed (it is ours to overwrite).
     assert cli.main(["depth", str(DEMO), "--out", str(out), "--mode", "mono"]) == 0
 

@@ -84,6 +84,27 @@ def test_sweep_keeps_the_network_depth_where_nothing_is_seen(scene):
     torch.testing.assert_close(out, small * 1.2)
 
 
+def test_fusion_keeps_the_hypothesis_the_sources_agree_with(scene):
+    """A prior far off (3x, beyond the sweep's span) is replaced by a second hypothesis that
+    matches; a wrong second hypothesis does not replace a right first one."""
+    images, c2w, depth = scene
+    small = torch.nn.functional.interpolate(depth, size=(32, 64), mode="area")
+    cfg = SweepConfig(height=64, window=5)
+    alone = sweep_depth(images, c2w, small * 3.0, [[1], [0]], cfg)
+    fused = sweep_depth(images, c2w, small * 3.0, [[1], [0]], cfg, others=(small * 1.05,))
+    assert (fused - small).abs().mean() < 0.2 * (alone - small).abs().mean()
+    kept = sweep_depth(images, c2w, small, [[1], [0]], cfg, others=(small * 3.0,))
+    assert (kept - small).abs().mean() < 0.02 * small.mean()
+
+
+def test_fusion_on_a_blank_scene_keeps_the_first_hypothesis(scene):
+    images, c2w, depth = scene
+    flat = torch.full_like(images, 0.5)
+    small = torch.nn.functional.interpolate(depth, size=(32, 64), mode="area")
+    out = sweep_depth(flat, c2w, small, [[1], [0]], SweepConfig(height=64), others=(small * 2,))
+    torch.testing.assert_close(out, small)
+
+
 def test_no_sources_no_change(scene):
     images, c2w, depth = scene
     small = torch.nn.functional.interpolate(depth, size=(32, 64), mode="area")

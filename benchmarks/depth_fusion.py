@@ -1,0 +1,92 @@
+"""How the mono-guided and the unguided MVS depth are best fused: depth error per setting.
+
+    python benchmarks/depth_fusion.py --data data/val_fusion_classic data/val_fusion_home \
+        [--gains 0,0.01,0.03] [--out benchmarks/results/depth_fusion.json]
+
+Settings are chosen here on *validation* scenes, freshly generated from the train split's
+generator with seeds no training run used (``panogrf dataset make --split train --seed 90000``
+classic and ``--seed 90001 --world home``), never on the test split or a real capture. For every
+scene the first and last views are estimated, each the other's source, and compared with the
+ground truth on 0 < gt <= d_max. Rows: mono; MVS-only (with the sweep); full without fusion
+(mono-guided network and the sweep, round 2); full fused with the unguided depth at each
+``switch_gain`` (how much better the unguided depth must match to replace the mono-guided one).
+Prints a table of mean L1 (m) per dataset and overall, and the seconds per pair.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import time
+from pathlib import Path
+
+import torch
+
+from panogrf.app.depth_weights import load_depth_estimator
+from panogrf.app.train.data import load_triplets
+from panogrf.model.metrics import depth_metrics
+
+
+def _pairs(estimator, data, mode: str) -> tuple[list[float], list[float]]:
+    errors, seconds = [], []
+    for i in range(len(data)):
+        images = data.images[i, [0, 2]].float() / 255.0
+        c2w = data.c2w[i, [0, 2]]
+        t0 = time.perf_counter()
+        est = estimator(images, c2w, mode)
+        seconds.append(time.perf_counter() - t0)
+        for k, v in enumerate((0, 2)):
+            gt = data.depths[i, v]
+            mask = (gt > 0) & (gt <= estimator.d_max)
+            errors.append(float(depth_metrics(est.depth[k, 0], gt, mask).l1))
+    return errors, seconds
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--data", type=Path, nargs="+", required=True)
+    parser.add_argument("--gains", default="0,0.01,0.03")
+    parser.add_argument("--threads", type=int, default=0)
+    parser.add_argument("--out", type=Path, default=None)
+    args = parser.parse_args()
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    estimator = load_depth_estimator(("full", "mvs"))
+    settings: list[tuple[str, str, dict]] = [
+        ("mono", "mono", {}),
+        ("mvs", "mvs", {}),
+        ("full, no fusion", "full", {"fuse": False}),
+    ]
+    for g in (float(x) for x in args.gains.split(",")):
+        settings.append((f"full, fused, switch {g:g}", "full", {"fuse": True, "switch_gain": g}))
+    results: dict[str, dict] = {}
+    for folder in args.data:
+        data = load_triplets(folder, 256)
+        for name, mode, attrs in settings:
+            for key, value in attrs.items():
+                setattr(estimator, key, value)
+            errors, seconds = _pairs(estimator, data, mode)
+            row = results.setdefault(name, {"l1": {}, "seconds": []})
+            row["l1"][folder.name] = statistics.fmean(errors)
+            row["seconds"] += seconds
+            print(f"{folder.name} {name}: L1 {statistics.fmean(errors):.4f}", flush=True)
+        estimator.fuse, estimator.switch_gain = True, 0.0
+    names = [f.name for f in args.data]
+    lines = [
+        "| setting | " + " | ".join(names) + " | mean | s / pair |",
+        "|---" * (len(names) + 3) + "|",
+    ]
+    for name, row in results.items():
+        row["mean_l1"] = statistics.fmean(row["l1"].values())
+        row["median_seconds"] = statistics.median(row.pop("seconds"))
+        cells = " | ".join(f"{row['l1'][n]:.4f}" for n in names)
+        lines.append(f"| {name} | {cells} | {row['mean_l1']:.4f} | {row['median_seconds']:.2f} |")
+    if args.out:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(json.dumps({"data": names, "results": results}, indent=2) + "\n")
+    print("\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()
