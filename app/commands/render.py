@@ -120,11 +120,11 @@ def register(subparsers) -> None:
 
 def default_models():
     """`Models` that load the shipped weights."""
-    from panogrf.app.depth_weights import load_depth_estimator, load_renderer
+    from panogrf.app.depth_weights import NETWORKS, load_depth_estimator, load_renderer
     from panogrf.renderer.methods import Models
 
     def estimator(mode: str):
-        return load_depth_estimator(() if mode == "mono" else (mode,))
+        return load_depth_estimator(NETWORKS[mode])
 
     return Models(estimator=estimator, renderer=load_renderer)
 
