@@ -24,7 +24,7 @@ if [ ! -x .venv/bin/python ]; then
 fi
 # torch is pinned to 2.13.0 in pyproject.toml: the CPU build (an unpinned torch pulls CUDA).
 if ! .venv/bin/python -c "import panogrf.app.cli, torch, moderngl, pytest" 2>/dev/null \
-   || [ pyproject.toml -nt .venv/.panogrf-installed ]; then
+   || [ pyproject.toml -nt .venv/.panogrf-installed ] || [ setup.py -nt .venv/.panogrf-installed ]; then
   echo "setup: installing panogrf and its dependencies into .venv"
   .venv/bin/python -m pip install -q --disable-pip-version-check -e ".[dev]"
   touch .venv/.panogrf-installed
