@@ -1,6 +1,6 @@
 """Scene folders: posed 360-degree panoramas in a nerfstudio-style ``transforms.json``.
 
-Layout (DESIGN.md section 3)::
+Layout (docs/conventions.md)::
 
     scene/
       transforms.json   {"camera_model": "EQUIRECTANGULAR", "w": W, "h": H, "frames": [...], ...}

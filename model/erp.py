@@ -1,6 +1,6 @@
 """Equirectangular (ERP) geometry: pixels, directions, projection and sampling with wrap-around.
 
-Conventions (DESIGN.md section 3), the same everywhere in the project:
+Conventions (docs/conventions.md), the same everywhere in the project:
 - camera frame OpenGL: x right, y up, looking down -z; poses are camera-to-world 4x4 (metres);
 - an ERP image has width W = 2H; pixel (u, v) (column, row) has its centre at integer
   coordinates, and

@@ -1,4 +1,4 @@
-"""Image and depth metrics of the evaluation protocol (DESIGN.md section 4), in pure torch.
+"""Image and depth metrics of the evaluation protocol (docs/conventions.md), in pure torch.
 
 The one implementation used by the CLI, the evaluation and the tests. Images are float RGB
 (any channel count) in [0, 1], shaped [C, H, W] (-> a scalar tensor []) or [B, C, H, W]

@@ -1,6 +1,6 @@
 """Warping panoramas between poses: depth-based backward warping and pure rotation.
 
-Frames and units follow DESIGN.md section 3: OpenGL camera frames, camera-to-world poses in
+Frames and units follow docs/conventions.md: OpenGL camera frames, camera-to-world poses in
 metres, spherical depth (Euclidean distance from the camera centre). Sampling wraps around
 the seam and clamps at the poles (``sample_erp``).
 """

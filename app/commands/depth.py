@@ -1,6 +1,6 @@
 """`panogrf depth SCENE --out DIR`: spherical depth for every view of a scene, written as a scene.
 
-The output folder is itself a scene folder (DESIGN.md section 3): copies of the panoramas in
+The output folder is itself a scene folder (docs/conventions.md): copies of the panoramas in
 ``images/``, the estimated depth in ``depth/`` (16-bit PNG, millimetres) referenced by each
 frame's ``depth_file_path``, colour-mapped previews in ``preview/``, and a ``transforms.json``
 with the input's poses and metadata plus a ``panogrf_depth`` key describing the run.

@@ -12,7 +12,7 @@
 - `panogrf.app.poses.errors`: pose errors against ground truth (relative rotation, translation
   direction, scale) for tests and the benchmark.
 
-Conventions are the project's (DESIGN.md section 3): camera-to-world 4x4 (``c2w``), OpenGL
+Conventions are the project's (docs/conventions.md): camera-to-world 4x4 (``c2w``), OpenGL
 camera frame (x right, y up, looking down -z), metres, world y up with the floor at y = 0 where
 a floor was found. Other tools' camera frames are OpenCV's (x right, y down, looking down +z):
 ``c2w_gl[:3, :3] = c2w_cv[:3, :3] @ diag(1, -1, -1)`` (`CV_TO_GL`).

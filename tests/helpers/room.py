@@ -25,7 +25,7 @@ def colour_at(points: torch.Tensor) -> torch.Tensor:
 
 
 def erp_ray_directions(height: int, width: int) -> torch.Tensor:
-    """Camera-frame pixel-centre directions [H, W, 3], written out from DESIGN.md section 3."""
+    """Camera-frame pixel-centre directions [H, W, 3], written out from docs/conventions.md."""
     v, u = torch.meshgrid(
         torch.arange(height, dtype=F64), torch.arange(width, dtype=F64), indexing="ij"
     )
