@@ -17,7 +17,18 @@ from panogrf.app.errors import UserError
 from panogrf.app.runtime import keep_freed_memory
 
 # Order is the order shown in --help.
-_COMMANDS = ("view", "render", "eval", "dataset", "scene", "depth", "compare", "train", "demo")
+_COMMANDS = (
+    "view",
+    "render",
+    "eval",
+    "bench",
+    "dataset",
+    "scene",
+    "depth",
+    "compare",
+    "train",
+    "demo",
+)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,0 +1,267 @@
+"""The benchmark behind `panogrf bench`: quality, time, memory and the hard cases of every setting.
+
+1. Quality: the middle view of ``scenes`` test triplets per baseline, rendered from the outer
+   two at ``height`` rows by every setting and scored (WS-PSNR, LPIPS, PSNR, SSIM).
+2. Time and memory: on the first triplet, every setting renders once more at ``time_height``
+   rows (512 x 1024 by default), timed, with its peak memory. A setting whose render at
+   ``height`` predicts more than ``time_budget`` seconds at ``time_height`` (times the pixel
+   ratio) is not rendered again: its time is that prediction, marked ``time_scaled``.
+3. The real triplet(s) under ``real``, if given, scored like 1.
+4. The sweep and the hard cases (`panogrf.app.bench.cases`) at ``case_height`` rows, every
+   render checked for NaN, inf and emptiness (`image_problems`).
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from panogrf.app.bench.cases import CASES, SWEEP_BASELINES, make_cases
+from panogrf.app.bench.settings import (
+    VIEWER_DEFAULTS,
+    GLContext,
+    PeakMemory,
+    Setting,
+    parameters,
+    prepare_setting,
+    release_scene,
+    render_setting,
+)
+from panogrf.renderer.methods import Models, SourceViews
+
+METRICS = ("ws_psnr", "lpips", "psnr", "ssim")
+
+
+@dataclass(frozen=True)
+class BenchConfig:
+    """What `run_bench` measures."""
+
+    data: Path
+    """A dataset, a folder of triplet scene folders, or one scene folder."""
+    settings: tuple[Setting, ...]
+    """The settings to chart (`panogrf.app.bench.settings.SETTINGS`)."""
+    scenes: int = 1
+    """Triplets per baseline for the quality."""
+    baselines: tuple[float, ...] | None = None
+    """Baselines (m) of the quality; None: 1.0, 1.5, 2.0 for a dataset, all for a folder."""
+    height: int = 256
+    """Rows of the quality renders."""
+    time_height: int = 512
+    """Rows of the timed render (the chart's x axis)."""
+    time_budget: float = 30.0
+    """Seconds above which a timed render is predicted from the quality render instead."""
+    real: Path | None = None
+    """A dataset of real triplets, charted as its own marker (None: none)."""
+    case_height: int = 128
+    """Rows of the sweep's and the hard cases' renders."""
+    sweep: tuple[float, ...] = SWEEP_BASELINES
+    """Baselines (m) of the stability sweep (empty: no sweep)."""
+    cases: tuple[str, ...] = CASES
+    """Hard cases for the gallery (empty: none)."""
+
+
+@dataclass
+class Rendered:
+    """One render of one setting, scored."""
+
+    scores: dict[str, float]
+    seconds: float
+    image: Tensor | None = None  # [3, H, W], kept for the gallery
+    problems: list[str] = field(default_factory=list)
+
+
+def image_problems(rgb: Tensor, height: int) -> list[str]:
+    """What is wrong with a render [3, H, 2H] (empty: nothing): wrong shape, NaN or inf, or
+    empty (every pixel the same colour)."""
+    out = []
+    if tuple(rgb.shape) != (3, height, 2 * height):
+        out.append(f"shape {tuple(rgb.shape)}, expected {(3, height, 2 * height)}")
+    if rgb.numel() == 0:
+        return out + ["no pixels"]
+    if not bool(torch.isfinite(rgb).all()):
+        out.append("NaN or inf")
+    elif float(rgb.amax() - rgb.amin()) == 0.0:
+        out.append(f"empty: every pixel {float(rgb.flatten()[0]):.3f}")
+    return out
+
+
+def _score(rgb: Tensor, truth: Tensor) -> dict[str, float]:
+    from panogrf.app.scoring import image_scores
+
+    return image_scores(rgb.nan_to_num(0.0), truth)
+
+
+def _render(setting, views, c2w, height, models, gl) -> tuple[Tensor, float]:
+    t0 = time.perf_counter()
+    rgb = render_setting(setting, views, c2w, height, models, gl)
+    return rgb, time.perf_counter() - t0
+
+
+def _mean(items: list[dict[str, float]]) -> dict[str, float]:
+    out = {}
+    for m in METRICS:
+        vals = [x[m] for x in items if x.get(m) is not None and math.isfinite(x[m])]
+        out[m] = statistics.fmean(vals) if vals else math.nan
+    return out | {"n": len(items)}
+
+
+def _timing(setting, views, c2w, cfg, models, gl, seconds_at_height) -> dict:
+    """Seconds and peak memory of one render at ``cfg.time_height``."""
+    scale = (cfg.time_height / cfg.height) ** 2
+    if seconds_at_height * scale > cfg.time_budget and cfg.time_height != cfg.height:
+        with PeakMemory() as mem:
+            render_setting(setting, views, c2w, cfg.height, models, gl)
+        return {
+            "seconds": seconds_at_height * scale,
+            "time_scaled": True,
+            "peak_mib": mem.mib,
+            "peak_at_height": cfg.height,
+        }
+    if setting.method == "gl":  # the first frame at a size makes its render targets
+        render_setting(setting, views, c2w, cfg.time_height, models, gl)
+    with PeakMemory() as mem:
+        _, sec = _render(setting, views, c2w, cfg.time_height, models, gl)
+    return {"seconds": sec, "time_scaled": False, "peak_mib": mem.mib}
+
+
+def _triplet_views(folder: Path) -> tuple[SourceViews, Tensor, Tensor]:
+    from panogrf.app.scene import load_scene
+
+    d = load_scene(folder, load_images=True).images
+    return SourceViews(d.images[[0, 2]], d.c2w[[0, 2]]), d.c2w[1], d.images[1:2]
+
+
+def run_bench(cfg: BenchConfig, models: Models, log: Callable[[str], None] = print) -> dict:
+    """Measure every setting of ``cfg``; returns the report `write_outputs` writes."""
+    from panogrf.app.commands.eval import _scene_folders, _scenes
+
+    triplets, baselines = _scenes(
+        cfg.data, list(cfg.baselines) if cfg.baselines else None, cfg.scenes
+    )
+    real = [(None, f) for f in _scene_folders(cfg.real)[0]] if cfg.real is not None else []
+    gl = GLContext()
+    per: dict[str, dict] = {
+        s.name: {"baselines": {}, "real": [], "prepare_s": []} for s in cfg.settings
+    }
+    try:
+        for n, (b, folder) in enumerate(triplets + real):
+            views, c2w, truth = _triplet_views(folder)
+            line = [f"[{n + 1}/{len(triplets) + len(real)}] {folder.name} ({b or 'real'} m)"]
+            for s in cfg.settings:
+                t0 = time.perf_counter()
+                prepare_setting(s, views, models, gl)
+                prep = time.perf_counter() - t0
+                rgb, sec = _render(s, views, c2w, cfg.height, models, gl)
+                scores = _score(rgb, truth)
+                if b is None:
+                    per[s.name]["real"].append(scores)
+                else:
+                    per[s.name]["baselines"].setdefault(str(b), []).append(scores)
+                    per[s.name]["prepare_s"].append(prep)
+                if n == 0:
+                    per[s.name]["timing"] = _timing(s, views, c2w, cfg, models, gl, sec)
+                line.append(f"{s.name} {scores['ws_psnr']:.2f}")
+            release_scene(views)
+            log("  ".join(line))
+        cases = make_cases(cfg.case_height, cfg.cases, cfg.sweep) if cfg.cases or cfg.sweep else []
+        case_out: dict[str, dict[str, Rendered]] = {}
+        for case in cases:
+            views = SourceViews(case.images, case.c2w)
+            case_out[case.name] = {}
+            for s in cfg.settings:
+                rgb, sec = _render(s, views, case.target_c2w, cfg.case_height, models, gl)
+                r = Rendered(
+                    _score(rgb, case.target), sec, rgb, image_problems(rgb, cfg.case_height)
+                )
+                if case.name.startswith("sweep"):
+                    r.image = None
+                case_out[case.name][s.name] = r
+            release_scene(views)
+            log(
+                f"{case.name}: "
+                + "  ".join(
+                    f"{k} {v.scores['ws_psnr']:.2f}" for k, v in case_out[case.name].items()
+                )
+            )
+    finally:
+        gl.release()
+    return _report(cfg, baselines, per, cases, case_out, models)
+
+
+def _report(cfg, baselines, per, cases, case_out, models) -> dict:
+    from panogrf.app.bench.frontier import pareto_front
+
+    results = {}
+    for s in cfg.settings:
+        p = per[s.name]
+        by_b = {k: _mean(v) for k, v in p["baselines"].items()}
+        all_items = [x for v in p["baselines"].values() for x in v]
+        results[s.name] = {
+            "method": s.method,
+            "quality": s.quality if s.method != "gl" else f"{s.mesh_rows} mesh rows",
+            "params": parameters(s, models),
+            **p["timing"],
+            "prepare_s_median": statistics.median(p["prepare_s"]) if p["prepare_s"] else math.nan,
+            "baselines": by_b,
+            "mean": _mean(all_items),
+            "real": _mean(p["real"]) if p["real"] else None,
+            "sweep": {
+                f"{c.baseline:g}": case_out[c.name][s.name].scores
+                for c in cases
+                if c.name.startswith("sweep")
+            },
+            "cases": {
+                c.name: case_out[c.name][s.name].scores
+                | {"problems": case_out[c.name][s.name].problems}
+                for c in cases
+                if not c.name.startswith("sweep")
+            },
+        }
+    names = list(results)
+    xs = [results[n]["seconds"] for n in names]
+    fronts = {
+        m: [names[i] for i in pareto_front(xs, [sign * results[n]["mean"][m] for n in names])]
+        for m, sign in (("ws_psnr", 1), ("lpips", -1))
+    }
+    problems = {
+        f"{c}/{s}": r.problems
+        for c, per_s in case_out.items()
+        for s, r in per_s.items()
+        if r.problems
+    }
+    return {
+        "what": "every method and setting: the middle view of test triplets from the outer two "
+        "(quality), seconds and peak memory per panorama, a baseline sweep and hard cases",
+        "config": {
+            "data": str(cfg.data),
+            "scenes_per_baseline": cfg.scenes,
+            "baselines": baselines,
+            "height": cfg.height,
+            "time_height": cfg.time_height,
+            "time_budget_s": cfg.time_budget,
+            "real": None if cfg.real is None else str(cfg.real),
+            "case_height": cfg.case_height,
+            "sweep": list(cfg.sweep),
+            "cases": list(cfg.cases),
+        },
+        "results": results,
+        "frontier": fronts,
+        "viewer_defaults": {d: d in fronts["ws_psnr"] for d in VIEWER_DEFAULTS if d in results},
+        "problems": problems,
+        "machine": f"{torch.get_num_threads()} torch thread(s), CPU; shared with other jobs",
+        "_gallery": [(c, case_out[c.name]) for c in cases if not c.name.startswith("sweep")],
+    }
+
+
+def _u8(x: Tensor) -> np.ndarray:
+    from panogrf.app.images import to_uint8
+
+    return to_uint8(x.nan_to_num(0.0))
