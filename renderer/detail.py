@@ -1,0 +1,128 @@
+"""Full-resolution panoramas from a network pass at the renderer's own resolution.
+
+The renderer's networks saw 256-row panoramas in training and their features live at that scale;
+running them on every pixel of a 512-row output costs four times as much and, on real captures,
+blurs: each pixel composites projections from several depths. Here the network renders at
+``net_height`` rows (colour and depth) and the full-resolution sources give the detail:
+
+1. every output pixel's point, at the network's depth (upsampled in inverse depth), is projected
+   into every source and its full-resolution colour read;
+2. each source is weighted by how well it agrees with the network's colour at the network's
+   resolution (the network has already decided which sources see the point: occluded or
+   disoccluded ones disagree with it);
+3. the output is the network's colour, upsampled, plus the high frequencies of that blend
+   (the blend minus its own low-pass): detail only, so a projection that is slightly off moves
+   edges by a pixel, never the colour of a region. Where no source agrees with the network
+   (a disocclusion it filled in) no detail is added.
+
+Shapes: V views, H x 2H the output, h x 2h the network's pass.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from panogrf.model.erp import direction_to_pixel, erp_directions, sample_padded
+from panogrf.model.render_net import RendererNet
+from panogrf.renderer.cache import SceneCache, resize_erp
+from panogrf.renderer.render import RenderOutput, Sampling, render_panorama
+
+
+@dataclass(frozen=True)
+class DetailConfig:
+    """How the full-resolution detail is transferred."""
+
+    net_height: int = 256
+    """Rows of the network's pass (the renderer's training resolution)."""
+    agreement: float = 0.05
+    """Scale (mean absolute colour difference) of a source's agreement with the network: its
+    weight is exp(-difference / agreement)."""
+
+
+def _upsample(x: Tensor, size: tuple[int, int]) -> Tensor:
+    """Bilinear upsampling of [C, h, w] panoramas to ``size``, wrapping at the seam."""
+    pad = torch.cat((x[..., -1:], x, x[..., :1]), -1)
+    h, w = size
+    scale = w / x.shape[-1]
+    up = F.interpolate(pad[None], size=(h, w + round(2 * scale)), mode="bilinear")[0]
+    p = round(scale)
+    return up[..., p : p + w]
+
+
+def _smooth(x: Tensor) -> Tensor:
+    """3x3 box filter of [C, h, w], wrapping in width."""
+    pad = torch.cat((x[..., -1:], x, x[..., :1]), -1)
+    return F.avg_pool2d(F.pad(pad[None], (0, 0, 1, 1), mode="replicate"), 3, 1)[0]
+
+
+def project_sources(cache: SceneCache, c2w: Tensor, depth: Tensor) -> Tensor:
+    """Colours [V, 3, H, W] of the sources at the points of the target panorama's pixels at
+    spherical depth ``depth`` [H, W] (metres), read from the full-resolution sources."""
+    h, w = depth.shape
+    dirs = erp_directions(h, w, device=depth.device, dtype=depth.dtype) @ c2w[:3, :3].T
+    points = c2w[:3, 3] + dirs * depth[..., None]  # [H, W, 3] world
+    w2c = cache.w2c
+    cam = points.reshape(1, -1, 3) @ w2c[:, :3, :3].transpose(1, 2) + w2c[:, None, :3, 3]
+    hi, wi = cache.images.shape[-2:]
+    uv = direction_to_pixel(cam, hi, wi)  # [V, N, 2]
+    colour = sample_padded(cache.images_padded, uv)  # [V, 3, N]
+    return colour.reshape(-1, 3, h, w)
+
+
+def add_detail(
+    cache: SceneCache, c2w: Tensor, low: RenderOutput, height: int, config: DetailConfig
+) -> Tensor:
+    """The network's low-resolution render ``low`` brought to ``height`` rows with the sources'
+    detail: [3, H, 2H] in [0, 1]."""
+    size = (height, 2 * height)
+    h = low.rgb.shape[-2]
+    inv = 1.0 / low.depth.clamp(min=1e-3)
+    depth = 1.0 / _upsample(inv, size)[0].clamp(min=1e-4)
+    proj = project_sources(cache, c2w.to(depth.dtype), depth)  # [V, 3, H, W]
+    proj_low = resize_erp(proj, h)  # [V, 3, h, 2h]
+    diff = _smooth((proj_low - low.rgb[None]).abs().mean(1))  # [V, h, 2h]
+    weight = torch.exp(-diff / config.agreement)
+    total = weight.sum(0, keepdim=True)
+    blend_w = weight / total.clamp(min=1e-6)
+    gate = total.clamp(max=1.0)  # no source agrees: no detail
+    blend = (_upsample(blend_w, size)[:, None] * proj).sum(0)  # [3, H, W]
+    detail = blend - _upsample(resize_erp(blend[None], h)[0], size)
+    out = _upsample(low.rgb, size) + _upsample(gate, size) * detail
+    return out.clamp(0, 1)
+
+
+@torch.no_grad()
+def render_detailed(
+    net: RendererNet,
+    cache: SceneCache,
+    c2w: Tensor,
+    height: int,
+    quality: str | Sampling = "fast",
+    config: DetailConfig = DetailConfig(),
+    progress: Callable[[float], None] | None = None,
+    should_stop: Callable[[], bool] | None = None,
+) -> RenderOutput | None:
+    """`render_panorama` at ``height`` rows with the network at ``config.net_height`` (when
+    ``height`` is larger; otherwise the plain render); None if ``should_stop`` said so."""
+    if height <= config.net_height:
+        return render_panorama(
+            net, cache, c2w, height, quality, progress=progress, should_stop=should_stop
+        )
+    low = render_panorama(
+        net, cache, c2w, config.net_height, quality, progress=progress, should_stop=should_stop
+    )
+    if low is None:
+        return None
+    size = (height, 2 * height)
+    rgb = add_detail(cache, c2w, low, height, config)
+    inv = 1.0 / low.depth.clamp(min=1e-3)
+    return RenderOutput(
+        rgb=rgb,
+        depth=1.0 / _upsample(inv, size).clamp(min=1e-4),
+        opacity=_upsample(low.opacity, size).clamp(0, 1),
+    )

@@ -1,0 +1,82 @@
+"""Full-resolution detail from the sources on top of a low-resolution render, on the analytic room
+with a fine texture: exact depth and the truth's low-pass as the "network" output."""
+
+from __future__ import annotations
+
+import torch
+from helpers.room import erp_ray_directions, pose, ray_distance
+
+from panogrf.renderer.cache import SceneCache, resize_erp
+from panogrf.renderer.detail import DetailConfig, add_detail, project_sources
+from panogrf.renderer.render import RenderOutput
+
+H = 96
+
+
+def _fine(points: torch.Tensor) -> torch.Tensor:
+    """A fine texture: detail a 48-row render cannot hold."""
+    x, y, z = points.unbind(-1)
+    return 0.5 + 0.4 * torch.stack(
+        (torch.sin(23 * x + 17 * y), torch.sin(19 * z - 13 * x), torch.cos(29 * y + 11 * z)), -1
+    )
+
+
+def _render(c2w: torch.Tensor, height: int = H) -> tuple[torch.Tensor, torch.Tensor]:
+    dirs = erp_ray_directions(height, 2 * height) @ c2w[:3, :3].T
+    t = ray_distance(c2w[:3, 3], dirs, ball=True)
+    image = _fine(c2w[:3, 3] + dirs * t[..., None])
+    return image.permute(2, 0, 1).float(), t[None].float()
+
+
+def _scene():
+    eye = torch.eye(3, dtype=torch.float64)
+    poses = [pose(eye, (-0.4, 0.0, 0.1)), pose(eye, (0.5, 0.1, -0.1))]
+    images, depths = zip(*(_render(p) for p in poses), strict=True)
+    c2w = torch.stack(poses).float()
+    depth = torch.stack(depths)
+    maps = torch.zeros(2, 8, H, 2 * H)
+    cache = SceneCache(torch.stack(images), c2w, depth, maps, 1)
+    target = pose(eye, (0.05, 0.05, 0.0))
+    truth, truth_depth = _render(target)
+    return cache, target.float(), truth, truth_depth
+
+
+def _psnr(a: torch.Tensor, b: torch.Tensor) -> float:
+    return float(10 * torch.log10(1 / ((a - b) ** 2).mean()))
+
+
+def test_projection_at_the_true_depth_reads_the_source_itself():
+    cache, _, _, _ = _scene()
+    proj = project_sources(cache, cache.c2w[0], cache.depth[0, 0])
+    assert _psnr(proj[0], cache.images[0]) > 40
+
+
+def test_detail_restores_what_the_low_resolution_render_lost():
+    cache, target, truth, truth_depth = _scene()
+    low_h = H // 2
+    low = RenderOutput(
+        rgb=resize_erp(truth[None], low_h)[0],
+        depth=1.0 / resize_erp(1.0 / truth_depth[None], low_h)[0],
+        opacity=torch.ones(1, low_h, 2 * low_h),
+    )
+    out = add_detail(cache, target, low, H, DetailConfig(net_height=low_h))
+    up = torch.nn.functional.interpolate(low.rgb[None], size=(H, 2 * H), mode="bilinear")[0]
+    assert out.shape == truth.shape and torch.isfinite(out).all()
+    assert _psnr(out, truth) > _psnr(up, truth) + 3.0
+    # Detail only: the low-pass of the output is the network's colour.
+    assert _psnr(resize_erp(out[None], low_h)[0], low.rgb) > 30
+
+
+def test_no_detail_where_no_source_agrees_with_the_network():
+    cache, target, _, truth_depth = _scene()
+    low_h = H // 2
+    grey = torch.full((3, low_h, 2 * low_h), 0.5)
+    grey[0] = 0.1  # a colour no source shows anywhere
+    low = RenderOutput(
+        rgb=grey,
+        depth=resize_erp(truth_depth[None], low_h)[0],
+        opacity=torch.ones(1, low_h, 2 * low_h),
+    )
+    out = add_detail(cache, target, low, H, DetailConfig(net_height=low_h))
+    up = torch.nn.functional.interpolate(grey[None], size=(H, 2 * H))[0]
+    assert (out - up).abs().max() < 0.05
