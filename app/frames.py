@@ -2,7 +2,8 @@
 
 One place turns a pose into an RGB frame for the video export and the viewer's recording:
 ``preview`` draws the sources' depth meshes on GL (headless EGL unless a context is given),
-``draft``, ``fast`` and ``paper`` run the neural renderer (`render_view`). Perspective frames
+``draft``, ``fast`` and ``paper`` run the neural renderer (`render_view`). A neural method's
+perspective frames cast exactly the camera's rays (`render_perspective_view`); the others'
 are cut out of a panorama rendered at the angular resolution they need.
 """
 
@@ -17,7 +18,13 @@ import torch
 from panogrf.app.errors import UserError
 from panogrf.app.images import to_uint8
 from panogrf.model.perspective import erp_to_perspective
-from panogrf.renderer.methods import Models, SourceViews, prepare, render_view
+from panogrf.renderer.methods import (
+    Models,
+    SourceViews,
+    prepare,
+    render_perspective_view,
+    render_view,
+)
 from panogrf.renderer.render import QUALITY
 
 #: ``preview`` (GL) and every sampling of the neural renderer (what `render --help` offers).
@@ -97,6 +104,13 @@ class FrameRenderer:
         self, c2w: np.ndarray, camera_type: str, width: int, height: int, fov_deg: float
     ) -> np.ndarray:
         """One frame as uint8 RGB [height, width, 3]."""
+        if camera_type == "perspective" and self.quality != "preview":
+            tgt = torch.from_numpy(np.asarray(c2w, np.float64))
+            rgb = render_perspective_view(
+                self.method, self.views, tgt, width, height, fov_deg, self.models, self.quality
+            )
+            if rgb is not None:  # a neural method casts the camera's own rays
+                return to_uint8(rgb)
         erp_h = erp_height_for(camera_type, width, height, fov_deg)
         pano = self.panorama(c2w, erp_h)
         if camera_type == "perspective":

@@ -31,7 +31,7 @@ from panogrf.model.photometric import balance_exposure
 from panogrf.model.render_net import RendererNet
 from panogrf.renderer.baselines import render_meshwarp, render_nearest
 from panogrf.renderer.cache import SceneCache, build_cache
-from panogrf.renderer.render import render_panorama
+from panogrf.renderer.render import render_panorama, render_perspective
 
 
 @dataclass(frozen=True)
@@ -155,3 +155,25 @@ def render_view(
     net = models.renderer(spec.renderer)
     cache = views.cache_for(spec.renderer, spec.depth_mode, models)
     return render_panorama(net, cache, tgt_c2w, height, quality).rgb
+
+
+def render_perspective_view(
+    method: str,
+    views: SourceViews,
+    tgt_c2w: Tensor,
+    width: int,
+    height: int,
+    fov_deg: float,
+    models: Models,
+    quality: str = "fast",
+) -> Tensor | None:
+    """The pinhole view [3, height, width] of a neural ``method``, casting exactly its rays;
+    None for the other methods (they render a panorama that is cut, `erp_to_perspective`)."""
+    spec = METHODS[method]
+    if spec.kind != "neural":
+        return None
+    prepare(method, views, models)
+    net = models.renderer(spec.renderer)
+    cache = views.cache_for(spec.renderer, spec.depth_mode, models)
+    tgt = tgt_c2w.to(views.c2w.dtype)
+    return render_perspective(net, cache, tgt, width, height, fov_deg, quality).rgb

@@ -27,7 +27,7 @@ from dataclasses import dataclass, replace
 import torch
 from torch import Tensor
 
-from panogrf.model.erp import direction_to_pixel, erp_directions, sample_padded
+from panogrf.model.erp import direction_to_pixel, erp_directions, pad_seam, sample_padded
 from panogrf.model.render_net import PointFeatures, RendererNet, visibility
 from panogrf.model.sampling import (
     Composite,
@@ -277,33 +277,95 @@ def render_panorama(
     time (``chunk`` sample points per view), so memory stays bounded at any resolution;
     ``progress`` gets the fraction done.
     """
-    sampling = QUALITY[quality] if isinstance(quality, str) else quality
     width = 2 * height
     c2w = c2w.to(cache.images.dtype)
     origins, dirs = target_rays(c2w, height, width)
-    if sampling.n_coarse:  # once per panorama, not per chunk
-        sampling = with_range(sampling, cache, c2w[:3, 3])
-    near = far = None
+    sampling = _sampling(quality, cache, c2w)
+    proxy = None
     if sampling.n_guided:
-        proxy = proxy_for(cache, c2w, height, width)
-        near, far = proxy.near.reshape(-1), proxy.far.reshape(-1)
+        p = proxy_for(cache, c2w, height, width)
+        proxy = (p.near.reshape(-1), p.far.reshape(-1))
+    out = _render_chunks(net, cache, origins, dirs, sampling, proxy, chunk, progress, should_stop)
+    return None if out is None else out.reshaped(height, width)
+
+
+#: Rows of the proxy panorama a perspective frame's rays look their near and far up in.
+PERSPECTIVE_PROXY_ROWS = 512
+
+
+@torch.no_grad()
+def render_perspective(
+    net: RendererNet,
+    cache: SceneCache,
+    c2w: Tensor,  # [4, 4] camera pose (OpenGL: looking down -z)
+    width: int,
+    height: int,
+    fov_deg: float,
+    quality: str | Sampling = "fast",
+    chunk: int = 16384,
+    progress: Callable[[float], None] | None = None,
+    should_stop: Callable[[], bool] | None = None,
+) -> RenderOutput | None:
+    """Render exactly the rays of a pinhole camera (vertical field of view ``fov_deg``):
+    [3, height, width], with no panorama in between. The guided samplings read their near and
+    far proxies from the target's proxy panorama (`PERSPECTIVE_PROXY_ROWS` rows) along each
+    ray's direction."""
+    from panogrf.model.perspective import perspective_directions
+
+    c2w = c2w.to(cache.images.dtype)
+    cam = perspective_directions(width, height, fov_deg, device=c2w.device, dtype=c2w.dtype)
+    cam = cam.reshape(-1, 3)
+    dirs = cam @ c2w[:3, :3].T
+    origins = c2w[:3, 3].expand_as(dirs)
+    sampling = _sampling(quality, cache, c2w)
+    proxy = None
+    if sampling.n_guided:
+        rows = PERSPECTIVE_PROXY_ROWS
+        p = proxy_for(cache, c2w, rows, 2 * rows)
+        uv = direction_to_pixel(cam, rows, 2 * rows)[None]
+        near_far = sample_padded(pad_seam(torch.stack((p.near, p.far))[None]), uv, "nearest")
+        proxy = (near_far[0, 0], near_far[0, 1])
+    out = _render_chunks(net, cache, origins, dirs, sampling, proxy, chunk, progress, should_stop)
+    return None if out is None else out.reshaped(height, width)
+
+
+def _sampling(quality: str | Sampling, cache: SceneCache, c2w: Tensor) -> Sampling:
+    sampling = QUALITY[quality] if isinstance(quality, str) else quality
+    if sampling.n_coarse:  # once per frame, not per chunk
+        sampling = with_range(sampling, cache, c2w[:3, 3])
+    return sampling
+
+
+@dataclass
+class _Rays:
+    rgb: Tensor  # [N, 3]
+    depth: Tensor  # [N]
+    opacity: Tensor  # [N]
+
+    def reshaped(self, height: int, width: int) -> RenderOutput:
+        return RenderOutput(
+            rgb=self.rgb.clamp(0, 1).T.reshape(3, height, width),
+            depth=self.depth.reshape(1, height, width),
+            opacity=self.opacity.reshape(1, height, width),
+        )
+
+
+def _render_chunks(
+    net, cache, origins, dirs, sampling, proxy, chunk, progress, should_stop
+) -> _Rays | None:
+    """`render_rays` over N rays, ``chunk`` sample points per view at a time."""
     n = origins.shape[0]
     per_ray = max(sampling.n_guided, sampling.n_coarse, sampling.n_fine)
     chunk = max(64, chunk // per_ray)
-    rgb = torch.empty(n, 3, dtype=c2w.dtype, device=c2w.device)
-    depth = torch.empty(n, dtype=c2w.dtype, device=c2w.device)
-    opacity = torch.empty(n, dtype=c2w.dtype, device=c2w.device)
+    kw = {"dtype": origins.dtype, "device": origins.device}
+    rgb, depth, opacity = torch.empty(n, 3, **kw), torch.empty(n, **kw), torch.empty(n, **kw)
     for start in range(0, n, chunk):
         if should_stop is not None and should_stop():
             return None
         sl = slice(start, start + chunk)
-        px = None if near is None else (near[sl], far[sl])
+        px = None if proxy is None else (proxy[0][sl], proxy[1][sl])
         out = render_rays(net, cache, origins[sl], dirs[sl], sampling, px).final
         rgb[sl], depth[sl], opacity[sl] = out.rgb, out.depth, out.opacity
         if progress is not None:
             progress(min(1.0, (start + chunk) / n))
-    return RenderOutput(
-        rgb=rgb.clamp(0, 1).T.reshape(3, height, width),
-        depth=depth.reshape(1, height, width),
-        opacity=opacity.reshape(1, height, width),
-    )
+    return _Rays(rgb, depth, opacity)
