@@ -71,18 +71,31 @@ def main() -> None:
     parser.add_argument("--baselines", default="0.5,1.0,1.5,2.0")
     parser.add_argument("--sweep", default="0,1,3,5,9", help="N_mono values at 1.0 m")
     parser.add_argument("--threads", type=int, default=0)
+    parser.add_argument("--limit", type=int, default=0, help="first N scenes per baseline")
     args = parser.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
     baselines = [float(b) for b in args.baselines.split(",")]
     data = load_triplets(args.data, height=_native_height(args.data))
+    if args.limit:
+        keep = [
+            i
+            for b in baselines
+            for i in [j for j in range(len(data)) if round(float(data.baselines[j]), 2) == b][
+                : args.limit
+            ]
+        ]
+        data = data.subset(sorted(keep))
     estimator = load_depth_estimator(("full", "mvs"))
     start = time.perf_counter()
     results = {mode: evaluate(estimator, data, mode, baselines) for mode in ("mono", "mvs", "full")}
+    estimator.fuse = False  # round 2's full mode: the mono-guided network and the sweep alone
+    results["full_no_fusion"] = evaluate(estimator, data, "full", baselines)
+    estimator.fuse = True
 
     full_net = estimator.mvs["full"]
     sweep = {}
-    for n_mono in (int(x) for x in args.sweep.split(",")):
+    for n_mono in (int(x) for x in args.sweep.split(",") if x):
         cfg = dataclasses.replace(full_net.config, n_mono=n_mono, n_uni=64 - n_mono)
         net = MVSNet(cfg)
         net.load_state_dict(full_net.state_dict())
@@ -110,14 +123,14 @@ def main() -> None:
     args.out.write_text(json.dumps(report, indent=2))
 
     print(f"depth on {args.data} ({len(data)} scenes), GT {tuple(data.depths.shape[-2:])}, metres")
-    header = f"{'baseline':>8} {'mode':>5} {'pairs':>5} " + " ".join(f"{k:>8}" for k in KEYS)
+    header = f"{'baseline':>8} {'mode':>14} {'pairs':>5} " + " ".join(f"{k:>8}" for k in KEYS)
     print(header)
     for b in baselines:
-        for mode in ("mono", "mvs", "full"):
+        for mode in ("mono", "mvs", "full", "full_no_fusion"):
             r = results[mode].get(str(b))
             if r:
                 vals = " ".join(f"{r[k]:8.4f}" for k in KEYS)
-                print(f"{b:8.1f} {mode:>5} {r['pairs']:5d} {vals}")
+                print(f"{b:8.1f} {mode:>14} {r['pairs']:5d} {vals}")
     print("N_mono sweep at 1.0 m (full network, N_uni = 64 - N_mono):")
     for n, r in sweep.items():
         if r:

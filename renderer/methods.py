@@ -31,7 +31,8 @@ from panogrf.model.photometric import balance_exposure
 from panogrf.model.render_net import RendererNet
 from panogrf.renderer.baselines import render_meshwarp, render_nearest
 from panogrf.renderer.cache import SceneCache, build_cache
-from panogrf.renderer.render import render_panorama, render_perspective
+from panogrf.renderer.detail import render_detailed
+from panogrf.renderer.render import render_perspective
 
 
 @dataclass(frozen=True)
@@ -154,7 +155,8 @@ def render_view(
         return render_snerf(views.fitted["snerf"], tgt_c2w, height)
     net = models.renderer(spec.renderer)
     cache = views.cache_for(spec.renderer, spec.depth_mode, models)
-    return render_panorama(net, cache, tgt_c2w, height, quality).rgb
+    # Above the renderer's training resolution: the network at it plus the sources' detail.
+    return render_detailed(net, cache, tgt_c2w, height, quality).rgb
 
 
 def render_perspective_view(

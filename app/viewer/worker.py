@@ -19,6 +19,7 @@ import torch
 from panogrf.app.images import to_uint8
 from panogrf.model.render_net import RendererNet
 from panogrf.renderer.cache import SceneCache
+from panogrf.renderer.detail import render_detailed
 from panogrf.renderer.render import render_panorama
 
 #: (height, sampling, sources) of each refinement level, coarse to fine: a quick draft at
@@ -176,7 +177,9 @@ class RenderWorker:
 
             tgt = torch.from_numpy(pose).to(self.cache.images.dtype)
             for level, (height, quality, sources) in enumerate(self.levels):
-                out = render_panorama(
+                # Above the renderer's training resolution the network renders at it and the
+                # sources add the detail (`panogrf.renderer.detail`).
+                out = render_detailed(
                     self.net,
                     self._nearest(pose, sources),
                     tgt,
