@@ -11,28 +11,14 @@ import shutil
 
 import numpy as np
 import pytest
-import torch
+from helpers.nets import random_models
 
 from panogrf.app import cli
 from panogrf.app.commands import render as render_cmd
 from panogrf.app.images import read_rgb
 from panogrf.assets import path as asset_path
-from panogrf.model.depth import DepthEstimator
-from panogrf.model.mono import MonoDepthConfig, MonoDepthNet
-from panogrf.model.mvs import PRESETS as MVS_PRESETS
-from panogrf.model.mvs import MVSNet
-from panogrf.model.render_net import PRESETS, RendererNet
-from panogrf.renderer.methods import Models
 
 DEMO = asset_path("demo")
-
-
-def random_models() -> Models:
-    torch.manual_seed(0)
-    mvs = {m: MVSNet(MVS_PRESETS[m]).eval() for m in ("full", "mvs")}
-    est = DepthEstimator(MonoDepthNet(MonoDepthConfig()), mvs, working_height=32).eval()
-    nets = {k: RendererNet(v).eval() for k, v in PRESETS.items()}
-    return Models(estimator=lambda mode: est, renderer=lambda preset: nets[preset])
 
 
 @pytest.fixture
