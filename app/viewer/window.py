@@ -35,6 +35,8 @@ import numpy as np
 
 from panogrf.app.viewer import recording, screen
 from panogrf.app.viewer.camera import FlyCamera
+from panogrf.app.viewer.exports import ExportsMixin
+from panogrf.app.viewer.overlay import OverlayMixin
 from panogrf.app.viewer.script import KEY_NAMES, ScriptPlayer, parse_script
 
 __all__ = ["PanoViewer", "ViewerSetup", "parse_script", "run_viewer"]
@@ -85,7 +87,7 @@ class ViewerSetup:
         )
 
 
-class PanoViewer(mglw.WindowConfig):
+class PanoViewer(ExportsMixin, OverlayMixin, mglw.WindowConfig):
     gl_version = (3, 3)
     title = "panogrf"
     window_size = (1024, 512)
@@ -253,65 +255,6 @@ class PanoViewer(mglw.WindowConfig):
         worker = self.setup.worker
         return worker is None or (self.requested and worker.status[0] >= len(worker.levels))
 
-    # -- camera paths and screenshots ----------------------------------------------------------
-    def save_path(self) -> None:
-        """O: the keyframes' path to ``--path-out``; a failed write is reported, never fatal."""
-        from panogrf.app.coverage import path_warning
-
-        if not self.path.keys:
-            self.say("no keyframes to save (K adds one)")
-            return
-        w, h = self.wnd.buffer_size
-        path = recording.recorded_path(
-            self.path.keys, self.perspective, self.setup.preview_height, self.setup.fps, w / h
-        )
-        ok, message = recording.save_path_file(self.setup.path_out, path)
-        self.say(message)
-        warning = path_warning(path.poses, self.setup.c2w) if ok else None
-        if warning:
-            self.say(warning)
-
-    def _image_name(self, kind: str) -> Path:
-        stamp = time.strftime("%Y%m%d_%H%M%S")
-        return self.setup.screenshot_dir / f"panogrf_{kind}{stamp}_{self.frame_count:05d}.png"
-
-    def _screenshot(self) -> None:
-        """X: the window as it is (overlay included; F saves the clean panorama)."""
-        w, h = self.wnd.buffer_size
-        data = self.wnd.fbo.read(viewport=(0, 0, w, h), components=3)
-        img = np.frombuffer(data, np.uint8).reshape(h, w, 3)[::-1]
-        out = self._image_name("")
-        ok, problem = recording.save_image_file(out, img)
-        if not ok:
-            self.say(f"cannot save the screenshot {out}: {problem}")
-            return
-        c = FlyCamera.from_c2w(self.view_pose())
-        p = c.position
-        self.say(
-            f"screenshot {out} at {p[0]:+.3f} {p[1]:+.3f} {p[2]:+.3f} "
-            f"yaw {math.degrees(c.yaw):+.1f} pitch {math.degrees(c.pitch):+.1f}"
-        )
-
-    def _export_panorama(self, pose: np.ndarray) -> None:
-        """F: the panorama of the pose on screen, 2:1 at its own resolution, no overlay: the
-        refined frame when it is shown, the source in source mode, else the GL preview."""
-        if self.mode == "sources":
-            rgb, what = self.setup.images[self.source_index], f"source view {self.source_index}"
-        elif self.shown_level is not None and self.refined_rgb is not None:
-            total = len(self.setup.worker.levels)
-            rgb, what = self.refined_rgb, f"refined level {self.shown_level + 1}/{total}"
-        else:
-            rgb, _ = self.preview.render(pose, self.setup.preview_height)
-            self.preview_key = None  # its textures were drawn again
-            what = "GL preview"
-            self.wnd.use()
-        out = self._image_name("pano_")
-        ok, problem = recording.save_image_file(out, rgb)
-        if not ok:
-            self.say(f"cannot save the panorama {out}: {problem}")
-        else:
-            self.say(f"panorama {out} ({rgb.shape[1]}x{rgb.shape[0]}, {what}, no overlay)")
-
     # -- frame ---------------------------------------------------------------------------------
     def on_render(self, time_s: float, frame_time: float) -> None:
         # Frame period: from this frame's start to the next one's, so it includes the GL work
@@ -449,81 +392,6 @@ class PanoViewer(mglw.WindowConfig):
             self.refined_tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
         self.refined_tex.write(np.ascontiguousarray(rgb))
         self.refined_rgb = rgb
-
-    def _draw_overlay(self, w: int, h: int) -> None:
-        now = time.perf_counter()
-        if self.overlay_tex is None or now - self.last_overlay > 0.25:
-            self.last_overlay = now
-            self._update_overlay()
-        self.overlay_tex.use(location=1)
-        o = self.overlay_prog
-        o["u_text"].value = 1
-        o["u_size"].value = (float(w), float(h))
-        o["u_text_size"].value = (
-            float(self.overlay_img.shape[1]),
-            float(self.overlay_img.shape[0]),
-        )
-        th, tw = self.overlay_img.shape[:2]
-        self.ctx.viewport = (0, max(0, h - th), min(w, tw), min(h, th))  # only its pixels
-        self.ctx.enable(moderngl.BLEND)
-        self.ctx.blend_func = moderngl.SRC_ALPHA, moderngl.ONE_MINUS_SRC_ALPHA
-        self.overlay_quad.render(moderngl.TRIANGLES, vertices=3)
-        self.ctx.viewport = (0, 0, w, h)
-        self.ctx.disable(moderngl.BLEND)
-
-    def _coverage_lines(self, pose: np.ndarray) -> list[str]:
-        """Warnings while the camera is outside the region the sources cover or inside an
-        object (behind the surface its nearest source sees); logged once when they start."""
-        from panogrf.app.coverage import behind_surface, covered_radius, nearest_source_distance
-
-        sources = self.setup.c2w
-        lines = []
-        far = float(nearest_source_distance(pose[None], sources)[0])
-        outside = far > covered_radius(sources)
-        if outside:
-            lines.append(f"WARNING outside the covered region: {far:.2f} m from a source")
-        inside = behind_surface(pose[:3, 3], sources, self.setup.depth)
-        if inside is not None:
-            k, dist, surface = inside
-            lines.append(
-                f"WARNING inside an object: {dist:.2f} m from source {k}, whose surface "
-                f"there is {surface:.2f} m away"
-            )
-        state = (outside, inside is not None)
-        if state != self.warned:
-            self.warned = state
-            for line in lines:
-                self.setup.log(line)
-        return lines
-
-    def _update_overlay(self) -> None:
-        pose = self.view_pose()
-        p = pose[:3, 3]
-        recent = self.frame_times[-30:]
-        fps = len(recent) / max(sum(recent), 1e-6) if recent else 0.0
-        worker = self.setup.worker
-        levels = worker.levels if worker is not None else []
-        done, frac = worker.status if worker is not None else (0, 0.0)
-        status = screen.refine_status(worker is not None, self.requested, done, frac, levels)
-        if worker is not None and worker.error:  # the worker died: say why, on screen
-            status = f"refinement stopped: {worker.error}"
-        shown = screen.shown_label(self.mode, self.shown_level, len(levels), self.source_index)
-        view = f"perspective {self.camera.fov:.0f} deg" if self.perspective else "panorama"
-        lines = [
-            f"pos {p[0]:+.2f} {p[1]:+.2f} {p[2]:+.2f} m  speed {self.camera.speed:.2f} m/s",
-            f"{shown}  {view}",
-            f"{fps:.0f} fps  {status}",
-            self.path.status(),
-            *self._coverage_lines(pose),
-            *self.messages,
-        ]
-        img = screen.overlay_image(lines, legend=self.mode == "distance")
-        self.overlay_img = img
-        if self.overlay_tex is None or self.overlay_tex.size != (img.shape[1], img.shape[0]):
-            if self.overlay_tex is not None:
-                self.overlay_tex.release()
-            self.overlay_tex = self.ctx.texture((img.shape[1], img.shape[0]), 4)
-        self.overlay_tex.write(np.ascontiguousarray(img))
 
     def on_close(self) -> None:
         if self.setup.worker is not None:

@@ -1,0 +1,74 @@
+"""What the viewer writes on a key press: the camera path (O), a screenshot of the window (X)
+and the clean panorama on screen (F). A failed write is said on screen and in the terminal;
+the session and its keyframes carry on. Mixed into `PanoViewer`, whose state it reads."""
+
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+from panogrf.app.viewer import recording
+from panogrf.app.viewer.camera import FlyCamera
+
+
+class ExportsMixin:
+    def save_path(self) -> None:
+        """O: the keyframes' path to ``--path-out``; a failed write is reported, never fatal."""
+        from panogrf.app.coverage import path_warning
+
+        if not self.path.keys:
+            self.say("no keyframes to save (K adds one)")
+            return
+        w, h = self.wnd.buffer_size
+        path = recording.recorded_path(
+            self.path.keys, self.perspective, self.setup.preview_height, self.setup.fps, w / h
+        )
+        ok, message = recording.save_path_file(self.setup.path_out, path)
+        self.say(message)
+        warning = path_warning(path.poses, self.setup.c2w) if ok else None
+        if warning:
+            self.say(warning)
+
+    def _image_name(self, kind: str) -> Path:
+        stamp = time.strftime("%Y%m%d_%H%M%S")
+        return self.setup.screenshot_dir / f"panogrf_{kind}{stamp}_{self.frame_count:05d}.png"
+
+    def _screenshot(self) -> None:
+        """X: the window as it is (overlay included; F saves the clean panorama)."""
+        w, h = self.wnd.buffer_size
+        data = self.wnd.fbo.read(viewport=(0, 0, w, h), components=3)
+        img = np.frombuffer(data, np.uint8).reshape(h, w, 3)[::-1]
+        out = self._image_name("")
+        ok, problem = recording.save_image_file(out, img)
+        if not ok:
+            self.say(f"cannot save the screenshot {out}: {problem}")
+            return
+        c = FlyCamera.from_c2w(self.view_pose())
+        p = c.position
+        self.say(
+            f"screenshot {out} at {p[0]:+.3f} {p[1]:+.3f} {p[2]:+.3f} "
+            f"yaw {math.degrees(c.yaw):+.1f} pitch {math.degrees(c.pitch):+.1f}"
+        )
+
+    def _export_panorama(self, pose: np.ndarray) -> None:
+        """F: the panorama of the pose on screen, 2:1 at its own resolution, no overlay: the
+        refined frame when it is shown, the source in source mode, else the GL preview."""
+        if self.mode == "sources":
+            rgb, what = self.setup.images[self.source_index], f"source view {self.source_index}"
+        elif self.shown_level is not None and self.refined_rgb is not None:
+            total = len(self.setup.worker.levels)
+            rgb, what = self.refined_rgb, f"refined level {self.shown_level + 1}/{total}"
+        else:
+            rgb, _ = self.preview.render(pose, self.setup.preview_height)
+            self.preview_key = None  # its textures were drawn again
+            what = "GL preview"
+            self.wnd.use()
+        out = self._image_name("pano_")
+        ok, problem = recording.save_image_file(out, rgb)
+        if not ok:
+            self.say(f"cannot save the panorama {out}: {problem}")
+        else:
+            self.say(f"panorama {out} ({rgb.shape[1]}x{rgb.shape[0]}, {what}, no overlay)")
