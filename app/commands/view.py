@@ -166,6 +166,9 @@ def run(args: argparse.Namespace) -> int:
             f"closed after {config.frame_count} frames in {time.perf_counter() - start:.1f} s "
             f"({', '.join(stats)})"
         )
+    if worker is not None and worker.error:  # the session went on without refinement
+        print(f"panogrf view: error: refinement stopped: {worker.error}", file=sys.stderr)
+        return 1
     return 0
 
 

@@ -210,3 +210,22 @@ def test_headless_session_survives_a_failed_save_and_plays_in_real_time(tmp_path
     assert img[2][:, 60:240].mean() > 10
     assert np.array_equal(img[2], img[3])  # looking up: the panorama stays level
     assert np.abs(img[4] - img[5]).mean() > 3  # the source view turned with the camera
+
+
+def test_a_dead_render_worker_is_reported_and_exits_non_zero(tmp_path, monkeypatch, capsys):
+    """The session goes on with the preview, says why refinement stopped, and exits 1."""
+    from panogrf.app import cli
+    from panogrf.app.viewer import worker as worker_mod
+
+    def broken(self):
+        raise RuntimeError("renderer weights do not match the cache")
+
+    monkeypatch.setattr(worker_mod.RenderWorker, "_serve", broken)
+    code = cli.main(
+        ["view", str(DEMO), "--window", "headless", "--size", "128x64", "--frames", "20",
+         "--fixed-step", "0.05", "--cache-dir", str(tmp_path / "c"), "--threads", "1"]
+    )  # fmt: skip
+    err = capsys.readouterr().err
+    assert code == 1
+    assert "refinement stopped: RuntimeError: renderer weights do not match the cache" in err
+    assert "Traceback" not in err
