@@ -44,6 +44,12 @@ def main() -> None:
     parser.add_argument("--height", type=int, default=512)
     parser.add_argument("--agreement", default="0.05")
     parser.add_argument("--limit", type=int, default=0, help="scenes per dataset (0: all)")
+    parser.add_argument(
+        "--ladder",
+        default="",
+        help="only rows QUALITY@NET_ROWS + detail, e.g. draft@128,draft@192,draft@256,fast@256 "
+        "(the viewer's refinement levels; the agreement is the first of --agreement)",
+    )
     parser.add_argument("--threads", type=int, default=0)
     parser.add_argument("--out", type=Path, default=None)
     args = parser.parse_args()
@@ -69,6 +75,21 @@ def main() -> None:
             views = SourceViews(data.images[[0, 2]], data.c2w[[0, 2]])
             cache = views.cache_for(spec.renderer, spec.depth_mode, models)
             target, c2w = data.images[1:2], data.c2w[1]
+            if args.ladder:
+                a = float(args.agreement.split(",")[0])
+                for item in args.ladder.split(","):
+                    quality, rows_net = item.split("@")
+                    cfg = DetailConfig(net_height=int(rows_net), agreement=a)
+                    t0 = time.perf_counter()
+                    out = render_detailed(net, cache, c2w, h, quality, cfg)
+                    record(
+                        f"{quality} at {rows_net} + detail",
+                        out.rgb,
+                        target,
+                        time.perf_counter() - t0,
+                    )
+                print(f"{root.name}/{folder.name} done", flush=True)
+                continue
             t0 = time.perf_counter()
             full = render_panorama(net, cache, c2w, h, "fast")
             record(f"network at {h}", full.rgb, target, time.perf_counter() - t0)
