@@ -90,3 +90,22 @@ def behind_surface(
     if surface <= 0 or dist <= BEHIND_FACTOR * surface:
         return None
     return k, dist, surface
+
+
+def inside_warning(targets: np.ndarray, sources: np.ndarray, depth: np.ndarray) -> str | None:
+    """A one-line warning naming the frames of a camera path whose camera is behind the surface
+    its nearest source sees (inside an object or beyond a wall); depth [V, h, w] metres."""
+    hits = [
+        (i, hit)
+        for i, pose in enumerate(np.asarray(targets))
+        if (hit := behind_surface(pose[:3, 3], sources, depth)) is not None
+    ]
+    if not hits:
+        return None
+    k, dist, surface = hits[0][1]
+    return (
+        f"warning: {len(hits)} of {len(targets)} frames put the camera behind a surface (inside "
+        f"an object or beyond a wall): frames {frame_ranges(np.array([i for i, _ in hits]))}; "
+        f"frame {hits[0][0]} is {dist:.2f} m from source {k}, whose surface there is "
+        f"{surface:.2f} m away"
+    )

@@ -245,7 +245,7 @@ def run_path(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from panogrf.app.camera_path import duration_note, read_camera_path
-    from panogrf.app.coverage import path_warning
+    from panogrf.app.coverage import inside_warning, path_warning
     from panogrf.app.frames import FrameRenderer, erp_height_for, render_camera_path
     from panogrf.app.scene import load_scene
     from panogrf.app.video import FrameSink
@@ -280,6 +280,16 @@ def run_path(args: argparse.Namespace) -> int:
         frames.check_height(erp_rows, f"{args.camera_path}: panoramas of")
         frames.prepare()
         prep = time.perf_counter() - start
+        if "full" in views.depth:  # the estimated depth says where the surfaces are
+            depth = views.depth["full"][:, 0].double().numpy()
+            inside = inside_warning(np.asarray(path.poses, np.float64), scene.c2w, depth)
+            if inside:
+                print(inside, flush=True)
+        if "full" in views.depth:  # the estimated depth says where the surfaces are
+            depth = views.depth["full"][:, 0].double().numpy()
+            inside = inside_warning(np.asarray(path.poses, np.float64), scene.c2w, depth)
+            if inside:
+                print(inside, flush=True)
         start = time.perf_counter()
         with sink, tqdm(total=len(path), unit="frame", desc="rendering") as bar:
             render_camera_path(frames, path, sink, progress=lambda _: bar.update())

@@ -183,6 +183,28 @@ def test_perspective_path_to_png_frames(random_nets, tmp_path):
     assert read_rgb(files[0]).shape == (32, 48, 3)
 
 
+@pytest.mark.gl
+def test_a_path_behind_the_surfaces_is_warned_about(random_nets, tmp_path, capsys):
+    """Frames whose camera sits behind the surface the sources see (here 30 m out, beyond the
+    10 m depth range) are named, as are frames outside the covered region."""
+    from panogrf.app.camera_path import CameraPath, write_camera_path
+    from panogrf.app.scene import load_scene
+
+    poses = np.array(load_scene(DEMO).c2w[:2], dtype=np.float64)
+    far = poses[0].copy()
+    far[:3, 3] += np.array([0.0, 0.0, -30.0])
+    cam = tmp_path / "p.json"
+    write_camera_path(
+        cam, CameraPath(np.stack([poses[0], far, poses[1]]), "equirectangular", 32, 16, fps=10.0)
+    )
+    out = tmp_path / "frames"
+    args = ["render", str(DEMO), "--camera-path", str(cam), "--out", str(out)]
+    assert cli.main([*args, "--quality", "preview"]) == 0
+    printed = capsys.readouterr().out
+    assert "1 of 3 frames put the camera behind a surface" in printed and "frames 1" in printed
+    assert "1 of 3 frames leave the region the sources cover" in printed
+
+
 def test_camera_path_errors(random_nets, tmp_path, capsys):
     cam = tmp_path / "c.json"
     base = ["render", str(DEMO), "--camera-path", str(cam)]
