@@ -24,8 +24,9 @@ def letterbox(width: int, height: int, aspect: float = 2.0) -> tuple[int, int, i
 
 
 def level_weights(levels) -> np.ndarray:
-    """Share of the refinement's work per level [L] (by pixels: the cost grows with them)."""
-    rows = np.array([float(lv[0]) for lv in levels])
+    """Share of the refinement's work per level [L] (by the network's pixels: the cost grows
+    with them; a level's fourth entry, when given, is the rows the network runs at)."""
+    rows = np.array([float(min(lv[0], lv[3]) if len(lv) > 3 else lv[0]) for lv in levels])
     return rows**2 / (rows**2).sum()
 
 

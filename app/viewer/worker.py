@@ -11,7 +11,7 @@ from __future__ import annotations
 import sys
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
@@ -19,14 +19,19 @@ import torch
 from panogrf.app.images import to_uint8
 from panogrf.model.render_net import RendererNet
 from panogrf.renderer.cache import SceneCache
-from panogrf.renderer.detail import render_detailed
+from panogrf.renderer.detail import DEFAULT_DETAIL, render_detailed
 from panogrf.renderer.render import render_panorama
 
-#: (height, sampling, sources) of each refinement level, coarse to fine: a quick draft at
-#: 256 x 512 from the two sources nearest the camera (what the renderer was trained with; the
-#: GL preview draws the same two), then the fast sampling at 512 x 1024 from all of them
-#: (sources None: all).
-LEVELS = ((256, "draft", 2), (512, "fast", None))
+#: (height, sampling, sources, network rows) of each refinement level, coarse to fine; both
+#: are shown at 512 x 1024, the network running at the last number's rows and the sources
+#: giving the detail (`panogrf.renderer.detail`): a quick draft from the two sources nearest
+#: the camera (what the renderer was trained with; the GL preview draws the same two) with
+#: the network at 128 rows, then the fast sampling from all of them with the network at 256.
+#: Chosen on 12 validation scenes at 512 rows (`python benchmarks/detail.py --ladder ...`, 2
+#: sources, WS-PSNR / LPIPS / median s): draft at 128 + detail 25.01 / 0.164 / 0.17, at 192
+#: 25.08 / 0.169 / 0.30, at 256 25.22 / 0.174 / 0.46; fast at 192 26.10 / 0.141 / 0.75, at
+#: 256 26.34 / 0.147 / 1.18 (the network at every 512-row pixel: 26.11 / 0.175 / 7.03).
+LEVELS = ((512, "draft", 2, 128), (512, "fast", None, 256))
 
 
 @dataclass
@@ -51,7 +56,15 @@ class RenderWorker:
         threads: int | None = None,
     ) -> None:
         self.net, self.cache = net, cache
-        self.levels = [(lv[0], lv[1], lv[2] if len(lv) > 2 else None) for lv in levels]
+        self.levels = [
+            (
+                lv[0],
+                lv[1],
+                lv[2] if len(lv) > 2 else None,
+                lv[3] if len(lv) > 3 else DEFAULT_DETAIL.net_height,
+            )
+            for lv in levels
+        ]
         self._subsets: dict[tuple[int, ...], SceneCache] = {}
         self.threads = threads
         self._lock = threading.Lock()
@@ -127,7 +140,7 @@ class RenderWorker:
         """A small render of the first level before the first request: the first real one
         otherwise pays for growing the heap and first use of the kernels (a few tenths of a
         second here). 64 rows fill whole chunks of rays, as a real render does."""
-        height, quality, sources = self.levels[0]
+        height, quality, sources, _ = self.levels[0]
         pose = self.cache.c2w[0].double().numpy()
         render_panorama(
             self.net,
@@ -176,15 +189,16 @@ class RenderWorker:
                         self._progress = f
 
             tgt = torch.from_numpy(pose).to(self.cache.images.dtype)
-            for level, (height, quality, sources) in enumerate(self.levels):
-                # Above the renderer's training resolution the network renders at it and the
-                # sources add the detail (`panogrf.renderer.detail`).
+            for level, (height, quality, sources, rows) in enumerate(self.levels):
+                # Above ``rows`` the network renders at ``rows`` and the sources add the detail.
+                detail = replace(DEFAULT_DETAIL, net_height=rows)
                 out = render_detailed(
                     self.net,
                     self._nearest(pose, sources),
                     tgt,
                     height,
                     quality,
+                    detail,
                     progress=progress,
                     should_stop=stale,
                 )
