@@ -118,7 +118,7 @@ class PanoViewer(ExportsMixin, OverlayMixin, mglw.WindowConfig):
         h = s.preview_height
         self.refined_tex = self.ctx.texture((2 * h, h), 3)
         self.refined_tex.repeat_x = True
-        self.refined_gen = -1
+        self.refined_key = (-1, -1)  # (generation, level) on the refined texture
         self.refined_rgb: np.ndarray | None = None
         self.shown_level: int | None = None  # the refined level on screen (None: not refined)
         self.overlay_tex = None
@@ -293,12 +293,9 @@ class PanoViewer(ExportsMixin, OverlayMixin, mglw.WindowConfig):
         if self.mode == "refined" and worker is not None and self.requested:
             done = worker.latest()
             if done is not None and done.generation == self.request_gen:
-                if (
-                    done.generation != self.refined_gen
-                    or done.rgb.shape[0] != self.refined_tex.height
-                ):
+                if (done.generation, done.level) != self.refined_key:  # levels may share a size
                     self._upload_refined(done.rgb)
-                    self.refined_gen = done.generation
+                    self.refined_key = (done.generation, done.level)
                     self.refine_log.append((done.level, time.perf_counter() - self.still_since))
                 refined, self.shown_level = self.refined_tex, done.level
         coarse, is_depth, fill = None, False, False

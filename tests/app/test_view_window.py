@@ -229,3 +229,18 @@ def test_a_dead_render_worker_is_reported_and_exits_non_zero(tmp_path, monkeypat
     assert code == 1
     assert "refinement stopped: RuntimeError: renderer weights do not match the cache" in err
     assert "Traceback" not in err
+
+
+def test_every_refinement_level_reaches_the_screen(tmp_path, capsys):
+    """Both levels are 512 rows (the network at 128, then 256, rows): the second must replace
+    the first on screen although it has the same size."""
+    from panogrf.app import cli
+
+    code = cli.main(
+        ["view", str(DEMO), "--window", "headless", "--size", "128x64", "--frames", "3000",
+         "--fixed-step", "0.05", "--cache-dir", str(tmp_path / "c"), "--script",
+         "w*3,refined,escape"]
+    )  # fmt: skip
+    out = capsys.readouterr().out
+    assert code == 0
+    assert "refined level 1/2" in out and "refined level 2/2" in out, out
