@@ -37,6 +37,7 @@ NETWORKS = {"mono": (), "mvs": ("mvs",), "full": ("full", "mvs")}
 RENDERER_WEIGHTS = {
     "panogrf": "renderer_panogrf.safetensors",
     "no_geometry": "renderer_no_geometry.safetensors",
+    "tiny": "renderer_tiny.safetensors",
 }
 
 

@@ -156,7 +156,8 @@ def main() -> None:
                 {"scene": folder.name, **scores, "delta_db": scores["estimated"] - scores["true"]}
             )
             print(
-                f"render {folder.name}: WS-PSNR true {scores['true']:.2f}, estimated {scores['estimated']:.2f}",
+                f"render {folder.name}: WS-PSNR true {scores['true']:.2f}, "
+                f"estimated {scores['estimated']:.2f}",
                 flush=True,
             )
     synth = summary(rows)
@@ -167,7 +168,8 @@ def main() -> None:
         if real is None
         else {
             **summary([real]),
-            "scale_from": "true first-to-last distance 1.0 m (--distance 0,2=1.0); scale error is of the 0-1 distance",
+            "scale_from": "true first-to-last distance 1.0 m (--distance 0,2=1.0); "
+            "scale error is of the 0-1 distance",
         },
         "render": renders,
         "per_scene": [{k: v for k, v in r.items() if k != "c2w"} for r in rows]
@@ -191,7 +193,8 @@ def main() -> None:
         d = statistics.median(r["delta_db"] for r in renders)
         worst = min(r["delta_db"] for r in renders)
         lines.append(
-            f"render: {len(renders)} scenes, WS-PSNR estimated - true poses: median {d:+.2f} dB, worst {worst:+.2f} dB"
+            f"render: {len(renders)} scenes, WS-PSNR estimated - true poses: "
+            f"median {d:+.2f} dB, worst {worst:+.2f} dB"
         )
     failures = [f"{r['scene']}: {r['failed']}" for r in rows if "failed" in r]
     lines.append(f"failures: {len(failures)}" + "".join(f"\n  {f}" for f in failures))

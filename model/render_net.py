@@ -47,6 +47,14 @@ class RendererConfig:
 PRESETS = {
     "panogrf": RendererConfig(),
     "no_geometry": RendererConfig(use_geometry=False),
+    # The model-size ladder's smaller rung: half the widths everywhere.
+    "tiny": RendererConfig(
+        feature_channels=8,
+        encoder_widths=(8, 12, 16),
+        geometry_width=8,
+        hidden=24,
+        view_channels=12,
+    ),
 }
 
 

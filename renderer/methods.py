@@ -10,6 +10,7 @@ on the target pose: estimated depth per depth mode and the renderer's `SceneCach
 | no_mono     | mvs   | panogrf     | ablation: MVS depth without mono guidance              |
 | no_mvs      | mono  | panogrf     | ablation: monocular depth only                         |
 | no_geometry | full  | no_geometry | ablation: no visibility / depth features (retrained)   |
+| panogrf_tiny| full  | tiny        | the model-size ladder: half the renderer's widths       |
 | meshwarp    | full  | -           | baseline: depth-warped blend of the sources            |
 | nearest     | -     | -           | baseline: nearest source, rotated                      |
 | snerf       | -     | -           | baseline: radiance field fitted to the sources         |
@@ -47,6 +48,7 @@ METHODS: dict[str, MethodSpec] = {
     "no_mono": MethodSpec("mvs", "panogrf", "neural"),
     "no_mvs": MethodSpec("mono", "panogrf", "neural"),
     "no_geometry": MethodSpec("full", "no_geometry", "neural"),
+    "panogrf_tiny": MethodSpec("full", "tiny", "neural"),
     "meshwarp": MethodSpec("full", None, "meshwarp"),
     "nearest": MethodSpec(None, None, "nearest"),
     "snerf": MethodSpec(None, None, "snerf"),

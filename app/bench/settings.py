@@ -42,6 +42,8 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("nearest", "nearest"),
     *(Setting(f"gl:{r}", "gl", mesh_rows=r) for r in (32, 48, 64, 96, 128)),
     Setting("meshwarp", "meshwarp"),
+    Setting("tiny:draft", "panogrf_tiny", "draft"),
+    Setting("tiny:fast", "panogrf_tiny", "fast"),
     Setting("panogrf:draft", "panogrf", "draft"),
     Setting("panogrf:fast", "panogrf", "fast"),
     Setting("no_mono", "no_mono", "fast"),

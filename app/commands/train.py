@@ -81,9 +81,10 @@ def register(subparsers) -> None:
     renderer.add_argument("--out", type=Path, required=True, help="output weights (.safetensors)")
     renderer.add_argument(
         "--preset",
-        choices=("panogrf", "no_geometry"),
+        choices=("panogrf", "no_geometry", "tiny"),
         default="panogrf",
-        help="panogrf (default) or no_geometry (ablation: no depth-derived visibility)",
+        help="panogrf (default), no_geometry (ablation: no depth-derived visibility) or tiny "
+        "(half the widths: the model-size ladder)",
     )
     renderer.add_argument("--steps", type=int, default=2000, help="optimiser steps (default 2000)")
     renderer.add_argument("--scenes", type=int, default=2, help="scenes per step (default 2)")
