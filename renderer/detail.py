@@ -28,6 +28,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from panogrf.model.erp import direction_to_pixel, erp_directions, sample_padded
+from panogrf.model.layers import circular_pad
 from panogrf.model.render_net import RendererNet
 from panogrf.renderer.cache import SceneCache, resize_erp
 from panogrf.renderer.render import RenderOutput, Sampling, render_panorama
@@ -54,18 +55,22 @@ DEFAULT_DETAIL = DetailConfig()
 
 def _upsample(x: Tensor, size: tuple[int, int]) -> Tensor:
     """Bilinear upsampling of [C, h, w] panoramas to ``size``, wrapping at the seam."""
-    pad = torch.cat((x[..., -1:], x, x[..., :1]), -1)
     h, w = size
     scale = w / x.shape[-1]
-    up = F.interpolate(pad[None], size=(h, w + round(2 * scale)), mode="bilinear")[0]
     p = round(scale)
+    up = F.interpolate(circular_pad(x[None], 1, 0), size=(h, w + 2 * p), mode="bilinear")[0]
     return up[..., p : p + w]
+
+
+def _upsample_depth(depth: Tensor, size: tuple[int, int]) -> Tensor:
+    """Depth [1, h, w] upsampled in inverse depth (edges stay between their two sides)."""
+    return 1.0 / _upsample(1.0 / depth.clamp(min=1e-3), size).clamp(min=1e-4)
 
 
 def _smooth(x: Tensor) -> Tensor:
     """3x3 box filter of [C, h, w], wrapping in width."""
-    pad = torch.cat((x[..., -1:], x, x[..., :1]), -1)
-    return F.avg_pool2d(F.pad(pad[None], (0, 0, 1, 1), mode="replicate"), 3, 1)[0]
+    pad = F.pad(circular_pad(x[None], 1, 0), (0, 0, 1, 1), mode="replicate")
+    return F.avg_pool2d(pad, 3, 1)[0]
 
 
 def project_sources(cache: SceneCache, c2w: Tensor, depth: Tensor) -> Tensor:
@@ -83,25 +88,32 @@ def project_sources(cache: SceneCache, c2w: Tensor, depth: Tensor) -> Tensor:
 
 
 def add_detail(
-    cache: SceneCache, c2w: Tensor, low: RenderOutput, height: int, config: DetailConfig
+    cache: SceneCache,
+    c2w: Tensor,
+    low: RenderOutput,
+    height: int,
+    config: DetailConfig,
+    depth: Tensor | None = None,
 ) -> Tensor:
     """The network's low-resolution render ``low`` brought to ``height`` rows with the sources'
-    detail: [3, H, 2H] in [0, 1]."""
+    detail: [3, H, 2H] in [0, 1]. ``depth``: ``low.depth`` already upsampled to ``height``."""
     size = (height, 2 * height)
     h = low.rgb.shape[-2]
-    inv = 1.0 / low.depth.clamp(min=1e-3)
-    depth = 1.0 / _upsample(inv, size)[0].clamp(min=1e-4)
-    proj = project_sources(cache, c2w.to(depth.dtype), depth)  # [V, 3, H, W]
+    if depth is None:
+        depth = _upsample_depth(low.depth, size)
+    proj = project_sources(cache, c2w.to(depth.dtype), depth[0])  # [V, 3, H, W]
     proj_low = resize_erp(proj, h)  # [V, 3, h, 2h]
     diff = _smooth((proj_low - low.rgb[None]).abs().mean(1))  # [V, h, 2h]
     weight = torch.exp(-diff / config.agreement)
     total = weight.sum(0, keepdim=True)
     blend_w = weight / total.clamp(min=1e-6)
     gate = total.clamp(max=1.0)  # no source agrees: no detail
-    blend = (_upsample(blend_w, size)[:, None] * proj).sum(0)  # [3, H, W]
+    # One upsampling for the network's colour, the gate and the sources' weights.
+    up = _upsample(torch.cat((low.rgb, gate, blend_w)), size)
+    up_rgb, up_gate, up_w = up[:3], up[3:4], up[4:]
+    blend = (up_w[:, None] * proj).sum(0)  # [3, H, W]
     detail = blend - _upsample(resize_erp(blend[None], h)[0], size)
-    out = _upsample(low.rgb, size) + _upsample(gate, size) * detail
-    return out.clamp(0, 1)
+    return (up_rgb + up_gate * detail).clamp(0, 1)
 
 
 @torch.no_grad()
@@ -127,10 +139,9 @@ def render_detailed(
     if low is None:
         return None
     size = (height, 2 * height)
-    rgb = add_detail(cache, c2w, low, height, config)
-    inv = 1.0 / low.depth.clamp(min=1e-3)
+    depth = _upsample_depth(low.depth, size)
     return RenderOutput(
-        rgb=rgb,
-        depth=1.0 / _upsample(inv, size).clamp(min=1e-4),
+        rgb=add_detail(cache, c2w, low, height, config, depth),
+        depth=depth,
         opacity=_upsample(low.opacity, size).clamp(0, 1),
     )
