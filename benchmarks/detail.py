@@ -23,9 +23,9 @@ from pathlib import Path
 import torch
 import torch.nn.functional as F
 
-from panogrf.app.commands.render import default_models
 from panogrf.app.scene import load_scene
 from panogrf.app.scoring import image_scores
+from panogrf.app.session import default_models
 from panogrf.renderer.detail import DetailConfig, render_detailed
 from panogrf.renderer.methods import METHODS, SourceViews
 from panogrf.renderer.render import render_panorama

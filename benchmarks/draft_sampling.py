@@ -28,11 +28,11 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/draft_sampling.json"))
     args = parser.parse_args()
 
-    from panogrf.app.commands.render import default_models
     from panogrf.app.images import write_json_atomic
     from panogrf.app.runtime import keep_freed_memory
     from panogrf.app.scene import load_scene
     from panogrf.app.scoring import image_scores
+    from panogrf.app.session import default_models
     from panogrf.renderer.methods import SourceViews
     from panogrf.renderer.render import QUALITY, Sampling, render_panorama
 

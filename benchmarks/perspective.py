@@ -24,9 +24,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from panogrf.app.commands.render import default_models
 from panogrf.app.frames import erp_height_for
 from panogrf.app.scene import load_scene
+from panogrf.app.session import default_models
 from panogrf.assets import path as asset_path
 from panogrf.model.perspective import erp_to_perspective
 from panogrf.renderer.methods import SourceViews, prepare, render_perspective_view, render_view

@@ -143,7 +143,7 @@ def main() -> None:
         print(f"real {args.real.name}: {real.get('failed') or 'posed'} ({real['seconds']:.1f} s)")
     renders = []
     if args.render:
-        from panogrf.app.commands.render import default_models
+        from panogrf.app.session import default_models
 
         models = default_models()
         for row, folder in zip(rows, folders, strict=True):

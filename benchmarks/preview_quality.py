@@ -61,12 +61,11 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/preview_quality.json"))
     args = parser.parse_args()
 
-    from panogrf.app.commands.render import default_models
-    from panogrf.app.commands.view import prepare_scene
     from panogrf.app.images import to_uint8, write_json_atomic
     from panogrf.app.runtime import keep_freed_memory
     from panogrf.app.scene import load_scene
     from panogrf.app.scoring import image_scores
+    from panogrf.app.session import default_models, prepare_scene
     from panogrf.assets import path as asset_path
     from panogrf.renderer.gl_preview import PreviewRenderer, create_headless_context
     from panogrf.renderer.methods import SourceViews
@@ -75,7 +74,7 @@ def main() -> None:
     import tempfile
 
     with tempfile.TemporaryDirectory() as tmp:
-        _, views, _, _ = prepare_scene(asset_path("demo"), Path(tmp), log=lambda *a: None)
+        views = prepare_scene(asset_path("demo"), Path(tmp), log=lambda *a: None).views
     cost = frame_costs(views)
     print("cost:", {r: round(v, 1) for r, v in cost.items()}, flush=True)
 

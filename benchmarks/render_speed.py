@@ -24,10 +24,10 @@ from pathlib import Path
 
 import torch
 
-from panogrf.app.commands.render import default_models
 from panogrf.app.images import write_json_atomic
 from panogrf.app.scene import load_scene
 from panogrf.app.scoring import image_scores
+from panogrf.app.session import default_models
 from panogrf.renderer.methods import SourceViews, prepare
 from panogrf.renderer.render import QUALITY, Sampling, render_panorama
 

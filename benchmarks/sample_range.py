@@ -31,9 +31,9 @@ def main() -> None:
     torch.set_num_threads(args.threads)
 
     from panogrf.app.atomic import write_json_atomic
-    from panogrf.app.commands.render import default_models
     from panogrf.app.scene import load_scene
     from panogrf.app.scoring import image_scores
+    from panogrf.app.session import default_models
     from panogrf.renderer.methods import SourceViews
     from panogrf.renderer.render import QUALITY, render_panorama, sample_range
 

@@ -32,11 +32,11 @@ def main() -> None:
     if args.threads:
         torch.set_num_threads(args.threads)
 
-    from panogrf.app.commands.render import default_models
     from panogrf.app.images import write_json_atomic
     from panogrf.app.runtime import keep_freed_memory
     from panogrf.app.scene import load_scene
     from panogrf.app.scoring import image_scores
+    from panogrf.app.session import default_models
     from panogrf.renderer.methods import SourceViews
     from panogrf.renderer.render import QUALITY, render_panorama
 

@@ -46,8 +46,8 @@ def main() -> None:
 
     keep_freed_memory()  # as the `panogrf` command does
 
-    from panogrf.app.commands.view import prepare_scene
     from panogrf.app.images import write_json_atomic
+    from panogrf.app.session import prepare_scene
     from panogrf.app.viewer.window import ViewerSetup, parse_script, run_viewer
     from panogrf.app.viewer.worker import LEVELS, RenderWorker
     from panogrf.assets import path as asset_path
@@ -62,7 +62,8 @@ def main() -> None:
             prepare_scene(scene_dir, Path(tmp), log=quiet)
             cold.append(time.perf_counter() - t0)
             t0 = time.perf_counter()
-            _, views, models, result = prepare_scene(scene_dir, Path(tmp), log=quiet)
+            prepared = prepare_scene(scene_dir, Path(tmp), log=quiet)
+            views, models, result = prepared.views, prepared.models, prepared.cache
             cached.append(time.perf_counter() - t0)
             assert result.status == "loaded", result.status
     cold_s, cached_s = statistics.median(cold), statistics.median(cached)

@@ -106,12 +106,13 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from panogrf.app import session
     from panogrf.app.atomic import check_output
     from panogrf.app.bench.cases import CASES
     from panogrf.app.bench.report import write_outputs
     from panogrf.app.bench.run import BenchConfig, run_bench
     from panogrf.app.bench.settings import select
-    from panogrf.app.commands.render import MAX_HEIGHT, default_models
+    from panogrf.app.commands.render import MAX_HEIGHT
 
     for opt, h in (("--height", args.height), ("--time-height", args.time_height)):
         if not 8 <= h <= MAX_HEIGHT:
@@ -151,7 +152,7 @@ def run(args: argparse.Namespace) -> int:
         sweep=args.sweep,
         cases=cases,
     )
-    report = run_bench(cfg, default_models(), log=lambda s: print(s, flush=True))
+    report = run_bench(cfg, session.default_models(), log=lambda s: print(s, flush=True))
     from panogrf.app.bench.report import format_table
 
     written = write_outputs(report, args.out)

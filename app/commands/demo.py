@@ -74,7 +74,7 @@ def _novel_view(data, out: Path) -> None:
     against the real middle panorama; then a short preview video along the three views."""
     import time
 
-    from panogrf.app.commands.render import default_models
+    from panogrf.app import session
     from panogrf.app.frames import FrameRenderer
     from panogrf.app.images import to_uint8, write_rgb
     from panogrf.app.scoring import image_scores
@@ -83,7 +83,7 @@ def _novel_view(data, out: Path) -> None:
     from panogrf.app.visualize import stack_rows
     from panogrf.renderer.methods import SourceViews, prepare, render_view
 
-    models = default_models()
+    models = session.default_models()
     v = data.images.shape[0]
     target = v // 2
     sources = [i for i in range(v) if i != target]

@@ -185,8 +185,9 @@ def _scenes(
 
 
 def run(args: argparse.Namespace) -> int:
+    from panogrf.app import session
     from panogrf.app.atomic import check_output, json_text, nan_to_null, write_json_atomic
-    from panogrf.app.commands.render import MAX_HEIGHT, default_models
+    from panogrf.app.commands.render import MAX_HEIGHT
     from panogrf.app.scene import load_scene
     from panogrf.app.scoring import image_scores
     from panogrf.renderer.methods import SourceViews, prepare, render_view
@@ -211,7 +212,7 @@ def run(args: argparse.Namespace) -> int:
         torch.set_num_threads(args.threads)
     check_output(args.out)  # before the work: an hour of rendering must not end unwritable
     scenes, baselines = _scenes(args.dataset, baselines, args.limit)
-    models = default_models()
+    models = session.default_models()
     rows = {label(*m): {b: [] for b in baselines} for m in methods}
     seen: dict[float, int] = {b: 0 for b in baselines}
     start_all = time.perf_counter()

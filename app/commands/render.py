@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from panogrf.app import session
 from panogrf.app.errors import UserError
 from panogrf.app.runtime import thread_count
 from panogrf.renderer.methods import METHODS
@@ -118,17 +119,6 @@ def register(subparsers) -> None:
     parser.set_defaults(func=run)
 
 
-def default_models():
-    """`Models` that load the shipped weights."""
-    from panogrf.app.depth_weights import NETWORKS, load_depth_estimator, load_renderer
-    from panogrf.renderer.methods import Models
-
-    def estimator(mode: str):
-        return load_depth_estimator(NETWORKS[mode])
-
-    return Models(estimator=estimator, renderer=load_renderer)
-
-
 def run(args: argparse.Namespace) -> int:
     from panogrf.app.frames import FrameRenderer
     from panogrf.app.images import to_uint8, write_rgb
@@ -169,7 +159,7 @@ def run(args: argparse.Namespace) -> int:
         tgt = torch.from_numpy(parse_c2w(args.c2w)).to(data.c2w.dtype)
     height = args.height or scene.height
     views = SourceViews(data.images[sources], data.c2w[sources])
-    models = default_models()
+    models = session.default_models()
     start = time.perf_counter()
     frames = FrameRenderer(views, models, args.quality, args.method)
     try:
@@ -269,7 +259,7 @@ def run_path(args: argparse.Namespace) -> int:
     warning = path_warning(np.asarray(path.poses, dtype=np.float64), scene.c2w)
     if warning:
         print(warning, flush=True)
-    models = default_models()
+    models = session.default_models()
     frames = FrameRenderer(views, models, args.quality, args.method)
     start = time.perf_counter()
     try:

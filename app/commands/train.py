@@ -61,6 +61,13 @@ def register(subparsers) -> None:
         default=0.5,
         help="stage mvs, full: fraction of pairs with a corrupted mono prior (default 0.5)",
     )
+    depth.add_argument(
+        "--trunk",
+        type=int,
+        default=0,
+        help="stage mono: frozen ImageNet AlexNet convolutions (0-3) feeding the network "
+        "(default 0: none; the shipped network uses 3)",
+    )
     depth.set_defaults(func=run_depth)
 
     renderer = sub.add_parser(
@@ -172,6 +179,8 @@ def run_depth(args: argparse.Namespace) -> int:
         raise UserError("--steps and --batch must be at least 1")
     if args.height % 32:
         raise UserError(f"--height must be a multiple of 32, got {args.height}")
+    if not 0 <= args.trunk <= 3:
+        raise UserError(f"--trunk must be 0-3, got {args.trunk}")
     if (
         args.stage == "mvs"
         and args.preset == "full"
@@ -196,6 +205,7 @@ def run_depth(args: argparse.Namespace) -> int:
         init=args.init,
         augment=not args.no_augment,
         mono_noise=args.mono_noise,
+        trunk=args.trunk,
     )
     try:
         (train_mono if args.stage == "mono" else train_mvs)(cfg, log=log)

@@ -85,32 +85,6 @@ def register(subparsers) -> None:
     parser.set_defaults(func=run)
 
 
-def prepare_scene(scene_dir: Path, cache_dir: Path | None, log=print):
-    """Load and prepare a scene for viewing: (SourceViews, Models, CacheResult)."""
-    from panogrf.app import depth_weights
-    from panogrf.app.commands.render import default_models
-    from panogrf.app.scene import load_scene
-    from panogrf.app.scene_cache import prepare_cached
-    from panogrf.renderer.methods import SourceViews
-
-    scene = load_scene(scene_dir, load_images=True)
-    data = scene.images
-    views = SourceViews(data.images, data.c2w)
-    models = default_models()
-    weight_files = [
-        depth_weights.weights_path(depth_weights.WEIGHTS["mono"]),
-        depth_weights.weights_path(depth_weights.WEIGHTS["full"]),
-        depth_weights.weights_path(depth_weights.RENDERER_WEIGHTS["panogrf"]),
-    ]
-    missing = [p.name for p in weight_files if not p.exists()]
-    if missing:
-        raise UserError(f"missing weights {missing}: reproduce them with `panogrf train`")
-    log(f"preparing {scene_dir} ({scene.num_views} views, {scene.width}x{scene.height})...")
-    result = prepare_cached(views, models, cache_dir, weight_files)
-    log(f"scene {result.status} in {result.seconds:.2f} s ({result.path})")
-    return scene, views, models, result
-
-
 def run(args: argparse.Namespace) -> int:
     import numpy as np
     import torch
@@ -131,7 +105,10 @@ def run(args: argparse.Namespace) -> int:
         script = parse_script(args.script)
     except ValueError as exc:
         raise UserError(f"--script: {exc}") from None
-    scene, views, models, _ = prepare_scene(args.scene, args.cache_dir)
+    from panogrf.app import session
+
+    prepared = session.prepare_scene(args.scene, args.cache_dir)
+    scene, views, models = prepared.scene, prepared.views, prepared.models
     if not 0 <= args.start_frame < scene.num_views:
         raise UserError(f"--start-frame: the scene has frames 0..{scene.num_views - 1}")
     worker = None

@@ -14,8 +14,7 @@ import pytest
 import torch
 from helpers.nets import random_models
 
-from panogrf.app import cli, scoring
-from panogrf.app.commands import render as render_cmd
+from panogrf.app import cli, scoring, session
 from panogrf.app.viewer.window import parse_script
 from panogrf.assets import path as asset_path
 from panogrf.model.metrics import ssim
@@ -25,7 +24,7 @@ DEMO = asset_path("demo")
 
 @pytest.fixture
 def random_nets(monkeypatch):
-    monkeypatch.setattr(render_cmd, "default_models", random_models)
+    monkeypatch.setattr(session, "default_models", random_models)
 
 
 def run(argv: list[str], capsys) -> tuple[int, str, str]:

@@ -10,8 +10,7 @@ import shutil
 import numpy as np
 import pytest
 
-from panogrf.app import atomic, cli
-from panogrf.app.commands import render as render_cmd
+from panogrf.app import atomic, cli, session
 from panogrf.assets import path as asset_path
 
 DEMO = asset_path("demo")
@@ -31,7 +30,7 @@ def no_models(monkeypatch):
     def refuse():
         raise AssertionError("the work started before the output was checked")
 
-    monkeypatch.setattr(render_cmd, "default_models", refuse)
+    monkeypatch.setattr(session, "default_models", refuse)
 
 
 def _nearest(dataset, out, height: int) -> list[str]:

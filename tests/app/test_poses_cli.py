@@ -9,8 +9,7 @@ import shutil
 import numpy as np
 import pytest
 
-from panogrf.app import cli
-from panogrf.app.commands import render as render_cmd
+from panogrf.app import cli, session
 from panogrf.app.images import write_rgb
 from panogrf.app.poses import errors as er
 from panogrf.app.scene import load_scene
@@ -91,7 +90,7 @@ def test_eval_on_a_plain_folder_of_scenes_and_on_one_scene(tmp_path, monkeypatch
     def no_network(_):
         raise AssertionError("the nearest method needs no network")
 
-    monkeypatch.setattr(render_cmd, "default_models", lambda: Models(no_network, no_network))
+    monkeypatch.setattr(session, "default_models", lambda: Models(no_network, no_network))
     folder = tmp_path / "mine"
     for name in ("kitchen", "hall"):
         shutil.copytree(DEMO, folder / name)

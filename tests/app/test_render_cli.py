@@ -13,8 +13,7 @@ import numpy as np
 import pytest
 from helpers.nets import random_models
 
-from panogrf.app import cli
-from panogrf.app.commands import render as render_cmd
+from panogrf.app import cli, session
 from panogrf.app.images import read_rgb
 from panogrf.assets import path as asset_path
 
@@ -23,7 +22,7 @@ DEMO = asset_path("demo")
 
 @pytest.fixture
 def random_nets(monkeypatch):
-    monkeypatch.setattr(render_cmd, "default_models", random_models)
+    monkeypatch.setattr(session, "default_models", random_models)
 
 
 @pytest.mark.parametrize("method", ["panogrf", "meshwarp", "nearest", "no_mvs"])

@@ -1,0 +1,90 @@
+"""The library layer under the commands: the shipped networks and a prepared scene.
+
+Commands (`panogrf render`, `eval`, `view`, `demo`, `bench`), benchmarks and tests call these
+instead of each other's modules:
+
+- `default_models`: `Models` that load the shipped weights (or ``$PANOGRF_WEIGHTS``). Tests
+  inject other networks by passing their own `Models` where a function takes ``models``, or by
+  replacing this function (``monkeypatch.setattr(session, "default_models", ...)``).
+- `weight_files`: every weights file a method's preparation reads, which is what a cached
+  preparation must be keyed by.
+- `prepare_scene`: load a scene folder and prepare it (depth and renderer caches, from the
+  on-disk cache when valid) with the given `Models`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from panogrf.app.errors import UserError
+from panogrf.renderer.methods import METHODS, Models, SourceViews
+
+
+def default_models() -> Models:
+    """`Models` that load the shipped weights (each network once per process)."""
+    from panogrf.app.depth_weights import NETWORKS, load_depth_estimator, load_renderer
+
+    def estimator(mode: str):
+        return load_depth_estimator(NETWORKS[mode])
+
+    return Models(estimator=estimator, renderer=load_renderer)
+
+
+def weight_files(method: str = "panogrf") -> list[Path]:
+    """The weights files ``method``'s preparation reads: the monocular network, every MVS
+    network its depth mode loads (mode full also runs the unguided network for the fusion)
+    and its renderer."""
+    from panogrf.app import depth_weights as dw
+
+    spec = METHODS[method]
+    names = []
+    if spec.depth_mode is not None:
+        names.append(dw.WEIGHTS["mono"])
+        names += [dw.WEIGHTS[net] for net in dw.NETWORKS[spec.depth_mode]]
+    if spec.renderer is not None:
+        names.append(dw.RENDERER_WEIGHTS[spec.renderer])
+    return [dw.weights_path(name) for name in names]
+
+
+@dataclass
+class PreparedScene:
+    """A scene ready to render: its files, its source views (depth and caches filled) and the
+    networks that prepared it."""
+
+    scene: object  # panogrf.app.scene.Scene
+    views: SourceViews
+    models: Models
+    cache: object  # panogrf.app.scene_cache.CacheResult
+
+
+def prepare_scene(
+    scene_dir: Path, cache_dir: Path | None, models: Models | None = None, log=print
+) -> PreparedScene:
+    """Load the scene folder and prepare PanoGRF's depth and caches with ``models`` (default:
+    the shipped weights), reading or writing the on-disk cache in ``cache_dir`` (default
+    ``~/.cache/panogrf``)."""
+    import time
+
+    from panogrf.app.scene import load_scene
+    from panogrf.app.scene_cache import DEPTH_MODE, PRESET, CacheResult, prepare_cached
+
+    scene = load_scene(scene_dir, load_images=True)
+    views = SourceViews(scene.images.images, scene.images.c2w)
+    log(f"preparing {scene_dir} ({scene.num_views} views, {scene.width}x{scene.height})...")
+    if models is None:
+        models = default_models()
+        files = weight_files("panogrf")
+        missing = [p.name for p in files if not p.exists()]
+        if missing:
+            raise UserError(f"missing weights {missing}: reproduce them with `panogrf train`")
+        result = prepare_cached(views, models, cache_dir, files)
+    else:
+        # Other networks than the shipped files: the disk cache (keyed by those files) is
+        # neither read nor written.
+        start = time.perf_counter()
+        views.cache_for(PRESET, DEPTH_MODE, models)
+        result = CacheResult(Path("-"), "computed (given networks, not cached)", 0.0)
+        result.seconds = time.perf_counter() - start
+    log(f"scene {result.status} in {result.seconds:.2f} s ({result.path})")
+    return PreparedScene(scene, views, models, result)
