@@ -41,6 +41,11 @@ RENDERER_WEIGHTS = {
 }
 
 
+# Config fields added after some shipped weights were trained, with the value those weights
+# implicitly have.
+ADDED_DEFAULTS = {"trunk": 0}
+
+
 def weights_path(name: str) -> Path:
     """Where the weights file ``name`` is read from: ``$PANOGRF_WEIGHTS/name`` or the asset."""
     folder = os.environ.get("PANOGRF_WEIGHTS")
@@ -56,8 +61,13 @@ def _load(module: torch.nn.Module, path: Path, expected_config: dict) -> None:
     if not path.exists():
         raise UserError(f"missing weights {path}: reproduce them with `panogrf train` (see README)")
     stored = json.loads(_metadata(path).get("config", "{}"))
-    # Tuples become lists in JSON; compare as JSON.
-    if stored and json.loads(json.dumps(expected_config)) != stored:
+    # Tuples become lists in JSON; compare as JSON. A field added to a config after the weights
+    # were trained is absent from their metadata: it matches when the code has it at its default.
+    expected = json.loads(json.dumps(expected_config))
+    if stored and any(k not in expected for k in stored):
+        raise UserError(f"{path}: trained with config {stored}, the code expects {expected}")
+    stored = {**{k: v for k, v in ADDED_DEFAULTS.items() if k in expected}, **stored}
+    if stored and expected != stored:
         raise UserError(f"{path}: trained with config {stored}, the code expects {expected_config}")
     module.load_state_dict(load_file(str(path)))
     module.eval().requires_grad_(False)
@@ -70,8 +80,14 @@ def load_depth_estimator(
     """The depth estimator with the monocular network and the MVS networks of ``modes``."""
     from dataclasses import asdict
 
-    mono = MonoDepthNet(MonoDepthConfig())
-    _load(mono, weights_path(WEIGHTS["mono"]), asdict(mono.config))
+    path = weights_path(WEIGHTS["mono"])
+    # The monocular network is built as it was trained (with or without the pretrained trunk).
+    stored = json.loads(_metadata(path).get("config", "{}")) if path.exists() else {}
+    try:
+        mono = MonoDepthNet(MonoDepthConfig.from_dict(stored))
+    except (TypeError, ValueError) as exc:
+        raise UserError(f"{path}: unknown monocular network config {stored}: {exc}") from None
+    _load(mono, path, asdict(mono.config))
     mvs = {}
     for mode in modes:
         net = MVSNet(PRESETS[mode])

@@ -6,6 +6,11 @@ ERP grid and fused into the ERP branch (unidirectional: cube -> ERP), as in UniF
 decoder turns the fused features into spherical depth ``d_max * sigmoid(x)``; its mid-level
 feature map is what the MVS decoder also reads (PanoGRF code).
 
+Optionally (``MonoDepthConfig.trunk``) the first convolutions of an ImageNet-pretrained AlexNet,
+frozen, add their features to the ERP branch at 1/4, 1/8 and 1/16: features learned from real
+photographs, which carry over to real captures where features learned only from our synthetic
+rooms do not. UniFuse and PanoGRF start from an ImageNet ResNet-18 for the same reason.
+
 Sized for a 2-core CPU: a few hundred thousand parameters at 128 x 256.
 """
 
@@ -32,6 +37,16 @@ class MonoDepthConfig:
     """Largest depth the network can output (metres)."""
     feature_channels: int = 24
     """Channels of the mid-level decoder feature map handed to the MVS decoder (at 1/2)."""
+    trunk: int = 0
+    """Convolutions (0-3) of an ImageNet-pretrained AlexNet, frozen, whose features join the
+    ERP branch at 1/4, 1/8 and 1/16 (`PretrainedTrunk`). Features learned from real photographs
+    carry over to real captures where features learned from our renders do not (the paper's
+    mono network starts from an ImageNet ResNet-18 for the same reason). 0: none."""
+
+    @classmethod
+    def from_dict(cls, stored: dict) -> MonoDepthConfig:
+        """The config as stored with trained weights (JSON: tuples came back as lists)."""
+        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in stored.items()})
 
 
 def _block(cin: int, cout: int, stride: int, circular: bool) -> nn.Sequential:
@@ -127,6 +142,67 @@ class ErpToCube(nn.Module):
         return out.reshape(b, c, 6, face, face).permute(0, 2, 1, 3, 4).reshape(b * 6, c, face, face)
 
 
+# torchvision AlexNet ``features`` (in, out, kernel, stride, padding); a 3x3/2 max-pool follows
+# the first two. The same layout as `panogrf.model.lpips` (whose weights fill it).
+_ALEX = ((3, 64, 11, 4, 2), (64, 192, 5, 1, 2), (192, 384, 3, 1, 1))
+# Input pixel on which output pixel 0 of each convolution is centred (output j: stride*j + this).
+_CENTRE = (3, 7, 15)
+
+
+class PretrainedTrunk(nn.Module):
+    """The first ``layers`` AlexNet convolutions on an ERP image, frozen: ImageNet-normalised
+    [B, 3, H, W] -> feature maps at 1/4, 1/8, 1/16 (ReLU after each convolution).
+
+    ERP wraps in width: the image is padded circularly by ``wrap`` pixels before the trunk and
+    the features are resampled at the centres of the 1/4, 1/8, 1/16 grids. Its weights come
+    from the bundled LPIPS AlexNet (``convs.{i}.*``, loaded by the training code) and are stored
+    with the network; they never train (``requires_grad`` off, no batch norm inside).
+    """
+
+    wrap = 64  # > half the receptive field of the third convolution (99 px): seamless
+
+    def __init__(self, layers: int) -> None:
+        super().__init__()
+        self.convs = nn.ModuleList(
+            nn.Conv2d(cin, cout, k, stride=s, padding=p) for cin, cout, k, s, p in _ALEX[:layers]
+        )
+        self.requires_grad_(False)
+
+    @property
+    def channels(self) -> list[int]:
+        return [conv.out_channels for conv in self.convs]
+
+    def forward(self, x: Tensor) -> list[Tensor]:
+        h, w = x.shape[-2:]
+        p = self.wrap
+        y = torch.cat((x[..., -p:], x, x[..., :p]), -1)
+        feats = []
+        for i, conv in enumerate(self.convs):
+            if i > 0:
+                y = F.max_pool2d(y, 3, 2)
+            y = F.relu(conv(y))
+            feats.append(self._on_grid(y, 4 * 2**i, _CENTRE[i], h, w))
+        return feats
+
+    def _on_grid(self, y: Tensor, stride: int, centre: int, h: int, w: int) -> Tensor:
+        """Feature map y (output column j centred on padded input pixel stride * j + centre)
+        sampled at the centres of the h/stride x w/stride grid of the unpadded image. The
+        offset is the same for every cell, so a turn by a multiple of ``stride`` pixels turns
+        the result by whole cells."""
+        rows, cols = y.shape[-2:]
+        gy = (stride * torch.arange(h // stride) + (stride - 1) / 2 - centre) / stride
+        gx = (stride * torch.arange(w // stride) + (stride - 1) / 2 + self.wrap - centre) / stride
+        grid = torch.stack(
+            (
+                (2 * gx / max(cols - 1, 1) - 1)[None, :].expand(len(gy), -1),
+                (2 * gy / max(rows - 1, 1) - 1)[:, None].expand(-1, len(gx)),
+            ),
+            -1,
+        ).to(y)
+        grid = grid[None].expand(y.shape[0], -1, -1, -1)
+        return F.grid_sample(y, grid, mode="bilinear", padding_mode="border", align_corners=True)
+
+
 class _Fuse(nn.Module):
     """ERP <- cube fusion at one scale: the ERP feature plus a gated projection of both."""
 
@@ -170,6 +246,17 @@ class MonoDepthNet(nn.Module):
         self.erp_encoder = _Encoder(ch, circular=True)
         self.cube_encoder = _Encoder(ch, circular=False)
         self.fuse = nn.ModuleList(_Fuse(c) for c in ch)
+        if config.trunk:
+            if not 0 < config.trunk <= len(_ALEX) or config.trunk > len(ch) - 1:
+                raise ValueError(f"trunk must be 0-{min(len(_ALEX), len(ch) - 1)}")
+            self.trunk = PretrainedTrunk(config.trunk)
+            # Zero-initialised projections: a network without the trunk is the starting point.
+            self.from_trunk = nn.ModuleList(
+                nn.Conv2d(c, ch[i + 1], 1) for i, c in enumerate(self.trunk.channels)
+            )
+            for proj in self.from_trunk:
+                nn.init.zeros_(proj.weight)
+                nn.init.zeros_(proj.bias)
         self.to_cube = ErpToCube()
         self.to_erp = CubeToErp()
         ups = []
@@ -193,6 +280,11 @@ class MonoDepthNet(nn.Module):
         fused = []
         for erp_f, cube_f, fuse in zip(erp_feats, cube_feats, self.fuse, strict=True):
             fused.append(fuse(erp_f, self.to_erp(cube_f, *erp_f.shape[-2:])))
+        if self.config.trunk:
+            with torch.no_grad():
+                pre = self.trunk(x)
+            for i, (feat, proj) in enumerate(zip(pre, self.from_trunk, strict=True)):
+                fused[i + 1] = fused[i + 1] + proj(feat)
         y = fused[-1]
         for up, skip in zip(self.ups, reversed(fused[:-1]), strict=True):
             y = up(y, skip)

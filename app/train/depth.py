@@ -64,6 +64,9 @@ class TrainDepthConfig:
     mono_noise: float = 0.5
     """Stage mvs, mono-guided: fraction of pairs whose monocular depth is corrupted
     (`corrupt_mono`), so the fusion learns to check its prior."""
+    trunk: int = 0
+    """Stage mono: frozen pretrained AlexNet convolutions feeding the network
+    (`MonoDepthConfig.trunk`), filled from the bundled LPIPS weights."""
     extra: dict = field(default_factory=dict)
     """Free-form notes stored with the weights."""
 
@@ -137,9 +140,11 @@ def train_mono(cfg: TrainDepthConfig, log=print) -> dict:
     data = load_triplets(cfg.data, cfg.height, cfg.limit_scenes)
     train, val = _split(data, cfg.val_scenes)
     log(f"mono: {len(train)} train scenes ({3 * len(train)} panoramas), {len(val)} validation")
-    net = MonoDepthNet(MonoDepthConfig())
-    _init(net, cfg.init, log)
-    opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
+    net = MonoDepthNet(MonoDepthConfig(trunk=cfg.trunk))
+    _init(net, cfg.init, log, new=("trunk.", "from_trunk."))
+    if cfg.trunk:
+        _fill_trunk(net, log)
+    opt = torch.optim.Adam([p for p in net.parameters() if p.requires_grad], lr=cfg.lr)
     gen = torch.Generator().manual_seed(cfg.seed)
     start, running = time.perf_counter(), 0.0
     for step in range(1, cfg.steps + 1):
@@ -175,14 +180,32 @@ def train_mono(cfg: TrainDepthConfig, log=print) -> dict:
     return figures
 
 
-def _init(net: torch.nn.Module, path: Path | None, log) -> None:
-    """Load starting weights into ``net`` (strict: the same network) when a path is given."""
+def _init(net: torch.nn.Module, path: Path | None, log, new: tuple[str, ...] = ()) -> None:
+    """Load starting weights into ``net`` when a path is given: the same network, except that
+    parameters whose names start with one of ``new`` may be absent (they keep their
+    initialisation: parts added to a trained network)."""
     if path is None:
         return
     from safetensors.torch import load_file
 
-    net.load_state_dict(load_file(str(path)))
-    log(f"initialised from {path}")
+    missing, unexpected = net.load_state_dict(load_file(str(path)), strict=False)
+    wrong = [k for k in missing if not k.startswith(new)] + list(unexpected)
+    if wrong:
+        raise ValueError(f"{path} does not fit the network: {wrong[:6]}")
+    log(f"initialised from {path}" + (f" ({len(missing)} new tensors)" if missing else ""))
+
+
+def _fill_trunk(net: MonoDepthNet, log) -> None:
+    """Copy the bundled ImageNet AlexNet convolutions (LPIPS asset) into the frozen trunk."""
+    from safetensors.torch import load_file
+
+    from panogrf import assets
+    from panogrf.app.lpips_weights import ASSET_NAME
+
+    alex = load_file(str(assets.path(ASSET_NAME)))
+    state = {k: alex[k].float() for k in net.trunk.state_dict()}  # convs.{i}.weight / bias
+    net.trunk.load_state_dict(state)
+    log(f"trunk: {len(net.trunk.convs)} ImageNet AlexNet convolutions from {ASSET_NAME}, frozen")
 
 
 def _mvs_batch(data: TripletSet, gen: torch.Generator, batch: int, augment: bool = False):
@@ -219,10 +242,19 @@ def load_mono(path: Path) -> MonoDepthNet:
     """The trained monocular network from safetensors, frozen, in eval mode."""
     from safetensors.torch import load_file
 
-    net = MonoDepthNet(MonoDepthConfig())
+    net = MonoDepthNet(mono_config(path))
     net.load_state_dict(load_file(str(path)))
     net.eval().requires_grad_(False)
     return net
+
+
+def mono_config(path: Path) -> MonoDepthConfig:
+    """The monocular network's config as stored with its weights (the default when absent)."""
+    from safetensors import safe_open
+
+    with safe_open(str(path), framework="pt") as f:
+        stored = (f.metadata() or {}).get("config")
+    return MonoDepthConfig.from_dict(json.loads(stored)) if stored else MonoDepthConfig()
 
 
 @torch.no_grad()

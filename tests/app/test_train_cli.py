@@ -42,6 +42,32 @@ def test_train_mono_then_mvs_smoke(tiny_train, tmp_path, capsys):
     assert "step     2" in log and "final" in log
 
 
+@pytest.mark.gl
+def test_train_mono_with_the_pretrained_trunk(tiny_train, tmp_path):
+    """--trunk fills the frozen AlexNet convolutions from the bundled LPIPS weights; training
+    leaves them as they were, and the mono-guided MVS trains on the result."""
+    from safetensors.torch import load_file
+
+    from panogrf import assets
+    from panogrf.app.train.depth import load_mono
+
+    mono = tmp_path / "mono.safetensors"
+    common = ["--data", str(tiny_train), "--steps", "2", "--batch", "2", "--height", "32"]
+    args = ["train", "depth", "--stage", "mono", "--trunk", "2", "--out", str(mono)]
+    assert main([*args, *common]) == 0
+    alex = load_file(str(assets.path("lpips_alex.safetensors")))
+    trained = load_file(str(mono))
+    for key in ("convs.0.weight", "convs.1.bias"):
+        assert torch.equal(trained[f"trunk.{key}"], alex[key].float())
+    assert "trunk.convs.2.weight" not in trained
+    assert load_mono(mono).config.trunk == 2
+    out = tmp_path / "full.safetensors"
+    args = ["train", "depth", "--stage", "mvs", "--preset", "full", "--out", str(out)]
+    assert main([*args, "--mono", str(mono), *common]) == 0
+    bad = ["train", "depth", "--stage", "mono", "--trunk", "5", "--out", str(mono), *common]
+    assert main(bad) == 2
+
+
 def test_train_errors(tmp_path, capsys):
     assert (
         main(["train", "depth", "--data", str(tmp_path), "--stage", "mono", "--out", "x.pt"]) == 2
