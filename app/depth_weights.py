@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import os
+from dataclasses import replace
 from functools import lru_cache
 from pathlib import Path
 
@@ -19,7 +20,7 @@ from panogrf.app.errors import UserError
 from panogrf.assets import path as asset_path
 from panogrf.model.depth import DepthEstimator
 from panogrf.model.mono import MonoDepthConfig, MonoDepthNet
-from panogrf.model.mvs import PRESETS, MVSNet
+from panogrf.model.mvs import PRESETS, MVSConfig, MVSNet
 from panogrf.model.render_net import PRESETS as RENDERER_PRESETS
 from panogrf.model.render_net import RendererNet
 
@@ -73,6 +74,16 @@ def _load(module: torch.nn.Module, path: Path, expected_config: dict) -> None:
     module.eval().requires_grad_(False)
 
 
+def _stored_mvs_config(path: Path, mode: str) -> MVSConfig:
+    """The preset of ``mode`` with the trunk the weights were trained with (the rest must be
+    the preset: a file of another mode is refused by the config check)."""
+    stored = json.loads(_metadata(path).get("config", "{}")) if path.exists() else {}
+    trunk = stored.get("trunk", 0)
+    if not isinstance(trunk, int) or not 0 <= trunk <= 2:
+        raise UserError(f"{path}: unknown MVS trunk {trunk!r}")
+    return replace(PRESETS[mode], trunk=trunk)
+
+
 @lru_cache(maxsize=4)
 def load_depth_estimator(
     modes: tuple[str, ...] = ("full", "mvs"), device: str = "cpu"
@@ -90,8 +101,10 @@ def load_depth_estimator(
     _load(mono, path, asdict(mono.config))
     mvs = {}
     for mode in modes:
-        net = MVSNet(PRESETS[mode])
-        _load(net, weights_path(WEIGHTS[mode]), asdict(net.config))
+        path = weights_path(WEIGHTS[mode])
+        config = _stored_mvs_config(path, mode)
+        net = MVSNet(config)
+        _load(net, path, asdict(net.config))
         mvs[mode] = net
     return DepthEstimator(mono, mvs).to(device).eval()
 

@@ -50,6 +50,10 @@ class MVSConfig:
     """Feed the monocular depth and features to the decoder."""
     mono_feature_channels: int = 24
     """Channels of the monocular feature map (MonoDepthConfig.feature_channels)."""
+    trunk: int = 0
+    """Frozen ImageNet AlexNet convolutions (0-2; `panogrf.model.mono.PretrainedTrunk`) whose
+    features at 1/4 (and 1/8) join the matching features: features learned from real
+    photographs, which match real captures where features learned from our renders do not."""
 
     @property
     def num_candidates(self) -> int:
@@ -222,6 +226,17 @@ class MVSNet(nn.Module):
         self.feat_quarter = nn.Sequential(
             _conv2(fc, fc, 2), _conv2(fc, fc), CircularConv2d(fc, fc, 1)
         )
+        if config.trunk:
+            from panogrf.model.mono import PretrainedTrunk
+
+            if not 0 < config.trunk <= 2:
+                raise ValueError("MVS trunk must be 0-2")
+            self.trunk = PretrainedTrunk(config.trunk)
+            # Zero-initialised: a network without the trunk is the starting point.
+            self.from_trunk = nn.ModuleList(nn.Conv2d(c, fc, 1) for c in self.trunk.channels)
+            for proj in self.from_trunk:
+                nn.init.zeros_(proj.weight)
+                nn.init.zeros_(proj.bias)
         self.regularizer = CostRegularizer(config.cost_groups, config.volume_channels)
         d = config.num_candidates
         mono_in = 1 + config.mono_feature_channels if config.use_mono else 0
@@ -238,8 +253,18 @@ class MVSNet(nn.Module):
 
     def features(self, image: Tensor) -> tuple[Tensor, Tensor]:
         """Matching features at 1/4 and decoder features at 1/2 of [B, 3, H, W]."""
-        half = self.feat_half((image - self.mean) / self.std)
-        return self.feat_quarter(half), half
+        x = (image - self.mean) / self.std
+        half = self.feat_half(x)
+        quarter = self.feat_quarter(half)
+        if self.config.trunk:
+            with torch.no_grad():
+                pre = self.trunk(x)
+            for feat, proj in zip(pre, self.from_trunk, strict=True):
+                up = proj(feat)
+                if up.shape[-2:] != quarter.shape[-2:]:
+                    up = F.interpolate(up, size=quarter.shape[-2:], mode="bilinear")
+                quarter = quarter + up
+        return quarter, half
 
     def forward(
         self,

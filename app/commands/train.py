@@ -65,8 +65,8 @@ def register(subparsers) -> None:
         "--trunk",
         type=int,
         default=0,
-        help="stage mono: frozen ImageNet AlexNet convolutions (0-3) feeding the network "
-        "(default 0: none; the shipped network uses 3)",
+        help="frozen ImageNet AlexNet convolutions feeding the network: 0-3 for mono, 0-2 for "
+        "mvs (default 0: none)",
     )
     depth.set_defaults(func=run_depth)
 
@@ -179,8 +179,9 @@ def run_depth(args: argparse.Namespace) -> int:
         raise UserError("--steps and --batch must be at least 1")
     if args.height % 32:
         raise UserError(f"--height must be a multiple of 32, got {args.height}")
-    if not 0 <= args.trunk <= 3:
-        raise UserError(f"--trunk must be 0-3, got {args.trunk}")
+    top = 3 if args.stage == "mono" else 2
+    if not 0 <= args.trunk <= top:
+        raise UserError(f"--trunk must be 0-{top} for stage {args.stage}, got {args.trunk}")
     if (
         args.stage == "mvs"
         and args.preset == "full"

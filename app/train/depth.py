@@ -13,7 +13,7 @@ import json
 import math
 import sys
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import torch
@@ -65,8 +65,8 @@ class TrainDepthConfig:
     """Stage mvs, mono-guided: fraction of pairs whose monocular depth is corrupted
     (`corrupt_mono`), so the fusion learns to check its prior."""
     trunk: int = 0
-    """Stage mono: frozen pretrained AlexNet convolutions feeding the network
-    (`MonoDepthConfig.trunk`), filled from the bundled LPIPS weights."""
+    """Frozen pretrained AlexNet convolutions feeding the network (`MonoDepthConfig.trunk`,
+    `MVSConfig.trunk`), filled from the bundled LPIPS weights."""
     extra: dict = field(default_factory=dict)
     """Free-form notes stored with the weights."""
 
@@ -195,7 +195,7 @@ def _init(net: torch.nn.Module, path: Path | None, log, new: tuple[str, ...] = (
     log(f"initialised from {path}" + (f" ({len(missing)} new tensors)" if missing else ""))
 
 
-def _fill_trunk(net: MonoDepthNet, log) -> None:
+def _fill_trunk(net: torch.nn.Module, log) -> None:
     """Copy the bundled ImageNet AlexNet convolutions (LPIPS asset) into the frozen trunk."""
     from safetensors.torch import load_file
 
@@ -288,7 +288,7 @@ def train_mvs(cfg: TrainDepthConfig, log=print) -> dict:
     torch.manual_seed(cfg.seed)
     data = load_triplets(cfg.data, cfg.height, cfg.limit_scenes)
     train, val = _split(data, cfg.val_scenes)
-    mvs_cfg = PRESETS[cfg.mvs_preset]
+    mvs_cfg = replace(PRESETS[cfg.mvs_preset], trunk=cfg.trunk)
     needs_mono = mvs_cfg.use_mono or mvs_cfg.n_mono > 0
     mono = load_mono(cfg.mono_weights) if needs_mono else None
     log(
@@ -296,8 +296,10 @@ def train_mvs(cfg: TrainDepthConfig, log=print) -> dict:
         f"mono input={mvs_cfg.use_mono}): {len(train)} train scenes, {len(val)} validation"
     )
     net = MVSNet(mvs_cfg)
-    _init(net, cfg.init, log)
-    opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
+    _init(net, cfg.init, log, new=("trunk.", "from_trunk."))
+    if cfg.trunk:
+        _fill_trunk(net, log)
+    opt = torch.optim.Adam([p for p in net.parameters() if p.requires_grad], lr=cfg.lr)
     gen = torch.Generator().manual_seed(cfg.seed)
     start, running = time.perf_counter(), 0.0
     for step in range(1, cfg.steps + 1):

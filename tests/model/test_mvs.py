@@ -436,3 +436,25 @@ def test_mvsnet_runs_on_cuda():
     with torch.no_grad():
         out = net(*(a.cuda() for a in args))
     assert out.depth.is_cuda and bool(torch.isfinite(out.depth).all())
+
+
+def test_a_zero_trunk_projection_leaves_the_mvs_as_it_was():
+    """`MVSConfig.trunk`: frozen pretrained features added to the matching features through
+    zero-initialised projections; wired in (a non-zero projection changes the depth)."""
+    from dataclasses import replace
+
+    torch.manual_seed(0)
+    plain = MVSNet(PRESETS["mvs"]).eval()
+    with_trunk = MVSNet(replace(PRESETS["mvs"], trunk=2)).eval()
+    missing, unexpected = with_trunk.load_state_dict(plain.state_dict(), strict=False)
+    assert not unexpected and all(k.startswith(("trunk.", "from_trunk.")) for k in missing)
+    ref, src = torch.rand(1, 3, 64, 128), torch.rand(1, 1, 3, 64, 128)
+    ref_c2w, src_c2w = torch.eye(4)[None], torch.eye(4)[None, None].clone()
+    src_c2w[..., 0, 3] = 1.0
+    assert torch.equal(
+        plain(ref, src, ref_c2w, src_c2w).depth, with_trunk(ref, src, ref_c2w, src_c2w).depth
+    )
+    torch.nn.init.normal_(with_trunk.from_trunk[1].weight, std=0.5)
+    out = with_trunk(ref, src, ref_c2w, src_c2w).depth
+    assert not torch.allclose(plain(ref, src, ref_c2w, src_c2w).depth, out)
+    assert all(not p.requires_grad for p in with_trunk.trunk.parameters())
