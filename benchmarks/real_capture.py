@@ -14,6 +14,8 @@ height and scored (PSNR, WS-PSNR, SSIM, LPIPS). Depth: the first and last views,
 other's source, estimated by every depth mode (mono, MVS-only, full) and compared with the
 ground truth at the dataset's resolution on 0 < gt <= d_max. ``--picture`` writes the true
 middle view, PanoGRF, MVS-only and meshwarp stacked (into the ignored data folder by default).
+``--gt-depth`` adds a diagnostic row, ``gt_depth``: PanoGRF's renderer with the two sources'
+ground-truth depth in place of the estimate (what the renderer does when the depth is right).
 """
 
 from __future__ import annotations
@@ -58,6 +60,19 @@ def depth_scores(models, views, data, mode: str) -> dict[str, float]:
     return dict(zip(DEPTH_KEYS, np.mean(rows, axis=0).tolist(), strict=True))
 
 
+def _with_true_depth(views, data, models):
+    """A copy of ``views`` whose full-mode depth is the sources' ground truth at the estimator's
+    working resolution (pixels without ground truth: the estimate)."""
+    from panogrf.renderer.methods import SourceViews
+
+    est = views.depth_for("full", models)
+    gt = data.depths[[0, 2]].float()
+    gt = torch.nn.functional.interpolate(gt, size=est.shape[-2:], mode="nearest")
+    out = SourceViews(views.images, views.c2w, gains=views.gains)
+    out.depth["full"] = torch.where(gt > 0, gt, est)
+    return out
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--data", type=Path, default=Path("data/real"))
@@ -69,6 +84,9 @@ def main() -> int:
         "--picture", type=Path, default=None, help="comparison PNG (default DATA/comparison.png)"
     )
     parser.add_argument("--threads", type=int, default=0)
+    parser.add_argument(
+        "--gt-depth", action="store_true", help="also render with the sources' true depth"
+    )
     args = parser.parse_args()
     if not (args.data / "dataset.json").exists():
         print(
@@ -88,6 +106,8 @@ def main() -> int:
 
     heights = [int(h) for h in args.heights.split(",")]
     methods = [m for m in args.methods.split(",") if m]
+    if args.gt_depth:
+        methods.append("gt_depth")
     models = default_models()
     image_rows: dict[tuple[str, int], list[dict]] = {}
     depth_rows: dict[str, list[dict]] = {m: [] for m in DEPTH_MODES}
@@ -101,10 +121,13 @@ def main() -> int:
             depth_rows[mode].append(depth_scores(models, views, data, mode))
         renders = {}
         for method in methods:
-            prepare(method, views, models)
+            method_views, render_as = views, method
+            if method == "gt_depth":
+                method_views, render_as = _with_true_depth(views, data, models), "panogrf"
+            prepare(render_as, method_views, models)
             for h in heights:
                 t0 = time.perf_counter()
-                rgb = render_view(method, views, data.c2w[1], h, models, args.quality)
+                rgb = render_view(render_as, method_views, data.c2w[1], h, models, args.quality)
                 sec = time.perf_counter() - t0
                 scores = image_scores(rgb, data.images[1:2]) | {"seconds": sec}
                 image_rows.setdefault((method, h), []).append(scores)
