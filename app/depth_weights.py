@@ -74,6 +74,20 @@ def _load(module: torch.nn.Module, path: Path, expected_config: dict) -> None:
     module.eval().requires_grad_(False)
 
 
+def load_mono_weights(path: Path) -> MonoDepthNet:
+    """The monocular network in ``path``, built as it was trained (with or without the
+    pretrained trunk), frozen, in eval mode."""
+    from dataclasses import asdict
+
+    stored = json.loads(_metadata(path).get("config", "{}")) if path.exists() else {}
+    try:
+        mono = MonoDepthNet(MonoDepthConfig.from_dict(stored))
+    except (TypeError, ValueError) as exc:
+        raise UserError(f"{path}: unknown monocular network config {stored}: {exc}") from None
+    _load(mono, path, asdict(mono.config))
+    return mono
+
+
 def _stored_mvs_config(path: Path, mode: str) -> MVSConfig:
     """The preset of ``mode`` with the trunk the weights were trained with (the rest must be
     the preset: a file of another mode is refused by the config check)."""
@@ -91,14 +105,7 @@ def load_depth_estimator(
     """The depth estimator with the monocular network and the MVS networks of ``modes``."""
     from dataclasses import asdict
 
-    path = weights_path(WEIGHTS["mono"])
-    # The monocular network is built as it was trained (with or without the pretrained trunk).
-    stored = json.loads(_metadata(path).get("config", "{}")) if path.exists() else {}
-    try:
-        mono = MonoDepthNet(MonoDepthConfig.from_dict(stored))
-    except (TypeError, ValueError) as exc:
-        raise UserError(f"{path}: unknown monocular network config {stored}: {exc}") from None
-    _load(mono, path, asdict(mono.config))
+    mono = load_mono_weights(weights_path(WEIGHTS["mono"]))
     mvs = {}
     for mode in modes:
         path = weights_path(WEIGHTS[mode])

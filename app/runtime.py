@@ -44,3 +44,17 @@ def thread_count(text: str) -> int:
     if value < 0:
         raise argparse.ArgumentTypeError(f"expected 0 (all cores) or more, got {value}")
     return value
+
+
+def metres_list(text: str) -> tuple[float, ...]:
+    """argparse type of a comma-separated list of baselines in metres, each 0.05-5 m (an empty
+    text gives an empty tuple)."""
+    import argparse
+
+    try:
+        values = tuple(float(x) for x in text.split(",") if x.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated metres, got {text!r}") from None
+    if any(not 0.05 <= v <= 5.0 for v in values):
+        raise argparse.ArgumentTypeError(f"baselines must be between 0.05 and 5 m, got {text!r}")
+    return values

@@ -84,7 +84,7 @@ def prepare_scene(
         # neither read nor written.
         start = time.perf_counter()
         views.cache_for(PRESET, DEPTH_MODE, models)
-        result = CacheResult(Path("-"), "computed (given networks, not cached)", 0.0)
-        result.seconds = time.perf_counter() - start
+        seconds = time.perf_counter() - start
+        result = CacheResult(Path("-"), "computed (given networks, not cached)", seconds)
     log(f"scene {result.status} in {result.seconds:.2f} s ({result.path})")
     return PreparedScene(scene, views, models, result)

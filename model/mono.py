@@ -168,9 +168,16 @@ class PretrainedTrunk(nn.Module):
         )
         self.requires_grad_(False)
 
-    @property
-    def channels(self) -> list[int]:
-        return [conv.out_channels for conv in self.convs]
+    def projections(self, widths: list[int]) -> nn.ModuleList:
+        """1x1 convolutions from each trunk level to ``widths``, zero-initialised: a network
+        with the trunk added starts out as the network without it."""
+        projs = nn.ModuleList(
+            nn.Conv2d(conv.out_channels, w, 1) for conv, w in zip(self.convs, widths, strict=True)
+        )
+        for proj in projs:
+            nn.init.zeros_(proj.weight)
+            nn.init.zeros_(proj.bias)
+        return projs
 
     def forward(self, x: Tensor) -> list[Tensor]:
         h, w = x.shape[-2:]
@@ -250,13 +257,7 @@ class MonoDepthNet(nn.Module):
             if not 0 < config.trunk <= len(_ALEX) or config.trunk > len(ch) - 1:
                 raise ValueError(f"trunk must be 0-{min(len(_ALEX), len(ch) - 1)}")
             self.trunk = PretrainedTrunk(config.trunk)
-            # Zero-initialised projections: a network without the trunk is the starting point.
-            self.from_trunk = nn.ModuleList(
-                nn.Conv2d(c, ch[i + 1], 1) for i, c in enumerate(self.trunk.channels)
-            )
-            for proj in self.from_trunk:
-                nn.init.zeros_(proj.weight)
-                nn.init.zeros_(proj.bias)
+            self.from_trunk = self.trunk.projections(list(ch[1 : 1 + config.trunk]))
         self.to_cube = ErpToCube()
         self.to_erp = CubeToErp()
         ups = []

@@ -232,11 +232,7 @@ class MVSNet(nn.Module):
             if not 0 < config.trunk <= 2:
                 raise ValueError("MVS trunk must be 0-2")
             self.trunk = PretrainedTrunk(config.trunk)
-            # Zero-initialised: a network without the trunk is the starting point.
-            self.from_trunk = nn.ModuleList(nn.Conv2d(c, fc, 1) for c in self.trunk.channels)
-            for proj in self.from_trunk:
-                nn.init.zeros_(proj.weight)
-                nn.init.zeros_(proj.bias)
+            self.from_trunk = self.trunk.projections([fc] * config.trunk)
         self.regularizer = CostRegularizer(config.cost_groups, config.volume_channels)
         d = config.num_candidates
         mono_in = 1 + config.mono_feature_channels if config.use_mono else 0

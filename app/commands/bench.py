@@ -22,17 +22,7 @@ from pathlib import Path
 import torch
 
 from panogrf.app.errors import UserError
-from panogrf.app.runtime import thread_count
-
-
-def _metres(text: str) -> tuple[float, ...]:
-    try:
-        values = tuple(float(x) for x in text.split(",") if x.strip())
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated metres, got {text!r}") from None
-    if any(not 0.05 <= v <= 5.0 for v in values):
-        raise argparse.ArgumentTypeError(f"baselines must be between 0.05 and 5 m, got {text!r}")
-    return values
+from panogrf.app.runtime import metres_list, thread_count
 
 
 def register(subparsers) -> None:
@@ -56,7 +46,7 @@ def register(subparsers) -> None:
     parser.add_argument("--scenes", type=int, default=1, help="triplets per baseline (default 1)")
     parser.add_argument(
         "--baselines",
-        type=_metres,
+        type=metres_list,
         default=None,
         help="baselines (m) to score (default: 1.0,1.5,2.0 for a dataset, all for a folder)",
     )
@@ -89,7 +79,7 @@ def register(subparsers) -> None:
     )
     parser.add_argument(
         "--sweep",
-        type=_metres,
+        type=metres_list,
         default=SWEEP_BASELINES,
         help=f"sweep baselines in m (default {','.join(f'{b:g}' for b in SWEEP_BASELINES)}; "
         "'' for none)",

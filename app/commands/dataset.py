@@ -7,14 +7,12 @@ import json
 from pathlib import Path
 
 from panogrf.app.errors import UserError
+from panogrf.app.runtime import metres_list
 
 
 def _baselines(text: str) -> tuple[float, ...]:
-    try:
-        values = tuple(float(x) for x in text.split(",") if x.strip())
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated metres, got {text!r}") from None
-    if not values or any(not 0.05 <= v <= 5.0 for v in values):
+    values = metres_list(text)
+    if not values:
         raise argparse.ArgumentTypeError(f"baselines must be between 0.05 and 5 m, got {text!r}")
     return values
 

@@ -240,21 +240,9 @@ def _mvs_batch(data: TripletSet, gen: torch.Generator, batch: int, augment: bool
 
 def load_mono(path: Path) -> MonoDepthNet:
     """The trained monocular network from safetensors, frozen, in eval mode."""
-    from safetensors.torch import load_file
+    from panogrf.app.depth_weights import load_mono_weights
 
-    net = MonoDepthNet(mono_config(path))
-    net.load_state_dict(load_file(str(path)))
-    net.eval().requires_grad_(False)
-    return net
-
-
-def mono_config(path: Path) -> MonoDepthConfig:
-    """The monocular network's config as stored with its weights (the default when absent)."""
-    from safetensors import safe_open
-
-    with safe_open(str(path), framework="pt") as f:
-        stored = (f.metadata() or {}).get("config")
-    return MonoDepthConfig.from_dict(json.loads(stored)) if stored else MonoDepthConfig()
+    return load_mono_weights(path)
 
 
 @torch.no_grad()
