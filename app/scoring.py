@@ -6,7 +6,7 @@ import math
 
 import torch
 
-from panogrf.app.lpips_weights import load_lpips
+from panogrf.app.weights.lpips import load_lpips
 from panogrf.model.lpips import MIN_SIZE
 from panogrf.model.metrics import psnr, ssim, ws_psnr
 

@@ -28,8 +28,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from panogrf.app.depth_weights import load_depth_estimator
 from panogrf.app.train.data import load_triplets
+from panogrf.app.weights.networks import load_depth_estimator
 from panogrf.model.depth import DepthEstimator
 from panogrf.model.metrics import depth_metrics
 from panogrf.model.mvs import MVSNet

@@ -23,8 +23,8 @@ from pathlib import Path
 
 import torch
 
-from panogrf.app.depth_weights import load_depth_estimator
 from panogrf.app.train.data import load_triplets
+from panogrf.app.weights.networks import load_depth_estimator
 from panogrf.model.metrics import depth_metrics
 
 
@@ -57,6 +57,7 @@ def main() -> None:
         ("mono", "mono", {}),
         ("mvs", "mvs", {}),
         ("full, no fusion", "full", {"fuse": False}),
+        ("full, fused, mono aligned to MVS", "full", {"fuse": True, "align_mono": True}),
     ]
     for g in (float(x) for x in args.gains.split(",")):
         settings.append((f"full, fused, switch {g:g}", "full", {"fuse": True, "switch_gain": g}))
@@ -71,7 +72,7 @@ def main() -> None:
             row["l1"][folder.name] = statistics.fmean(errors)
             row["seconds"] += seconds
             print(f"{folder.name} {name}: L1 {statistics.fmean(errors):.4f}", flush=True)
-        estimator.fuse, estimator.switch_gain = True, 0.0
+        estimator.fuse, estimator.switch_gain, estimator.align_mono = True, 0.0, False
     names = [f.name for f in args.data]
     lines = [
         "| setting | " + " | ".join(names) + " | mean | s / pair |",

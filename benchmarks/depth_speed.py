@@ -28,9 +28,9 @@ REPEATS = 5
 def _child(scene: Path, mode: str) -> dict:
     import torch
 
-    from panogrf.app.depth_weights import NETWORKS, load_depth_estimator
-    from panogrf.app.images import write_depth
-    from panogrf.app.scene import load_scene
+    from panogrf.app.files.images import write_depth
+    from panogrf.app.scene.folder import load_scene
+    from panogrf.app.weights.networks import NETWORKS, load_depth_estimator
 
     t0 = time.perf_counter()
     estimator = load_depth_estimator(NETWORKS[mode])
@@ -68,7 +68,7 @@ def main() -> None:
         print(json.dumps(_child(Path(args.child[0]), args.child[1])))
         return
 
-    from panogrf.app.scene import load_scene, write_scene
+    from panogrf.app.scene.folder import load_scene, write_scene
     from panogrf.app.synth.make import MakeConfig, make_dataset
 
     rows = []

@@ -23,9 +23,9 @@ from pathlib import Path
 import torch
 import torch.nn.functional as F
 
-from panogrf.app.scene import load_scene
+from panogrf.app.scene.folder import load_scene
+from panogrf.app.scene.session import default_models
 from panogrf.app.scoring import image_scores
-from panogrf.app.session import default_models
 from panogrf.renderer.detail import DetailConfig, render_detailed
 from panogrf.renderer.methods import METHODS, SourceViews
 from panogrf.renderer.render import render_panorama
@@ -73,7 +73,7 @@ def main() -> None:
         for folder in folders:
             data = load_scene(folder, load_images=True).images
             views = SourceViews(data.images[[0, 2]], data.c2w[[0, 2]])
-            cache = views.cache_for(spec.renderer, spec.depth_mode, models)
+            cache = views.cache_for(spec, models)
             target, c2w = data.images[1:2], data.c2w[1]
             if args.ladder:
                 a = float(args.agreement.split(",")[0])

@@ -28,11 +28,11 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/draft_sampling.json"))
     args = parser.parse_args()
 
-    from panogrf.app.images import write_json_atomic
+    from panogrf.app.files.images import write_json_atomic
     from panogrf.app.runtime import keep_freed_memory
-    from panogrf.app.scene import load_scene
+    from panogrf.app.scene.folder import load_scene
+    from panogrf.app.scene.session import default_models
     from panogrf.app.scoring import image_scores
-    from panogrf.app.session import default_models
     from panogrf.renderer.methods import SourceViews
     from panogrf.renderer.render import QUALITY, Sampling, render_panorama
 
@@ -58,7 +58,7 @@ def main() -> None:
     for folder in folders:
         d = load_scene(folder, load_images=True).images
         views = SourceViews(d.images[[0, 2]], d.c2w[[0, 2]])
-        cache = views.cache_for("panogrf", "full", models)
+        cache = views.cache_for("panogrf", models)
         real = torch.nn.functional.interpolate(d.images[1:2], size=(h, 2 * h), mode="area")
         for name, sampling in variants.items():
             t0 = time.perf_counter()

@@ -6,7 +6,7 @@ On the bundled scene, one 1280x720 frame at the middle view's pose with ``--qual
 both ways in the same process: ``own rays`` (`render_perspective_view`: the network at every
 pixel of the frame) and ``panorama + cut`` (a panorama at the frame's angular resolution,
 `erp_height_for`, its network at 256 rows and the sources' detail, then `erp_to_perspective`).
-`render --camera-path` takes whichever runs the network on fewer rays (`app/frames.py`).
+`render --camera-path` takes whichever runs the network on fewer rays (`app/paths/frames.py`).
 Median seconds of the repeats (scene preparation excluded), their ratio, and the agreement
 of the two frames (PSNR).
 Writes benchmarks/results/perspective.json.
@@ -24,9 +24,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from panogrf.app.frames import erp_height_for
-from panogrf.app.scene import load_scene
-from panogrf.app.session import default_models
+from panogrf.app.paths.frames import erp_height_for
+from panogrf.app.scene.folder import load_scene
+from panogrf.app.scene.session import default_models
 from panogrf.assets import path as asset_path
 from panogrf.model.perspective import erp_to_perspective
 from panogrf.renderer.methods import SourceViews, prepare, render_perspective_view, render_view

@@ -28,11 +28,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from panogrf.app.images import read_rgb, write_json_atomic
+from panogrf.app.files.images import read_rgb, write_json_atomic
 from panogrf.app.poses import errors as er
 from panogrf.app.poses.estimate import estimate_poses
 from panogrf.app.poses.scale import make_metric
-from panogrf.app.scene import load_scene
+from panogrf.app.scene.folder import load_scene
 
 
 def run_scene(folder: Path, mode: str) -> dict:
@@ -143,7 +143,7 @@ def main() -> None:
         print(f"real {args.real.name}: {real.get('failed') or 'posed'} ({real['seconds']:.1f} s)")
     renders = []
     if args.render:
-        from panogrf.app.session import default_models
+        from panogrf.app.scene.session import default_models
 
         models = default_models()
         for row, folder in zip(rows, folders, strict=True):

@@ -28,7 +28,7 @@ ROWS = (32, 48, 64, 96, 128)
 def frame_costs(views, rounds: int = 3, frames: int = 15) -> dict[int, float]:
     """Median ms per preview frame for each mesh height, the heights interleaved round by
     round so a machine that slows down for a while slows all of them alike."""
-    from panogrf.app.images import to_uint8
+    from panogrf.app.files.images import to_uint8
     from panogrf.renderer.gl_preview import PreviewRenderer, create_headless_context
 
     ctx = create_headless_context()
@@ -61,11 +61,11 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/preview_quality.json"))
     args = parser.parse_args()
 
-    from panogrf.app.images import to_uint8, write_json_atomic
+    from panogrf.app.files.images import to_uint8, write_json_atomic
     from panogrf.app.runtime import keep_freed_memory
-    from panogrf.app.scene import load_scene
+    from panogrf.app.scene.folder import load_scene
+    from panogrf.app.scene.session import default_models, prepare_scene
     from panogrf.app.scoring import image_scores
-    from panogrf.app.session import default_models, prepare_scene
     from panogrf.assets import path as asset_path
     from panogrf.renderer.gl_preview import PreviewRenderer, create_headless_context
     from panogrf.renderer.methods import SourceViews

@@ -98,10 +98,10 @@ def main() -> int:
     if args.threads:
         torch.set_num_threads(args.threads)
 
-    from panogrf.app.images import to_uint8, write_rgb
-    from panogrf.app.scene import load_scene
+    from panogrf.app.files.images import to_uint8, write_rgb
+    from panogrf.app.scene.folder import load_scene
+    from panogrf.app.scene.session import default_models
     from panogrf.app.scoring import image_scores
-    from panogrf.app.session import default_models
     from panogrf.renderer.methods import SourceViews, prepare, render_view
 
     heights = [int(h) for h in args.heights.split(",")]

@@ -24,10 +24,10 @@ from pathlib import Path
 
 import torch
 
-from panogrf.app.images import write_json_atomic
-from panogrf.app.scene import load_scene
+from panogrf.app.files.images import write_json_atomic
+from panogrf.app.scene.folder import load_scene
+from panogrf.app.scene.session import default_models
 from panogrf.app.scoring import image_scores
-from panogrf.app.session import default_models
 from panogrf.renderer.methods import SourceViews, prepare
 from panogrf.renderer.render import QUALITY, Sampling, render_panorama
 
@@ -79,7 +79,7 @@ def main() -> None:
     prepare("panogrf", views, models)
     prep = time.perf_counter() - t0
     net = models.renderer("panogrf")
-    cache = views.cache_for("panogrf", "full", models)
+    cache = views.cache_for("panogrf", models)
     speed = {}
     for height in (int(h) for h in args.heights.split(",")):
         for quality in ("fast", "paper"):
@@ -99,7 +99,7 @@ def main() -> None:
     for folder in scenes[: args.scenes]:
         d = load_scene(folder, load_images=True).images
         v = SourceViews(d.images[[0, 2]], d.c2w[[0, 2]])
-        c = v.cache_for("panogrf", "full", models)
+        c = v.cache_for("panogrf", models)
         for name, sampling in SWEEP.items():
             t0 = time.perf_counter()
             out = render_panorama(net, c, d.c2w[1], args.sweep_height, sampling)

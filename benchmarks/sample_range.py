@@ -30,10 +30,10 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
 
-    from panogrf.app.atomic import write_json_atomic
-    from panogrf.app.scene import load_scene
+    from panogrf.app.files.atomic import write_json_atomic
+    from panogrf.app.scene.folder import load_scene
+    from panogrf.app.scene.session import default_models
     from panogrf.app.scoring import image_scores
-    from panogrf.app.session import default_models
     from panogrf.renderer.methods import SourceViews
     from panogrf.renderer.render import QUALITY, render_panorama, sample_range
 
@@ -45,7 +45,7 @@ def main() -> None:
     for e in entries:
         d = load_scene(args.data / e["folder"], load_images=True).images
         views = SourceViews(d.images[[0, 2]], d.c2w[[0, 2]])
-        cache = views.cache_for("panogrf", "full", models)
+        cache = views.cache_for("panogrf", models)
         ranges.append(sample_range(cache, d.c2w[1, :3, 3]))
         near, far = ranges[-1]
         line = [f"{e['folder']} ({e['baseline_m']} m) range {near:.2f}-{far:.1f}"]

@@ -32,11 +32,11 @@ def main() -> None:
     if args.threads:
         torch.set_num_threads(args.threads)
 
-    from panogrf.app.images import write_json_atomic
+    from panogrf.app.files.images import write_json_atomic
     from panogrf.app.runtime import keep_freed_memory
-    from panogrf.app.scene import load_scene
+    from panogrf.app.scene.folder import load_scene
+    from panogrf.app.scene.session import default_models
     from panogrf.app.scoring import image_scores
-    from panogrf.app.session import default_models
     from panogrf.renderer.methods import SourceViews
     from panogrf.renderer.render import QUALITY, render_panorama
 
@@ -55,7 +55,7 @@ def main() -> None:
     for folder in folders:
         d = load_scene(folder, load_images=True).images
         views = SourceViews(d.images[[0, 2]], d.c2w[[0, 2]])
-        cache = views.cache_for("panogrf", "full", models)
+        cache = views.cache_for("panogrf", models)
         for name, sampling in variants.items():
             t0 = time.perf_counter()
             out = render_panorama(net, cache, d.c2w[1], h, sampling)

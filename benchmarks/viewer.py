@@ -46,8 +46,8 @@ def main() -> None:
 
     keep_freed_memory()  # as the `panogrf` command does
 
-    from panogrf.app.images import write_json_atomic
-    from panogrf.app.session import prepare_scene
+    from panogrf.app.files.images import write_json_atomic
+    from panogrf.app.scene.session import prepare_scene
     from panogrf.app.viewer.window import ViewerSetup, parse_script, run_viewer
     from panogrf.app.viewer.worker import LEVELS, RenderWorker
     from panogrf.assets import path as asset_path
@@ -70,7 +70,7 @@ def main() -> None:
     print(f"preparation: cold {cold_s:.2f} s, cached {cached_s:.2f} s")
 
     net = models.renderer("panogrf")
-    cache = views.caches[("panogrf", "full")]
+    cache = views.cache_for("panogrf", models)
     worker = RenderWorker(net, cache, levels=LEVELS).start()
     # Walk forward, wait for the refinement, walk back, wait, ...: the camera stays near the
     # sources (1.5 m at most with the default 45 frames at 1 m/s).

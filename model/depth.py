@@ -23,7 +23,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from panogrf.model.mono import MonoDepthNet
+from panogrf.model.mono import MonoDepthNet, MonoOutput
 from panogrf.model.mvs import MVSNet
 from panogrf.model.refine import SweepConfig, sweep_depth
 
@@ -66,6 +66,11 @@ class DepthEstimator(nn.Module):
         pixel keeping the one its sources agree with (see `sweep_depth`'s ``others``)."""
         self.switch_gain = 0.0
         """How much better the unguided depth must match to replace the mono-guided one."""
+        self.align_mono = False
+        """Mode "full" with the unguided network loaded too: before the monocular depth places
+        the mono-guided network's candidates, scale it per view by the median ratio of the
+        unguided MVS depth to it (a metric scale from the known poses, not from the room
+        sizes the monocular network has learned)."""
 
     @property
     def d_max(self) -> float:
@@ -100,6 +105,17 @@ class DepthEstimator(nn.Module):
             )
             depth[ref] = out.depth[0]
         return depth
+
+    def _aligned(self, mono: Tensor, mvs: Tensor, sources: list[list[int]]) -> Tensor:
+        """``mono`` [V, 1, h, w] scaled per view with sources by median(mvs / mono) over the
+        pixels inside the depth range (the scale kept within 0.5-2)."""
+        out = mono.clone()
+        for v, src in enumerate(sources):
+            ok = (mvs[v] < 0.98 * self.d_max) & (mono[v] > 0.05)
+            if src and int(ok.sum()) > 0:
+                scale = (mvs[v][ok] / mono[v][ok]).median().clamp(0.5, 2.0)
+                out[v] = (mono[v] * scale).clamp(0.05, self.d_max)
+        return out
 
     @torch.no_grad()
     def forward(
@@ -141,9 +157,13 @@ class DepthEstimator(nn.Module):
                         warnings.append(f"view {ref}: no usable source, monocular depth")
                     continue
                 sources[ref] = src
-            depth = self._mvs(mode, small, c2w, mono, sources, depth)
+            guide = mono
             if self._fuses(mode):
-                others = (self._mvs("mvs", small, c2w, mono, sources, mono.depth.clone()),)
+                unguided = self._mvs("mvs", small, c2w, mono, sources, mono.depth.clone())
+                others = (unguided,)
+                if self.align_mono:
+                    guide = MonoOutput(self._aligned(mono.depth, unguided, sources), mono.features)
+            depth = self._mvs(mode, small, c2w, guide, sources, depth)
         depth = self._clean(depth)
         if mode != "mono" and self.sweep is not None and any(sources):
             centres = c2w[:, :3, 3]

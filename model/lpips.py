@@ -1,7 +1,7 @@
 """LPIPS (Zhang et al. 2018), AlexNet backbone, linear heads v0.1, in plain torch.
 
 Built from a state dict only (``LPIPS.from_state_dict``); reading the bundled weights is the
-app's job (`panogrf.app.lpips_weights.load_lpips`), since `model/` does no file I/O.
+app's job (`panogrf.app.weights.lpips.load_lpips`), since `model/` does no file I/O.
 
 State-dict keys (torch layout, OIHW), as written by ``scripts/convert_lpips.py``:
     ``convs.{0..4}.weight`` / ``convs.{0..4}.bias``: AlexNet ``features`` convolutions,

@@ -55,6 +55,14 @@ PRESETS = {
         hidden=24,
         view_channels=12,
     ),
+    # The ladder's larger rung: one and a half times the widths everywhere.
+    "large": RendererConfig(
+        feature_channels=24,
+        encoder_widths=(24, 36, 48),
+        geometry_width=24,
+        hidden=72,
+        view_channels=36,
+    ),
 }
 
 

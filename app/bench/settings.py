@@ -17,7 +17,7 @@ import psutil
 import torch
 from torch import Tensor
 
-from panogrf.renderer.methods import METHODS, Models, SourceViews, prepare, render_view
+from panogrf.renderer.methods import METHODS, Kind, Models, SourceViews, prepare, render_view
 
 
 @dataclass(frozen=True)
@@ -96,7 +96,7 @@ def prepare_setting(setting: Setting, views: SourceViews, models: Models, gl: GL
         return
     key = setting.name
     if key not in views.fitted:
-        from panogrf.app.images import to_uint8
+        from panogrf.app.files.images import to_uint8
         from panogrf.renderer.gl_preview import PreviewRenderer
 
         depth = views.depth_for("full", models)[:, 0].numpy()
@@ -144,7 +144,7 @@ def parameters(setting: Setting, models: Models) -> int:
     spec = METHODS.get(setting.method)
     mode = spec.depth_mode if spec is not None else "full"
     total = _count(models.estimator(mode))
-    if spec is not None and spec.kind == "neural":
+    if spec is not None and spec.kind is Kind.NEURAL:
         total += _count(models.renderer(spec.renderer))
     return total
 

@@ -96,13 +96,13 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from panogrf.app import session
-    from panogrf.app.atomic import check_output
     from panogrf.app.bench.cases import CASES
     from panogrf.app.bench.report import write_outputs
     from panogrf.app.bench.run import BenchConfig, run_bench
     from panogrf.app.bench.settings import select
-    from panogrf.app.commands.render import MAX_HEIGHT
+    from panogrf.app.files.atomic import check_output
+    from panogrf.app.scene import session
+    from panogrf.app.scene.session import MAX_HEIGHT
 
     for opt, h in (("--height", args.height), ("--time-height", args.time_height)):
         if not 8 <= h <= MAX_HEIGHT:

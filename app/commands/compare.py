@@ -13,7 +13,7 @@ import numpy as np
 import torch
 
 from panogrf.app.errors import UserError
-from panogrf.app.images import ImageReadError, read_pixels
+from panogrf.app.files.images import ImageReadError, read_pixels
 from panogrf.model.lpips import MIN_SIZE as LPIPS_MIN_SIZE
 from panogrf.model.metrics import psnr, ssim, ws_psnr
 
@@ -93,7 +93,7 @@ def load_image(path: Path) -> LoadedImage:
 
 
 def _lpips(x: torch.Tensor, y: torch.Tensor, device: str) -> float:
-    from panogrf.app.lpips_weights import load_lpips
+    from panogrf.app.weights.lpips import load_lpips
 
     try:
         net = load_lpips(device)

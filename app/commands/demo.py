@@ -31,9 +31,9 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from panogrf.app.consistency import reprojection_check
-    from panogrf.app.images import to_uint8, write_rgb
-    from panogrf.app.scene import load_scene
+    from panogrf.app.files.images import to_uint8, write_rgb
+    from panogrf.app.scene.consistency import reprojection_check
+    from panogrf.app.scene.folder import load_scene
     from panogrf.app.visualize import colorize_depth, stack_rows
     from panogrf.assets import path as asset_path
 
@@ -74,12 +74,12 @@ def _novel_view(data, out: Path) -> None:
     against the real middle panorama; then a short preview video along the three views."""
     import time
 
-    from panogrf.app import session
-    from panogrf.app.frames import FrameRenderer
-    from panogrf.app.images import to_uint8, write_rgb
+    from panogrf.app.files.images import to_uint8, write_rgb
+    from panogrf.app.files.video import FrameSink
+    from panogrf.app.paths.frames import FrameRenderer
+    from panogrf.app.paths.trajectory import interpolate_keyframes
+    from panogrf.app.scene import session
     from panogrf.app.scoring import image_scores
-    from panogrf.app.trajectory import interpolate_keyframes
-    from panogrf.app.video import FrameSink
     from panogrf.app.visualize import stack_rows
     from panogrf.renderer.methods import SourceViews, prepare, render_view
 
@@ -121,7 +121,7 @@ def _estimate_depth(data) -> dict:
     """Depth of every view by mode, with its error against the ground truth printed."""
     import time
 
-    from panogrf.app.depth_weights import NETWORKS, load_depth_estimator
+    from panogrf.app.weights.networks import NETWORKS, load_depth_estimator
     from panogrf.model.metrics import depth_metrics
 
     estimator = load_depth_estimator(NETWORKS["full"])

@@ -18,7 +18,6 @@ default). Slow methods can run on the first N scenes of every baseline only (``-
 from __future__ import annotations
 
 import argparse
-import json
 import platform
 import statistics
 import time
@@ -28,7 +27,7 @@ import torch
 
 from panogrf.app.errors import UserError
 from panogrf.app.runtime import thread_count
-from panogrf.renderer.methods import METHODS
+from panogrf.renderer.methods import METHODS, Kind
 from panogrf.renderer.render import QUALITY
 
 METRICS = ("psnr", "ws_psnr", "ssim", "lpips")
@@ -46,7 +45,7 @@ def parse_methods(text: str) -> list[tuple[str, str]]:
             raise UserError(f"--methods: unknown method {name!r}; choose from {sorted(METHODS)}")
         if quality not in QUALITY:
             raise UserError(f"--methods: unknown sampling {quality!r} in {item!r}")
-        if quality != "fast" and METHODS[name].kind != "neural":
+        if quality != "fast" and METHODS[name].kind is not Kind.NEURAL:
             raise UserError(f"--methods: {name} has no sampling choice ({item!r})")
         out.append((name, quality))
     if not out:
@@ -55,7 +54,7 @@ def parse_methods(text: str) -> list[tuple[str, str]]:
 
 
 def label(method: str, quality: str) -> str:
-    if quality == "fast" or METHODS[method].kind != "neural":
+    if quality == "fast" or METHODS[method].kind is not Kind.NEURAL:
         return method
     return f"{method}:{quality}"
 
@@ -99,96 +98,12 @@ def register(subparsers) -> None:
     parser.set_defaults(func=run)
 
 
-def _scene_folders(root: Path) -> tuple[list[Path], bool]:
-    """The scene folders under ``root``, and whether they come from a dataset.json index.
-
-    ``root`` is a dataset (``dataset.json`` listing its folders, from `panogrf dataset make`),
-    a single scene folder (``transforms.json``), or a folder of scene folders.
-    """
-    from panogrf.app.scene import TRANSFORMS
-
-    index_path = root / "dataset.json"
-    if index_path.exists():
-        return _read_index(index_path), True
-    if (root / TRANSFORMS).is_file():
-        return [root], False
-    if not root.is_dir():
-        raise UserError(f"{root}: no such folder")
-    folders = sorted(p for p in root.iterdir() if (p / TRANSFORMS).is_file())
-    if not folders:
-        raise UserError(
-            f"{root}: no dataset.json, no {TRANSFORMS}, and no scene folder with a {TRANSFORMS}"
-        )
-    return folders, False
-
-
-def _read_index(index_path: Path) -> list[Path]:
-    """The scene folders a ``dataset.json`` lists: {"scenes": [{"folder": NAME, ...}, ...]}."""
-    try:
-        data = json.loads(index_path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise UserError(f"{index_path}: cannot read ({exc.strerror or exc})") from None
-    except UnicodeDecodeError:
-        raise UserError(f"{index_path}: not UTF-8 text") from None
-    except json.JSONDecodeError as exc:
-        raise UserError(f"{index_path}: not JSON ({exc})") from None
-    scenes = data.get("scenes") if isinstance(data, dict) else None
-    if not isinstance(scenes, list):
-        raise UserError(f'{index_path}: not a dataset index (expected {{"scenes": [...]}})')
-    folders = []
-    for i, entry in enumerate(scenes):
-        name = entry.get("folder") if isinstance(entry, dict) else None
-        if not isinstance(name, str) or not name.strip():
-            got = json.dumps(entry)
-            raise UserError(
-                f'{index_path}: scenes[{i}]: expected {{"folder": NAME, ...}}, got '
-                f"{got if len(got) <= 60 else got[:57] + '...'}"
-            )
-        if index_path.parent / name in folders:
-            raise UserError(f"{index_path}: scenes[{i}]: folder {name!r} is listed twice")
-        folders.append(index_path.parent / name)
-    return folders
-
-
-def _scenes(
-    root: Path, baselines: list[float] | None, limit: int | None
-) -> tuple[list[tuple[float, Path]], list[float]]:
-    """(baseline, folder) of every scene to score, and the baselines scored.
-
-    Without ``baselines``: 1.0, 1.5 and 2.0 m for a dataset, every baseline found for a plain
-    folder of scenes.
-    """
-    from panogrf.app.scene import load_scene
-
-    folders, indexed = _scene_folders(root)
-    found = []
-    for folder in folders:
-        scene = load_scene(folder)
-        if scene.num_views != 3:
-            raise UserError(
-                f"{folder}: expected three views (the middle one is scored), found "
-                f"{scene.num_views}"
-            )
-        c = scene.c2w[:, :3, 3]
-        found.append((round(float(((c[2] - c[0]) ** 2).sum() ** 0.5), 1), folder))
-    if baselines is None:
-        baselines = [1.0, 1.5, 2.0] if indexed else sorted({b for b, _ in found})
-    out, counts = [], {b: 0 for b in baselines}
-    for b, folder in found:
-        if b in counts and (limit is None or counts[b] < limit):
-            counts[b] += 1
-            out.append((b, folder))
-    missing = [b for b, n in counts.items() if n == 0]
-    if missing:
-        raise UserError(f"{root}: no scene with baseline {missing} m")
-    return out, baselines
-
-
 def run(args: argparse.Namespace) -> int:
-    from panogrf.app import session
-    from panogrf.app.atomic import check_output, json_text, nan_to_null, write_json_atomic
-    from panogrf.app.commands.render import MAX_HEIGHT
-    from panogrf.app.scene import load_scene
+    from panogrf.app.files.atomic import check_output, json_text, nan_to_null, write_json_atomic
+    from panogrf.app.scene import session
+    from panogrf.app.scene.datasets import triplets_by_baseline
+    from panogrf.app.scene.folder import load_scene
+    from panogrf.app.scene.session import MAX_HEIGHT
     from panogrf.app.scoring import image_scores
     from panogrf.renderer.methods import SourceViews, prepare, render_view
 
@@ -211,7 +126,7 @@ def run(args: argparse.Namespace) -> int:
     if args.threads:
         torch.set_num_threads(args.threads)
     check_output(args.out)  # before the work: an hour of rendering must not end unwritable
-    scenes, baselines = _scenes(args.dataset, baselines, args.limit)
+    scenes, baselines = triplets_by_baseline(args.dataset, baselines, args.limit)
     models = session.default_models()
     rows = {label(*m): {b: [] for b in baselines} for m in methods}
     seen: dict[float, int] = {b: 0 for b in baselines}

@@ -16,14 +16,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from panogrf.app import session
 from panogrf.app.errors import UserError
 from panogrf.app.runtime import thread_count
+from panogrf.app.scene import session
+from panogrf.app.scene.session import MAX_HEIGHT
 from panogrf.renderer.methods import METHODS
 from panogrf.renderer.render import QUALITY
 
-#: Largest panorama height (rows; width = 2x) of a render, single or along a camera path.
-MAX_HEIGHT = 4096
 #: Largest frame of a camera path (columns x rows): a 2:1 panorama of `MAX_HEIGHT` rows.
 MAX_FRAME = (2 * MAX_HEIGHT, MAX_HEIGHT)
 
@@ -120,9 +119,9 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from panogrf.app.frames import FrameRenderer
-    from panogrf.app.images import to_uint8, write_rgb
-    from panogrf.app.scene import load_scene
+    from panogrf.app.files.images import to_uint8, write_rgb
+    from panogrf.app.paths.frames import FrameRenderer
+    from panogrf.app.scene.folder import load_scene
     from panogrf.app.scoring import image_scores
     from panogrf.renderer.methods import SourceViews
 
@@ -234,11 +233,11 @@ def run_path(args: argparse.Namespace) -> int:
     """``--camera-path``: every camera of the path to a video or a folder of frames."""
     from tqdm import tqdm
 
-    from panogrf.app.camera_path import duration_note, read_camera_path
-    from panogrf.app.coverage import inside_warning, path_warning
-    from panogrf.app.frames import FrameRenderer, erp_height_for, render_camera_path
-    from panogrf.app.scene import load_scene
-    from panogrf.app.video import FrameSink
+    from panogrf.app.files.video import FrameSink
+    from panogrf.app.paths.camera_path import duration_note, read_camera_path
+    from panogrf.app.paths.frames import FrameRenderer, erp_height_for, render_camera_path
+    from panogrf.app.scene.coverage import inside_warning, path_warning
+    from panogrf.app.scene.folder import load_scene
     from panogrf.renderer.methods import SourceViews
 
     if args.sources is not None or args.height is not None:

@@ -15,7 +15,7 @@ import numpy as np
 
 from panogrf.app.commands import scene_poses
 from panogrf.app.errors import UserError
-from panogrf.app.scene import TRANSFORMS, SceneReport, inspect_scene
+from panogrf.app.scene.folder import TRANSFORMS, SceneReport, inspect_scene
 
 #: Up to this many views, every pairwise baseline is printed; beyond, a summary.
 _MAX_LISTED_VIEWS = 5
@@ -97,8 +97,8 @@ def _add_check(sub: argparse._SubParsersAction) -> None:
 
 
 def run_reproject(args: argparse.Namespace) -> int:
-    from panogrf.app.consistency import reprojection_check
-    from panogrf.app.scene import load_scene
+    from panogrf.app.scene.consistency import reprojection_check
+    from panogrf.app.scene.folder import load_scene
 
     if not (math.isfinite(args.occlusion_tol) and args.occlusion_tol > 0):
         raise UserError(

@@ -2,7 +2,7 @@
 
 Registered under `panogrf scene` by `panogrf.app.commands.scene`. The pose work lives in
 `panogrf.app.poses`; this module reads the panoramas, parses options, writes the scene folder
-(`panogrf.app.scene.write_scene`) and prints the report.
+(`panogrf.app.scene.folder.write_scene`) and prints the report.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from panogrf.app.errors import UserError
-from panogrf.app.images import read_rgb
+from panogrf.app.files.images import read_rgb
 from panogrf.app.poses import scale as sc
 
 _CONVENTIONS = """\
@@ -82,7 +82,7 @@ def _match_images(fmt: str, pose_file: Path, names: list[str] | None, given: lis
 
 def run_import(args: argparse.Namespace) -> int:
     from panogrf.app.poses.importers import read_poses
-    from panogrf.app.scene import write_scene
+    from panogrf.app.scene.folder import write_scene
 
     _check_out(args.out)
     poses = read_poses(args.format, args.pose_file)
@@ -173,7 +173,7 @@ def _add_import(sub: argparse._SubParsersAction) -> None:
 def run_faces(args: argparse.Namespace) -> int:
     import torch
 
-    from panogrf.app.images import write_rgb
+    from panogrf.app.files.images import write_rgb
     from panogrf.model.cubemap import FACE_NAMES, erp_to_cubemap
 
     images = read_panoramas(args.panoramas)
@@ -214,7 +214,7 @@ def _add_faces(sub: argparse._SubParsersAction) -> None:
 
 def run_from_panoramas(args: argparse.Namespace) -> int:
     from panogrf.app.poses.estimate import estimate_poses
-    from panogrf.app.scene import write_scene
+    from panogrf.app.scene.folder import write_scene
 
     files = list(args.panoramas)
     if len(files) < 2:

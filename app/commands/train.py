@@ -88,10 +88,10 @@ def register(subparsers) -> None:
     renderer.add_argument("--out", type=Path, required=True, help="output weights (.safetensors)")
     renderer.add_argument(
         "--preset",
-        choices=("panogrf", "no_geometry", "tiny"),
+        choices=("panogrf", "no_geometry", "tiny", "large"),
         default="panogrf",
-        help="panogrf (default), no_geometry (ablation: no depth-derived visibility) or tiny "
-        "(half the widths: the model-size ladder)",
+        help="panogrf (default), no_geometry (ablation: no depth-derived visibility); the "
+        "model-size ladder: tiny (half the widths) or large (one and a half times)",
     )
     renderer.add_argument("--steps", type=int, default=2000, help="optimiser steps (default 2000)")
     renderer.add_argument("--scenes", type=int, default=2, help="scenes per step (default 2)")
@@ -134,8 +134,8 @@ def _logger(path: Path | None):
 def run_renderer(args: argparse.Namespace) -> int:
     import torch
 
-    from panogrf.app.depth_weights import load_depth_estimator
     from panogrf.app.train.renderer import TrainRendererConfig, train_renderer
+    from panogrf.app.weights.networks import load_depth_estimator
 
     if args.out.suffix != ".safetensors":
         raise UserError(f"--out must end in .safetensors, got {args.out}")

@@ -105,7 +105,7 @@ def run(args: argparse.Namespace) -> int:
         script = parse_script(args.script)
     except ValueError as exc:
         raise UserError(f"--script: {exc}") from None
-    from panogrf.app import session
+    from panogrf.app.scene import session
 
     prepared = session.prepare_scene(args.scene, args.cache_dir)
     scene, views, models = prepared.scene, prepared.views, prepared.models
@@ -113,7 +113,7 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--start-frame: the scene has frames 0..{scene.num_views - 1}")
     worker = None
     if not args.no_refine:
-        cache = views.caches[("panogrf", "full")]
+        cache = views.cache_for("panogrf", models)
         worker = RenderWorker(models.renderer("panogrf"), cache).start()
     setup = ViewerSetup.from_views(
         views,

@@ -38,8 +38,8 @@ import numpy as np
 import torch
 from scipy.spatial.transform import Rotation
 
-from panogrf.app.atomic import write_text_atomic
 from panogrf.app.errors import UserError
+from panogrf.app.files.atomic import write_text_atomic
 from panogrf.app.poses import CV_TO_GL
 from panogrf.model.cubemap import FACE_NAMES, face_rotations
 

@@ -25,8 +25,8 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from panogrf.app.atomic import write_text_atomic
-from panogrf.app.images import write_depth, write_rgb
+from panogrf.app.files.atomic import write_text_atomic
+from panogrf.app.files.images import write_depth, write_rgb
 from panogrf.app.synth.gl_render import PanoramaRenderer
 from panogrf.app.synth.layout import LayoutConfig, SynthScene, generate_layout
 from panogrf.app.synth.textures import texture_bank

@@ -19,7 +19,7 @@ from torch import Tensor
 from tqdm import tqdm
 
 from panogrf.app.errors import UserError
-from panogrf.app.images import read_depth, read_rgb
+from panogrf.app.files.images import read_depth, read_rgb
 
 
 def downsample_depth(depth: np.ndarray, factor: int) -> np.ndarray:

@@ -12,16 +12,15 @@ from __future__ import annotations
 import json
 import math
 import sys
-import time
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import torch
 from torch import Tensor
 
-from panogrf.app.atomic import save_tensors_atomic
 from panogrf.app.train.augment import corrupt_mono, photometric
 from panogrf.app.train.data import TripletSet, load_triplets, yaw_roll
+from panogrf.app.train.loop import Steps, held_back, init_from, save_weights
 from panogrf.model.erp import latitude_weights
 from panogrf.model.mono import MonoDepthConfig, MonoDepthNet
 
@@ -99,12 +98,6 @@ def _mono_batch(
     return img, dep
 
 
-def _split(data: TripletSet, val_scenes: int) -> tuple[TripletSet, TripletSet]:
-    n = len(data)
-    k = min(val_scenes, max(1, n // 5))
-    return data.subset(range(n - k)), data.subset(range(n - k, n))
-
-
 @torch.no_grad()
 def _validate_mono(net: MonoDepthNet, val: TripletSet) -> dict:
     net.eval()
@@ -122,49 +115,25 @@ def _validate_mono(net: MonoDepthNet, val: TripletSet) -> dict:
     return {"val_l1": errs / total, "val_rmse": math.sqrt(sq / total)}
 
 
-def _lr_at(step: int, steps: int, lr: float) -> float:
-    return lr * (0.01 + 0.99 * 0.5 * (1 + math.cos(math.pi * step / steps)))
-
-
-def save_weights(module: torch.nn.Module, path: Path, metadata: dict) -> None:
-    """Write a module's state dict as safetensors, atomically, with JSON metadata."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    state = {k: v.detach().contiguous().cpu() for k, v in module.state_dict().items()}
-    meta = {k: v if isinstance(v, str) else json.dumps(v) for k, v in metadata.items()}
-    save_tensors_atomic(path, state, meta)
-
-
 def train_mono(cfg: TrainDepthConfig, log=print) -> dict:
     """Train the 360-degree monocular depth network; returns the final figures."""
     torch.manual_seed(cfg.seed)
     data = load_triplets(cfg.data, cfg.height, cfg.limit_scenes)
-    train, val = _split(data, cfg.val_scenes)
+    train_idx, val_idx = held_back(len(data), cfg.val_scenes)
+    train, val = data.subset(train_idx.tolist()), data.subset(val_idx.tolist())
     log(f"mono: {len(train)} train scenes ({3 * len(train)} panoramas), {len(val)} validation")
     net = MonoDepthNet(MonoDepthConfig(trunk=cfg.trunk))
-    _init(net, cfg.init, log, new=("trunk.", "from_trunk."))
+    init_from(net, cfg.init, log, new=("trunk.", "from_trunk."))
     if cfg.trunk:
         _fill_trunk(net, log)
     opt = torch.optim.Adam([p for p in net.parameters() if p.requires_grad], lr=cfg.lr)
     gen = torch.Generator().manual_seed(cfg.seed)
-    start, running = time.perf_counter(), 0.0
-    for step in range(1, cfg.steps + 1):
-        for group in opt.param_groups:
-            group["lr"] = _lr_at(step, cfg.steps, cfg.lr)
+    steps = Steps(opt, cfg.steps, cfg.lr, cfg.log_every, log)
+    for _ in steps:
         img, gt = _mono_batch(train, gen, cfg.batch, cfg.augment)
-        loss = weighted_l1(net(img).depth, gt, net.config.d_max)
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        opt.step()
-        running += loss.item()
-        if step % cfg.log_every == 0 or step == cfg.steps:
-            k = cfg.log_every if step % cfg.log_every == 0 else step % cfg.log_every
-            log(
-                f"step {step:5d}  loss {running / k:.4f}  lr {opt.param_groups[0]['lr']:.2e}  "
-                f"{time.perf_counter() - start:7.1f} s"
-            )
-            running = 0.0
+        steps.update(weighted_l1(net(img).depth, gt, net.config.d_max))
     figures = _validate_mono(net, val)
-    figures.update({"steps": cfg.steps, "seconds": round(time.perf_counter() - start, 1)})
+    figures.update({"steps": cfg.steps, "seconds": steps.seconds})
     log(f"final (validation scenes of the train split): {json.dumps(figures)}")
     save_weights(
         net,
@@ -180,27 +149,12 @@ def train_mono(cfg: TrainDepthConfig, log=print) -> dict:
     return figures
 
 
-def _init(net: torch.nn.Module, path: Path | None, log, new: tuple[str, ...] = ()) -> None:
-    """Load starting weights into ``net`` when a path is given: the same network, except that
-    parameters whose names start with one of ``new`` may be absent (they keep their
-    initialisation: parts added to a trained network)."""
-    if path is None:
-        return
-    from safetensors.torch import load_file
-
-    missing, unexpected = net.load_state_dict(load_file(str(path)), strict=False)
-    wrong = [k for k in missing if not k.startswith(new)] + list(unexpected)
-    if wrong:
-        raise ValueError(f"{path} does not fit the network: {wrong[:6]}")
-    log(f"initialised from {path}" + (f" ({len(missing)} new tensors)" if missing else ""))
-
-
 def _fill_trunk(net: torch.nn.Module, log) -> None:
     """Copy the bundled ImageNet AlexNet convolutions (LPIPS asset) into the frozen trunk."""
     from safetensors.torch import load_file
 
     from panogrf import assets
-    from panogrf.app.lpips_weights import ASSET_NAME
+    from panogrf.app.weights.lpips import ASSET_NAME
 
     alex = load_file(str(assets.path(ASSET_NAME)))
     state = {k: alex[k].float() for k in net.trunk.state_dict()}  # convs.{i}.weight / bias
@@ -240,7 +194,7 @@ def _mvs_batch(data: TripletSet, gen: torch.Generator, batch: int, augment: bool
 
 def load_mono(path: Path) -> MonoDepthNet:
     """The trained monocular network from safetensors, frozen, in eval mode."""
-    from panogrf.app.depth_weights import load_mono_weights
+    from panogrf.app.weights.networks import load_mono_weights
 
     return load_mono_weights(path)
 
@@ -275,7 +229,8 @@ def train_mvs(cfg: TrainDepthConfig, log=print) -> dict:
 
     torch.manual_seed(cfg.seed)
     data = load_triplets(cfg.data, cfg.height, cfg.limit_scenes)
-    train, val = _split(data, cfg.val_scenes)
+    train_idx, val_idx = held_back(len(data), cfg.val_scenes)
+    train, val = data.subset(train_idx.tolist()), data.subset(val_idx.tolist())
     mvs_cfg = replace(PRESETS[cfg.mvs_preset], trunk=cfg.trunk)
     needs_mono = mvs_cfg.use_mono or mvs_cfg.n_mono > 0
     mono = load_mono(cfg.mono_weights) if needs_mono else None
@@ -284,15 +239,13 @@ def train_mvs(cfg: TrainDepthConfig, log=print) -> dict:
         f"mono input={mvs_cfg.use_mono}): {len(train)} train scenes, {len(val)} validation"
     )
     net = MVSNet(mvs_cfg)
-    _init(net, cfg.init, log, new=("trunk.", "from_trunk."))
+    init_from(net, cfg.init, log, new=("trunk.", "from_trunk."))
     if cfg.trunk:
         _fill_trunk(net, log)
     opt = torch.optim.Adam([p for p in net.parameters() if p.requires_grad], lr=cfg.lr)
     gen = torch.Generator().manual_seed(cfg.seed)
-    start, running = time.perf_counter(), 0.0
-    for step in range(1, cfg.steps + 1):
-        for group in opt.param_groups:
-            group["lr"] = _lr_at(step, cfg.steps, cfg.lr)
+    steps = Steps(opt, cfg.steps, cfg.lr, cfg.log_every, log)
+    for _ in steps:
         ref, src, ref_c2w, src_c2w, gt = _mvs_batch(train, gen, cfg.batch, cfg.augment)
         kw = {}
         if mono is not None:
@@ -302,20 +255,9 @@ def train_mvs(cfg: TrainDepthConfig, log=print) -> dict:
             kw = {"mono_depth": mono_depth, "mono_features": m.features}
         out = net(ref, src, ref_c2w, src_c2w, **kw)
         d_max = mvs_cfg.d_max
-        loss = weighted_l1(out.depth, gt, d_max) + 0.5 * weighted_l1(out.expected, gt, d_max)
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        opt.step()
-        running += loss.item()
-        if step % cfg.log_every == 0 or step == cfg.steps:
-            k = cfg.log_every if step % cfg.log_every == 0 else step % cfg.log_every
-            log(
-                f"step {step:5d}  loss {running / k:.4f}  lr {opt.param_groups[0]['lr']:.2e}  "
-                f"{time.perf_counter() - start:7.1f} s"
-            )
-            running = 0.0
+        steps.update(weighted_l1(out.depth, gt, d_max) + 0.5 * weighted_l1(out.expected, gt, d_max))
     figures = _validate_mvs(net, mono, val)
-    figures.update({"steps": cfg.steps, "seconds": round(time.perf_counter() - start, 1)})
+    figures.update({"steps": cfg.steps, "seconds": steps.seconds})
     log(f"final (validation scenes of the train split): {json.dumps(figures)}")
     save_weights(
         net,

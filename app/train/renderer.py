@@ -18,7 +18,6 @@ import hashlib
 import json
 import math
 import sys
-import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -27,9 +26,9 @@ from safetensors.torch import load_file
 from torch import Tensor
 from tqdm import tqdm
 
-from panogrf.app.atomic import save_tensors_atomic
+from panogrf.app.files.atomic import save_tensors_atomic
 from panogrf.app.train.data import TripletSet, load_triplets, yaw_roll
-from panogrf.app.train.depth import _init, _lr_at, save_weights
+from panogrf.app.train.loop import Steps, held_back, init_from, save_weights
 from panogrf.model.depth import DepthEstimator
 from panogrf.model.erp import latitude_weights
 from panogrf.model.metrics import ws_psnr
@@ -184,14 +183,24 @@ def validate(net: RendererNet, data: TripletSet, depths: dict[str, Tensor], heig
     return {f"val_ws_psnr_{q}": sum(v) / len(v) for q, v in scores.items()}
 
 
+def _describe(mean: Tensor) -> str:
+    """The log line's losses: the mean MSE of each term and its PSNR."""
+    c, f, g, sf = mean.tolist()
+    psnr = [-10 * math.log10(max(x, 1e-10)) for x in (c, f, g, sf)]
+    return (
+        f"mse coarse {c:.5f} fine {f:.5f} guided {g:.5f} surface {sf:.5f}"
+        f"  (PSNR {psnr[0]:.2f}/{psnr[1]:.2f}/{psnr[2]:.2f}/{psnr[3]:.2f})"
+    )
+
+
 def train_renderer(cfg: TrainRendererConfig, estimator: DepthEstimator, log=print) -> dict:
     """Train the renderer (preset cfg.preset) with the depth networks frozen."""
     torch.manual_seed(cfg.seed)
     data = load_triplets(cfg.data, cfg.height, cfg.limit_scenes)
     depths = pair_depths(estimator, _at_height(data, cfg.depth_height), Path(cfg.data), log)
-    train_idx, val_idx = _split_indices(len(data), cfg.val_scenes)
+    train_idx, val_idx = held_back(len(data), cfg.val_scenes)
     net = RendererNet(PRESETS[cfg.preset])
-    _init(net, cfg.init, log)
+    init_from(net, cfg.init, log)
     log(
         f"renderer ({cfg.preset}, {sum(p.numel() for p in net.parameters())} parameters): "
         f"{len(train_idx)} train scenes, {len(val_idx)} validation"
@@ -201,10 +210,8 @@ def train_renderer(cfg: TrainRendererConfig, estimator: DepthEstimator, log=prin
     probs = _row_sampler(cfg.height, 2 * cfg.height)
     train_sampling = Sampling(n_coarse=cfg.coarse, n_fine=cfg.fine)
     fast = dataclasses.replace(QUALITY["fast"], surface=cfg.surface_loss)
-    start, running = time.perf_counter(), torch.zeros(4)
-    for step in range(1, cfg.steps + 1):
-        for group in opt.param_groups:
-            group["lr"] = _lr_at(step, cfg.steps, cfg.lr)
+    steps = Steps(opt, cfg.steps, cfg.lr, cfg.log_every, log, _describe, tuple(net.parameters()))
+    for _ in steps:
         losses = torch.zeros(4)
         total = 0.0
         for _ in range(cfg.scenes_per_step):
@@ -231,25 +238,11 @@ def train_renderer(cfg: TrainRendererConfig, estimator: DepthEstimator, log=prin
             )
             total = total + parts.sum() / cfg.scenes_per_step
             losses += parts.detach() / cfg.scenes_per_step
-        opt.zero_grad(set_to_none=True)
-        total.backward()
-        torch.nn.utils.clip_grad_norm_(net.parameters(), 1.0)
-        opt.step()
-        running += losses
-        if step % cfg.log_every == 0 or step == cfg.steps:
-            k = cfg.log_every if step % cfg.log_every == 0 else step % cfg.log_every
-            c, f, g, sf = (running / k).tolist()
-            psnr = [-10 * math.log10(max(x, 1e-10)) for x in (c, f, g, sf)]
-            log(
-                f"step {step:5d}  mse coarse {c:.5f} fine {f:.5f} guided {g:.5f} surface {sf:.5f}"
-                f"  (PSNR {psnr[0]:.2f}/{psnr[1]:.2f}/{psnr[2]:.2f}/{psnr[3]:.2f})  "
-                f"lr {opt.param_groups[0]['lr']:.2e}  {time.perf_counter() - start:7.1f} s"
-            )
-            running.zero_()
+        steps.update(total, losses)
     val = data.subset(val_idx)
     val_depths = {k: v[val_idx] for k, v in depths.items()}
     figures = validate(net, val, val_depths, cfg.depth_height)
-    figures.update({"steps": cfg.steps, "seconds": round(time.perf_counter() - start, 1)})
+    figures.update({"steps": cfg.steps, "seconds": steps.seconds})
     rows = cfg.depth_height
     log(f"final (validation scenes of the train split, {rows} rows): {json.dumps(figures)}")
     save_weights(
@@ -265,11 +258,6 @@ def train_renderer(cfg: TrainRendererConfig, estimator: DepthEstimator, log=prin
         },
     )
     return figures
-
-
-def _split_indices(n: int, val_scenes: int) -> tuple[Tensor, Tensor]:
-    k = min(val_scenes, max(1, n // 5))
-    return torch.arange(n - k), torch.arange(n - k, n)
 
 
 def _at_height(data: TripletSet, height: int) -> TripletSet:

@@ -17,7 +17,7 @@ from panogrf.app.viewer.camera import FlyCamera
 class ExportsMixin:
     def save_path(self) -> None:
         """O: the keyframes' path to ``--path-out``; a failed write is reported, never fatal."""
-        from panogrf.app.coverage import path_warning
+        from panogrf.app.scene.coverage import path_warning
 
         if not self.path.keys:
             self.say("no keyframes to save (K adds one)")
@@ -59,7 +59,7 @@ class ExportsMixin:
         if self.mode == "sources":
             rgb, what = self.setup.images[self.source_index], f"source view {self.source_index}"
         elif self.shown_level is not None and self.refined_rgb is not None:
-            total = len(self.setup.worker.levels)
+            total = self.refinement.levels
             rgb, what = self.refined_rgb, f"refined level {self.shown_level + 1}/{total}"
         else:
             rgb, _ = self.preview.render(pose, self.setup.preview_height)

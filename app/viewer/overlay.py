@@ -37,7 +37,11 @@ class OverlayMixin:
     def _coverage_lines(self, pose: np.ndarray) -> list[str]:
         """Warnings while the camera is outside the region the sources cover or inside an
         object (behind the surface its nearest source sees); logged once when they start."""
-        from panogrf.app.coverage import behind_surface, covered_radius, nearest_source_distance
+        from panogrf.app.scene.coverage import (
+            behind_surface,
+            covered_radius,
+            nearest_source_distance,
+        )
 
         sources = self.setup.c2w
         lines = []
@@ -64,13 +68,9 @@ class OverlayMixin:
         p = pose[:3, 3]
         recent = self.frame_times[-30:]
         fps = len(recent) / max(sum(recent), 1e-6) if recent else 0.0
-        worker = self.setup.worker
-        levels = worker.levels if worker is not None else []
-        done, frac = worker.status if worker is not None else (0, 0.0)
-        status = screen.refine_status(worker is not None, self.requested, done, frac, levels)
-        if worker is not None and worker.error:  # the worker died: say why, on screen
-            status = f"refinement stopped: {worker.error}"
-        shown = screen.shown_label(self.mode, self.shown_level, len(levels), self.source_index)
+        status = self.refinement.status_text()
+        levels = self.refinement.levels
+        shown = screen.shown_label(self.mode, self.shown_level, levels, self.source_index)
         view = f"perspective {self.camera.fov:.0f} deg" if self.perspective else "panorama"
         lines = [
             f"pos {p[0]:+.2f} {p[1]:+.2f} {p[2]:+.2f} m  speed {self.camera.speed:.2f} m/s",

@@ -2,9 +2,9 @@
 
 A keyframe keeps what the camera showed when it was added (pose, field of view) and how long
 the transition to the next one lasts. The recorded path samples the smooth path through the
-keyframes (`panogrf.app.trajectory`) at the path's fps, in real time: ``seconds`` is the sum of
-the transitions and the path holds ``seconds x fps`` cameras, one per video frame, each with the
-field of view interpolated between its keyframes and the aspect of the recorded image.
+keyframes (`panogrf.app.paths.trajectory`) at the path's fps, in real time: ``seconds`` is the
+sum of the transitions and the path holds ``seconds x fps`` cameras, one per video frame, each
+with the field of view interpolated between its keyframes and the aspect of the recorded image.
 
 Saving never takes the viewer down: a camera path or an image that cannot be written (a missing
 or unwritable folder, a folder where the file should be) gives a message that says why, and the
@@ -19,8 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-from panogrf.app.camera_path import CameraPath, write_camera_path
-from panogrf.app.trajectory import frame_times, sample_keyframes, sample_values
+from panogrf.app.paths.camera_path import CameraPath, write_camera_path
+from panogrf.app.paths.trajectory import frame_times, sample_keyframes, sample_values
 
 #: Seconds of a new keyframe's transition to the next one (nerfstudio's default).
 DEFAULT_TRANSITION_S = 2.0
@@ -139,7 +139,7 @@ def save_path_file(out: Path, path: CameraPath) -> tuple[bool, str]:
 
 def save_image_file(out: Path, rgb: np.ndarray) -> tuple[bool, str | None]:
     """Write RGB uint8 [H, W, 3] to ``out``; (written, why not or None)."""
-    from panogrf.app.images import write_rgb
+    from panogrf.app.files.images import write_rgb
 
     problem = output_problem(out)
     if problem is None:

@@ -1,9 +1,9 @@
 """The viewer window (moderngl-window): preview while moving, refined when still, camera paths.
 
 The same class runs in a real window (pyglet backend) and headless (EGL), a backend switch.
-Per frame: held keys move the camera; if the pose changed, the render worker's refinement is
-cancelled and the GL preview redrawn; once the camera has been still for a moment, the worker
-is asked to refine the pose and its newest finished level replaces the preview on screen.
+Per frame: held keys move the camera; the pose goes to the refinement state machine
+(`panogrf.app.viewer.refinement`), which cancels or requests the worker's refinement; the window
+draws the GL preview, or the state machine's newest finished level once there is one.
 The display is the whole panorama or a perspective view, in colour or as distance.
 
 Panorama mode shows the whole sphere, so there is nothing to look up or down to: as in any 360
@@ -37,18 +37,13 @@ from panogrf.app.viewer import recording, screen
 from panogrf.app.viewer.camera import FlyCamera
 from panogrf.app.viewer.exports import ExportsMixin
 from panogrf.app.viewer.overlay import OverlayMixin
+from panogrf.app.viewer.refinement import Refinement
 from panogrf.app.viewer.script import KEY_NAMES, ScriptPlayer, parse_script
 
 __all__ = ["PanoViewer", "ViewerSetup", "parse_script", "run_viewer"]
 from panogrf.shaders import load as load_shader
 
 MODES = ("refined", "preview", "distance", "sources")
-#: Seconds the camera must stay still before refinement starts.
-STILL_DELAY = 0.1
-#: Frame rate while the camera is still and the worker refines: each redraw of an unchanged
-#: view takes the cores from the refinement (about 15 % of its speed at 30 fps on 2 cores); a
-#: finished level is shown at once all the same (`RenderWorker.wait_for_result`).
-REFINING_FPS = 15.0
 LOOK_SPEED = 1.5  # radians per second for the arrow keys
 DRAG_SPEED = 0.004  # radians per pixel of mouse drag
 
@@ -76,7 +71,7 @@ class ViewerSetup:
     @classmethod
     def from_views(cls, views, start_frame: int = 0, **kw) -> ViewerSetup:
         """A setup from prepared `SourceViews` (full depth estimated), starting at a view."""
-        from panogrf.app.images import to_uint8
+        from panogrf.app.files.images import to_uint8
 
         return cls(
             images=to_uint8(views.images),
@@ -118,7 +113,6 @@ class PanoViewer(ExportsMixin, OverlayMixin, mglw.WindowConfig):
         h = s.preview_height
         self.refined_tex = self.ctx.texture((2 * h, h), 3)
         self.refined_tex.repeat_x = True
-        self.refined_key = (-1, -1)  # (generation, level) on the refined texture
         self.refined_rgb: np.ndarray | None = None
         self.shown_level: int | None = None  # the refined level on screen (None: not refined)
         self.overlay_tex = None
@@ -131,16 +125,11 @@ class PanoViewer(ExportsMixin, OverlayMixin, mglw.WindowConfig):
         self.held: set[str] = set()
         self.path = recording.KeyframeSession()
         self.warned: tuple[bool, bool] = (False, False)  # (outside, inside) last logged
-        self.last_pose = None
-        self.still_since = time.perf_counter()
-        self.requested = False
-        self.request_gen = -1
+        self.refinement = Refinement(s.worker)
         self.frame_count = 0
         self.frame_times: list[float] = []  # seconds between consecutive frame starts
         self.moving_frame_times: list[float] = []  # the same, of frames where the camera moved
-        self.refine_log: list[tuple[int, float]] = []  # (level, seconds since the camera stopped)
         self.last_start: float | None = None
-        self.last_moved = False
         self.preview_key = None
         self.preview_out = None
         self.script = ScriptPlayer(s.script)
@@ -250,10 +239,10 @@ class PanoViewer(ExportsMixin, OverlayMixin, mglw.WindowConfig):
         if yaw or pitch:
             cam.look(yaw * LOOK_SPEED * dt, pitch * LOOK_SPEED * dt)
 
-    def _refined_all(self) -> bool:
-        """Has the worker refined every level of the still view (a script's "refined")?"""
-        worker = self.setup.worker
-        return worker is None or (self.requested and worker.status[0] >= len(worker.levels))
+    @property
+    def refine_log(self) -> list[tuple[int, float]]:
+        """(level, seconds from the camera stopping to that level on screen), in order."""
+        return self.refinement.log
 
     # -- frame ---------------------------------------------------------------------------------
     def on_render(self, time_s: float, frame_time: float) -> None:
@@ -262,11 +251,11 @@ class PanoViewer(ExportsMixin, OverlayMixin, mglw.WindowConfig):
         start = time.perf_counter()
         if self.last_start is not None:
             self.frame_times.append(start - self.last_start)
-            if self.last_moved:
+            if self.refinement.moved:
                 self.moving_frame_times.append(start - self.last_start)
         self.last_start = start
         dt = self.setup.fixed_step or min(frame_time, 0.1)
-        self.script.step(self.press, self.held, self._refined_all)
+        self.script.step(self.press, self.held, self.refinement.done)
         if self.path.playback is not None:  # real time: the wall clock's whole frame time
             pose, self.camera.fov, finished = self.path.advance(self.setup.fixed_step or frame_time)
             if finished:
@@ -274,29 +263,15 @@ class PanoViewer(ExportsMixin, OverlayMixin, mglw.WindowConfig):
         else:
             self._apply_held(dt)
             pose = self.view_pose()
-        moved = self.last_pose is None or not np.allclose(pose, self.last_pose, atol=1e-9)
-        worker = self.setup.worker
-        now = time.perf_counter()
-        self.last_moved = moved
-        if moved:
-            self.last_pose = pose
-            self.still_since = now
-            self.requested = False
-            if worker is not None:
-                worker.cancel()
-        elif worker is not None and not self.requested and now - self.still_since >= STILL_DELAY:
-            self.request_gen = worker.request(pose)
-            self.requested = True
+        moved = self.refinement.observe(pose)
 
         # What to show; the GL preview is drawn only when it is shown (or shown through).
         refined, self.shown_level = None, None
-        if self.mode == "refined" and worker is not None and self.requested:
-            done = worker.latest()
-            if done is not None and done.generation == self.request_gen:
-                if (done.generation, done.level) != self.refined_key:  # levels may share a size
+        if self.mode == "refined":
+            done, new = self.refinement.frame()
+            if done is not None:
+                if new:
                     self._upload_refined(done.rgb)
-                    self.refined_key = (done.generation, done.level)
-                    self.refine_log.append((done.level, time.perf_counter() - self.still_since))
                 refined, self.shown_level = self.refined_tex, done.level
         coarse, is_depth, fill = None, False, False
         if self.mode == "sources":
@@ -349,7 +324,7 @@ class PanoViewer(ExportsMixin, OverlayMixin, mglw.WindowConfig):
             self._screenshot()
         self.frame_count += 1
         if not moved and self.path.playback is None:
-            self._idle(start)
+            self.refinement.idle(start, self.setup.fps)
         if self.setup.frames is not None and self.frame_count >= self.setup.frames:
             self.wnd.close()
 
@@ -364,23 +339,6 @@ class PanoViewer(ExportsMixin, OverlayMixin, mglw.WindowConfig):
             self.displays[key] = (prog, self.ctx.vertex_array(prog, []))
         return self.displays[key]
 
-    def _idle(self, frame_start: float) -> None:
-        """The camera is still: nothing to redraw fast, so leave the cores to the refinement
-        until the next frame is due, but wake when the refinement should start (end of the
-        debounce) or a refined level is ready."""
-        worker = self.setup.worker
-        refining = worker is not None and self.requested and worker.status[0] < len(worker.levels)
-        due = frame_start + 1.0 / (
-            min(self.setup.fps, REFINING_FPS) if refining else self.setup.fps
-        )
-        if worker is not None and not self.requested:
-            due = min(due, self.still_since + STILL_DELAY)
-        remaining = due - time.perf_counter()
-        if refining:
-            worker.wait_for_result(remaining)
-        elif remaining > 0:
-            time.sleep(remaining)
-
     def _upload_refined(self, rgb: np.ndarray) -> None:
         if (rgb.shape[1], rgb.shape[0]) != self.refined_tex.size:
             self.refined_tex.release()
@@ -391,8 +349,7 @@ class PanoViewer(ExportsMixin, OverlayMixin, mglw.WindowConfig):
         self.refined_rgb = rgb
 
     def on_close(self) -> None:
-        if self.setup.worker is not None:
-            self.setup.worker.stop()
+        self.refinement.stop()
 
 
 def run_viewer(setup: ViewerSetup, window: str = "pyglet", size: tuple[int, int] = (1024, 512)):

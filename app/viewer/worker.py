@@ -16,7 +16,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import torch
 
-from panogrf.app.images import to_uint8
+from panogrf.app.files.images import to_uint8
 from panogrf.model.render_net import RendererNet
 from panogrf.renderer.cache import SceneCache
 from panogrf.renderer.detail import DEFAULT_DETAIL, render_detailed

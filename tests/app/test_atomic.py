@@ -13,8 +13,9 @@ import time
 import pytest
 from helpers.disk import fill, tiny_tmpfs
 
-from panogrf.app import atomic
-from panogrf.app.atomic import (
+from panogrf.app.errors import UserError
+from panogrf.app.files import atomic
+from panogrf.app.files.atomic import (
     atomic_output,
     check_output,
     nan_to_null,
@@ -23,7 +24,6 @@ from panogrf.app.atomic import (
     write_bytes_atomic,
     write_json_atomic,
 )
-from panogrf.app.errors import UserError
 
 
 def test_temporary_name_is_recognisable_and_keeps_the_suffix(tmp_path):
@@ -80,7 +80,7 @@ def test_files_follow_the_umask(tmp_path):
 
 _KILLED_WRITER = """
 import sys, time
-from panogrf.app.atomic import atomic_output
+from panogrf.app.files.atomic import atomic_output
 with atomic_output(sys.argv[1], directory=sys.argv[2] == "dir") as tmp:
     if sys.argv[2] == "dir":
         (tmp / "frame_00000.png").write_bytes(b"new")
@@ -174,10 +174,10 @@ def _writers():
     import numpy as np
     import torch
 
-    from panogrf.app.camera_path import CameraPath, write_camera_path
-    from panogrf.app.images import write_depth, write_rgb
+    from panogrf.app.files.images import write_depth, write_rgb
+    from panogrf.app.paths.camera_path import CameraPath, write_camera_path
     from panogrf.app.poses.importers import write_tum
-    from panogrf.app.train.depth import save_weights
+    from panogrf.app.train.loop import save_weights
 
     rng = np.random.default_rng(0)
     noise = rng.integers(0, 256, (128, 256, 3), dtype=np.uint8)  # does not compress

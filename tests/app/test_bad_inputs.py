@@ -14,7 +14,8 @@ import pytest
 import torch
 from helpers.nets import random_models
 
-from panogrf.app import cli, scoring, session
+from panogrf.app import cli, scoring
+from panogrf.app.scene import session
 from panogrf.app.viewer.window import parse_script
 from panogrf.assets import path as asset_path
 from panogrf.model.metrics import ssim
@@ -121,8 +122,8 @@ def test_camera_path_sizes_that_cannot_render_are_refused_up_front(tmp_path, cap
 @pytest.mark.gl
 def test_preview_over_the_gl_texture_limit_is_refused_before_the_work():
     from panogrf.app.errors import UserError
-    from panogrf.app.frames import FrameRenderer
-    from panogrf.app.scene import load_scene
+    from panogrf.app.paths.frames import FrameRenderer
+    from panogrf.app.scene.folder import load_scene
     from panogrf.renderer.methods import SourceViews
 
     data = load_scene(DEMO, load_images=True).images

@@ -83,7 +83,7 @@ def cases():
 @pytest.mark.gl
 @pytest.mark.slow
 def test_no_setting_returns_nan_inf_or_empty_in_any_case(cases):
-    from panogrf.app.session import default_models
+    from panogrf.app.scene.session import default_models
     from panogrf.renderer.methods import SourceViews
     from panogrf.renderer.snerf import SNeRFConfig, fit_snerf
 

@@ -7,14 +7,14 @@ import json
 import numpy as np
 import pytest
 
-from panogrf.app.camera_path import (
+from panogrf.app.errors import UserError
+from panogrf.app.paths.camera_path import (
     DEFAULT_FOV_DEG,
     CameraPath,
     duration_note,
     read_camera_path,
     write_camera_path,
 )
-from panogrf.app.errors import UserError
 
 # As nerfstudio's viewer writes it (render_panel.py `_write_json`), shortened to two cameras.
 NERFSTUDIO_SNIPPET = """{

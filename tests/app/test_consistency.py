@@ -8,8 +8,8 @@ import math
 import pytest
 import torch
 
-from panogrf.app.consistency import reprojection_check
-from panogrf.app.scene import load_scene
+from panogrf.app.scene.consistency import reprojection_check
+from panogrf.app.scene.folder import load_scene
 from panogrf.assets import path as asset_path
 from panogrf.model.erp import rotation_about
 

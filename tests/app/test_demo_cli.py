@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from panogrf.app.cli import main
-from panogrf.app.images import read_rgb
+from panogrf.app.files.images import read_rgb
 
 
 def test_demo_runs_and_writes_a_picture(tmp_path, capsys):

@@ -14,10 +14,12 @@ import numpy as np
 import pytest
 import torch
 
-from panogrf.app import cli, depth_weights
-from panogrf.app.commands.depth import METADATA_KEY, estimate_scene
-from panogrf.app.images import read_depth, read_rgb
-from panogrf.app.scene import check_scene, load_scene, write_scene
+from panogrf.app import cli
+from panogrf.app.files.images import read_depth, read_rgb
+from panogrf.app.scene.estimate import METADATA_KEY
+from panogrf.app.scene.folder import check_scene, load_scene, write_scene
+from panogrf.app.scene.session import estimate_scene
+from panogrf.app.weights import networks as depth_weights
 from panogrf.assets import path as asset_path
 from panogrf.model.depth import DepthEstimator
 from panogrf.model.mono import MonoDepthConfig, MonoDepthNet

@@ -10,7 +10,9 @@ import shutil
 import numpy as np
 import pytest
 
-from panogrf.app import atomic, cli, session
+from panogrf.app import cli
+from panogrf.app.files import atomic
+from panogrf.app.scene import session
 from panogrf.assets import path as asset_path
 
 DEMO = asset_path("demo")

@@ -66,7 +66,7 @@ def test_home_baselines_reach_past_two_metres():
 
 @pytest.mark.gl
 def test_make_home_dataset(tmp_path):
-    from panogrf.app.images import read_depth, read_rgb
+    from panogrf.app.files.images import read_depth, read_rgb
 
     make_dataset(MakeConfig(out=tmp_path, count=2, height=32, world="home"), progress=False)
     index = json.loads((tmp_path / "dataset.json").read_text())

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from panogrf.app.errors import UserError
-from panogrf.app.images import (
+from panogrf.app.files.images import (
     ImageReadError,
     read_depth,
     read_rgb,
@@ -117,7 +117,7 @@ def test_failed_write_keeps_the_old_file(tmp_path, monkeypatch):
     def crash(src, dst):
         raise OSError("disk full")
 
-    monkeypatch.setattr("panogrf.app.images.os.replace", crash)
+    monkeypatch.setattr("panogrf.app.files.images.os.replace", crash)
     with pytest.raises(OSError, match="disk full"):
         write_rgb(path, np.full((16, 32, 3), 7, np.uint8))
     monkeypatch.undo()

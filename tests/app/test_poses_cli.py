@@ -9,10 +9,11 @@ import shutil
 import numpy as np
 import pytest
 
-from panogrf.app import cli, session
-from panogrf.app.images import write_rgb
+from panogrf.app import cli
+from panogrf.app.files.images import write_rgb
 from panogrf.app.poses import errors as er
-from panogrf.app.scene import load_scene
+from panogrf.app.scene import session
+from panogrf.app.scene.folder import load_scene
 from panogrf.assets import path as asset_path
 
 DEMO = asset_path("demo")

@@ -1,10 +1,10 @@
-"""`panogrf.app.coverage`: the warning when a camera leaves the region the sources cover."""
+"""`panogrf.app.scene.coverage`: the warning when a camera leaves the region the sources cover."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from panogrf.app.coverage import covered_radius, frame_ranges, path_warning, uncovered
+from panogrf.app.scene.coverage import covered_radius, frame_ranges, path_warning, uncovered
 
 
 def _at(*xs):

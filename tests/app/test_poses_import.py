@@ -10,10 +10,10 @@ from scipy.spatial.transform import Rotation
 
 from panogrf.app import cli
 from panogrf.app.errors import UserError
-from panogrf.app.images import write_rgb
+from panogrf.app.files.images import write_rgb
 from panogrf.app.poses import errors as er
 from panogrf.app.poses import importers as im
-from panogrf.app.scene import load_scene
+from panogrf.app.scene.folder import load_scene
 
 H, W = 16, 32
 

@@ -13,8 +13,9 @@ import numpy as np
 import pytest
 from helpers.nets import random_models
 
-from panogrf.app import cli, session
-from panogrf.app.images import read_rgb
+from panogrf.app import cli
+from panogrf.app.files.images import read_rgb
+from panogrf.app.scene import session
 from panogrf.assets import path as asset_path
 
 DEMO = asset_path("demo")
@@ -140,9 +141,9 @@ def test_eval_errors(random_nets, tmp_path, capsys):
 
 
 def _write_path(path, camera_type="equirectangular", n=3, w=64, h=32):
-    from panogrf.app.camera_path import CameraPath, write_camera_path
-    from panogrf.app.scene import load_scene
-    from panogrf.app.trajectory import interpolate_keyframes
+    from panogrf.app.paths.camera_path import CameraPath, write_camera_path
+    from panogrf.app.paths.trajectory import interpolate_keyframes
+    from panogrf.app.scene.folder import load_scene
 
     poses = interpolate_keyframes(load_scene(DEMO).c2w, n)
     write_camera_path(path, CameraPath(poses, camera_type, w, h, fps=10.0))
@@ -186,8 +187,8 @@ def test_perspective_path_to_png_frames(random_nets, tmp_path):
 def test_a_path_behind_the_surfaces_is_warned_about(random_nets, tmp_path, capsys):
     """Frames whose camera sits behind the surface the sources see (here 30 m out, beyond the
     10 m depth range) are named, as are frames outside the covered region."""
-    from panogrf.app.camera_path import CameraPath, write_camera_path
-    from panogrf.app.scene import load_scene
+    from panogrf.app.paths.camera_path import CameraPath, write_camera_path
+    from panogrf.app.scene.folder import load_scene
 
     poses = np.array(load_scene(DEMO).c2w[:2], dtype=np.float64)
     far = poses[0].copy()

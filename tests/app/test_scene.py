@@ -14,7 +14,7 @@ import pytest
 import torch
 
 from panogrf.app.errors import UserError
-from panogrf.app.scene import (
+from panogrf.app.scene.folder import (
     SceneError,
     check_scene,
     inspect_scene,

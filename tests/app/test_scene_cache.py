@@ -9,13 +9,13 @@ from helpers.disk import fill, tiny_tmpfs
 from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 
-from panogrf.app.scene_cache import content_key, prepare_cached
+from panogrf.app.scene.cache import content_key, prepare_cached
 from panogrf.model.depth import DepthEstimator
 from panogrf.model.mono import MonoDepthConfig, MonoDepthNet
 from panogrf.model.mvs import PRESETS as MVS_PRESETS
 from panogrf.model.mvs import MVSNet
 from panogrf.model.render_net import RendererNet
-from panogrf.renderer.methods import Models, SourceViews
+from panogrf.renderer.methods import METHODS, Models, SourceViews
 
 
 def _models() -> Models:
@@ -46,7 +46,7 @@ def test_built_then_loaded_with_the_same_tensors(tmp_path):
     second = _views()
     r2 = prepare_cached(second, models, tmp_path / "cache", [weights])
     assert r2.status == "loaded" and r2.path == r1.path
-    a, b = first.caches[("panogrf", "full")], second.caches[("panogrf", "full")]
+    a, b = first.caches[METHODS["panogrf"].cache_key], second.caches[METHODS["panogrf"].cache_key]
     assert torch.equal(a.maps, b.maps) and torch.equal(a.depth, b.depth)
     assert torch.equal(first.depth["full"], second.depth["full"])
     # No temporary files are left behind.
@@ -91,7 +91,7 @@ def test_unwritable_cache_folder_costs_only_the_cache(tmp_path):
     views = _views()
     r = prepare_cached(views, _models(), blocker / "cache", [weights])
     assert "not saved" in r.status
-    assert ("panogrf", "full") in views.caches
+    assert METHODS["panogrf"].cache_key in views.caches
 
 
 def _rewrite(path, **changes) -> None:
@@ -119,12 +119,12 @@ def test_right_key_but_wrong_contents_is_rebuilt(tmp_path):
         views = _views()
         status = prepare_cached(views, models, tmp_path, [weights]).status
         assert status.startswith(f"rebuilt: {why}"), (why, status)
-        assert torch.equal(views.caches[("panogrf", "full")].maps, maps)
+        assert torch.equal(views.caches[METHODS["panogrf"].cache_key].maps, maps)
         assert prepare_cached(_views(), models, tmp_path, [weights]).status == "loaded"
 
 
 def test_full_disk_costs_only_the_cache(tmp_path, monkeypatch):
-    from panogrf.app import scene_cache
+    from panogrf.app.scene import cache as scene_cache
 
     weights = tmp_path / "w"
     weights.write_bytes(b"w")
@@ -138,7 +138,7 @@ def test_full_disk_costs_only_the_cache(tmp_path, monkeypatch):
     views = _views()
     r = prepare_cached(views, _models(), tmp_path / "cache", [weights])
     assert "not saved" in r.status and "No space left" in r.status
-    assert ("panogrf", "full") in views.caches
+    assert METHODS["panogrf"].cache_key in views.caches
     assert list((tmp_path / "cache").iterdir()) == []
 
 

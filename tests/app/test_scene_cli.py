@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from panogrf.app import cli
-from panogrf.app.scene import write_scene
+from panogrf.app.scene.folder import write_scene
 
 H, W = 16, 32
 

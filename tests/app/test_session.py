@@ -1,12 +1,13 @@
-"""The library layer under the commands (`panogrf.app.session`)."""
+"""The library layer under the commands (`panogrf.app.scene.session`)."""
 
 from __future__ import annotations
 
 from helpers.nets import random_models
 
-from panogrf.app import depth_weights as dw
-from panogrf.app import session
+from panogrf.app.scene import session
+from panogrf.app.weights import networks as dw
 from panogrf.assets import path as asset_path
+from panogrf.renderer.methods import METHODS
 
 
 def test_weight_files_cover_every_network_a_method_prepares_with():
@@ -37,7 +38,7 @@ def test_prepare_scene_with_given_networks_leaves_the_disk_cache_alone(tmp_path)
     prepared = session.prepare_scene(
         asset_path("demo"), tmp_path / "cache", models=random_models(), log=logged.append
     )
-    assert ("panogrf", "full") in prepared.views.caches
+    assert METHODS["panogrf"].cache_key in prepared.views.caches
     assert prepared.views.depth["full"].isfinite().all()
     assert prepared.scene.num_views == prepared.views.images.shape[0]
     assert not (tmp_path / "cache").exists()

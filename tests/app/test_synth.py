@@ -142,7 +142,7 @@ def test_gl_depth_matches_ray_casting(split, seed):
 
 @pytest.mark.gl
 def test_make_dataset_writes_scene_folders(tmp_path):
-    from panogrf.app.images import read_depth, read_rgb
+    from panogrf.app.files.images import read_depth, read_rgb
 
     summary = make_dataset(
         MakeConfig(out=tmp_path, split="test", count=2, height=16, baselines=(1.0, 2.0)),

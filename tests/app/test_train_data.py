@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from panogrf.app.consistency import reprojection_check
-from panogrf.app.scene import load_scene
+from panogrf.app.scene.consistency import reprojection_check
+from panogrf.app.scene.folder import load_scene
 from panogrf.app.train.data import downsample_depth, yaw_roll
 from panogrf.assets import path as asset_path
 

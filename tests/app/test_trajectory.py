@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from panogrf.app.trajectory import (
+from panogrf.app.paths.trajectory import (
     interpolate_keyframes,
     path_duration,
     quaternion_to_rotation,

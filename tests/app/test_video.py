@@ -13,7 +13,7 @@ import pytest
 from helpers.disk import fill, tiny_tmpfs
 
 from panogrf.app.errors import UserError
-from panogrf.app.video import FrameSink
+from panogrf.app.files.video import FrameSink
 
 
 def _frame(i: int, w: int = 64, h: int = 32) -> np.ndarray:
@@ -193,7 +193,7 @@ _KILLED_EXPORT = """
 import sys
 import numpy as np
 from pathlib import Path
-from panogrf.app.video import FrameSink
+from panogrf.app.files.video import FrameSink
 with FrameSink(Path(sys.argv[1]), 24, 64, 32, spherical=True) as sink:
     for i in range(3):
         sink.write(np.zeros((32, 64, 3), np.uint8))

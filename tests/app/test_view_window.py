@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from panogrf.app.images import read_rgb
+from panogrf.app.files.images import read_rgb
 from panogrf.assets import path as asset_path
 
 DEMO = asset_path("demo")
@@ -149,7 +149,7 @@ def test_headless_session_writes_screenshots_and_a_camera_path(tmp_path):
     run = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, run.stderr
     assert "saved" in run.stdout and len(SHOT.findall(run.stdout)) == 2
-    from panogrf.app.camera_path import read_camera_path
+    from panogrf.app.paths.camera_path import read_camera_path
 
     path = read_camera_path(out_path)
     assert len(path) > 3 and path.camera_type == "equirectangular"

@@ -8,12 +8,11 @@ import time
 import numpy as np
 import pytest
 import torch
+from helpers.nets import random_cache
 
 from panogrf.app.viewer.camera import FlyCamera
 from panogrf.app.viewer.window import parse_script
 from panogrf.app.viewer.worker import RenderWorker
-from panogrf.model.render_net import RendererNet
-from panogrf.renderer.cache import build_cache
 
 
 def test_camera_pose_round_trip_and_moves():
@@ -45,16 +44,6 @@ def test_parse_script():
     ]
 
 
-def _worker_cache():
-    torch.manual_seed(0)
-    net = RendererNet().eval()
-    c2w = torch.eye(4).repeat(2, 1, 1)
-    c2w[1, 0, 3] = 1.0
-    with torch.no_grad():
-        cache = build_cache(net, torch.rand(2, 3, 32, 64), c2w, torch.full((2, 1, 16, 32), 2.0))
-    return net, cache
-
-
 def _wait(worker, gen, level, timeout=60.0):
     end = time.time() + timeout
     while time.time() < end:
@@ -66,7 +55,7 @@ def _wait(worker, gen, level, timeout=60.0):
 
 
 def test_worker_refines_level_by_level_and_newer_requests_win():
-    net, cache = _worker_cache()
+    net, cache = random_cache()
     worker = RenderWorker(net, cache, levels=((8, "fast"), (16, "fast"))).start()
     try:
         gen = worker.request(np.eye(4))
@@ -85,7 +74,7 @@ def test_worker_refines_level_by_level_and_newer_requests_win():
 
 
 def test_cancel_stops_a_render_in_flight():
-    net, cache = _worker_cache()
+    net, cache = random_cache()
     worker = RenderWorker(net, cache, levels=((64, "paper"),)).start()
     try:
         gen = worker.request(np.eye(4))
@@ -99,7 +88,7 @@ def test_cancel_stops_a_render_in_flight():
 
 
 def test_worker_levels_can_use_the_nearest_sources():
-    net, cache = _worker_cache()  # sources at x = 0 and x = 1
+    net, cache = random_cache()  # sources at x = 0 and x = 1
     worker = RenderWorker(net, cache, levels=((8, "fast", 1), (8, "fast", None)))
     near_second = np.eye(4)
     near_second[0, 3] = 0.9
@@ -116,7 +105,7 @@ def test_worker_levels_can_use_the_nearest_sources():
 
 
 def test_waiting_for_a_result_wakes_when_a_level_is_done():
-    net, cache = _worker_cache()
+    net, cache = random_cache()
     worker = RenderWorker(net, cache, levels=((8, "fast"),)).start()
     try:
         time.sleep(0.5)  # the warm-up render is done

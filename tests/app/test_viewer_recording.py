@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from panogrf.app.camera_path import read_camera_path
-from panogrf.app.coverage import behind_surface
+from panogrf.app.paths.camera_path import read_camera_path
+from panogrf.app.scene.coverage import behind_surface
 from panogrf.app.viewer import recording, screen
 from panogrf.app.viewer.camera import FlyCamera
 from panogrf.app.viewer.recording import Keyframe

@@ -5,20 +5,15 @@ from __future__ import annotations
 import time
 
 import numpy as np
-import torch
+from helpers.nets import random_cache
 
 from panogrf.app.viewer.worker import RenderWorker
-from panogrf.model.render_net import RendererNet
-from panogrf.renderer.cache import SceneCache, build_cache
+from panogrf.renderer.cache import SceneCache
 
 
 def test_a_failing_render_is_reported_not_swallowed(capfd):
-    torch.manual_seed(0)
-    net = RendererNet().eval()
-    c2w = torch.eye(4).repeat(2, 1, 1)
-    c2w[1, 0, 3] = 1.0
-    with torch.no_grad():
-        good = build_cache(net, torch.rand(2, 3, 32, 64), c2w, torch.full((2, 1, 16, 32), 2.0))
+    net, good = random_cache()
+    c2w = good.c2w
     # Maps of other weights (fewer feature channels): the render cannot use them.
     bad = SceneCache(good.images, c2w, good.depth, good.maps[:, 3:], good.feature_channels)
     worker = RenderWorker(net, bad, levels=((8, "fast"),)).start()

@@ -9,6 +9,7 @@ from panogrf.model.mono import MonoDepthConfig, MonoDepthNet
 from panogrf.model.mvs import PRESETS as MVS_PRESETS
 from panogrf.model.mvs import MVSNet
 from panogrf.model.render_net import PRESETS, RendererNet
+from panogrf.renderer.cache import SceneCache, build_cache
 from panogrf.renderer.methods import Models
 
 
@@ -19,3 +20,17 @@ def random_models() -> Models:
     est = DepthEstimator(MonoDepthNet(MonoDepthConfig()), mvs, working_height=32).eval()
     nets = {k: RendererNet(v).eval() for k, v in PRESETS.items()}
     return Models(estimator=lambda mode: est, renderer=lambda preset: nets[preset])
+
+
+def random_cache(views: int = 2) -> tuple[RendererNet, SceneCache]:
+    """A seeded random renderer and the cache of ``views`` random 32 x 64 sources, one metre
+    apart along x, all at 2 m depth (for the viewer's worker)."""
+    torch.manual_seed(0)
+    net = RendererNet().eval()
+    c2w = torch.eye(4).repeat(views, 1, 1)
+    c2w[:, 0, 3] = torch.arange(views, dtype=c2w.dtype)
+    with torch.no_grad():
+        cache = build_cache(
+            net, torch.rand(views, 3, 32, 64), c2w, torch.full((views, 1, 16, 32), 2.0)
+        )
+    return net, cache

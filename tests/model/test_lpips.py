@@ -8,7 +8,7 @@ import cv2
 import pytest
 import torch
 
-from panogrf.app.lpips_weights import load_lpips
+from panogrf.app.weights.lpips import load_lpips
 from panogrf.model.lpips import LPIPS, MIN_SIZE
 
 # The LPIPS authors' example images, with their licence, in the repository (tests/data/lpips).
@@ -98,7 +98,7 @@ def test_min_size_is_the_backbone_minimum():
 
 
 def test_missing_asset_error_says_how_to_fix(monkeypatch, tmp_path):
-    from panogrf.app import lpips_weights
+    from panogrf.app.weights import lpips as lpips_weights
 
     monkeypatch.setattr(lpips_weights.assets, "path", lambda name: tmp_path / name)
     lpips_weights._load_cached.cache_clear()

@@ -15,7 +15,7 @@ import torch
 import torch.nn.functional as F
 from scipy.stats import norm
 
-from panogrf.app.scene import load_scene
+from panogrf.app.scene.folder import load_scene
 from panogrf.app.train.data import downsample_depth
 from panogrf.assets import path as asset_path
 from panogrf.model.erp import direction_to_pixel, erp_directions, invert_rigid, rotation_about

@@ -15,8 +15,8 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from panogrf.app.images import read_rgb, write_rgb
-from panogrf.app.scene import load_scene
+from panogrf.app.files.images import read_rgb, write_rgb
+from panogrf.app.scene.folder import load_scene
 from panogrf.assets import path as asset_path
 from panogrf.model.metrics import ws_psnr
 

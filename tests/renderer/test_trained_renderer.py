@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 import torch
 
-from panogrf.app.scene import load_scene
-from panogrf.app.session import default_models
+from panogrf.app.scene.folder import load_scene
+from panogrf.app.scene.session import default_models
 from panogrf.assets import path as asset_path
 from panogrf.model.metrics import ws_psnr
 from panogrf.renderer.methods import SourceViews, render_view

@@ -1,6 +1,6 @@
 """Typed containers of a scene folder (`Frame`, `Scene`, `SceneImages`) and its format constants.
 
-Kept apart from `panogrf.app.scene` (loading, writing) and `panogrf.app.scene_check` (the
+Kept apart from `panogrf.app.scene.folder` (loading, writing) and `panogrf.app.scene.check` (the
 validator) so that both can build scenes without importing each other.
 """
 
@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from panogrf.app.images import read_depth, read_rgb_with_notes
+from panogrf.app.files.images import read_depth, read_rgb_with_notes
 
 TRANSFORMS = "transforms.json"
 CAMERA_MODEL = "EQUIRECTANGULAR"

@@ -1,10 +1,10 @@
 """Writing frames to an H.264 MP4 (imageio-ffmpeg's bundled ffmpeg) or to a folder of PNGs.
 
-Both go to a temporary beside the target (`panogrf.app.atomic`) that replaces it only when
+Both go to a temporary beside the target (`panogrf.app.files.atomic`) that replaces it only when
 complete: a video once ffmpeg has exited cleanly (a full disk makes it fail at the trailer), a
 folder once every frame is in it, so an older video or folder is never damaged and a folder
 never mixes in stale frames of an earlier, longer render. Videos start fast (index first) and
-an equirectangular one carries the 360° metadata players look for (`panogrf.app.spherical`).
+an equirectangular one carries the 360° metadata players look for (`panogrf.app.files.spherical`).
 """
 
 from __future__ import annotations
@@ -17,9 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
-from panogrf.app.atomic import check_output, commit, discard, sweep_stale, temp_path
 from panogrf.app.errors import UserError
-from panogrf.app.images import write_rgb
+from panogrf.app.files.atomic import check_output, commit, discard, sweep_stale, temp_path
+from panogrf.app.files.images import write_rgb
 
 #: x264 constant rate factor (lower is better; 10 is visually lossless).
 CRF = 10
@@ -153,7 +153,7 @@ class FrameSink:
         if ok and rc != 0:
             raise self._ffmpeg_error(rc)
         if ok and self.spherical:
-            from panogrf.app.spherical import add_spherical_metadata
+            from panogrf.app.files.spherical import add_spherical_metadata
 
             try:
                 add_spherical_metadata(self._raw, self._tmp)

@@ -10,6 +10,8 @@ instead of each other's modules:
   preparation must be keyed by.
 - `prepare_scene`: load a scene folder and prepare it (depth and renderer caches, from the
   on-disk cache when valid) with the given `Models`.
+- `estimate_scene` (from `panogrf.app.scene.estimate`): estimate a scene's depth and write it
+  as a scene folder of its own (`panogrf depth`).
 """
 
 from __future__ import annotations
@@ -18,12 +20,26 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from panogrf.app.errors import UserError
+from panogrf.app.scene.estimate import DepthRun, estimate_scene
 from panogrf.renderer.methods import METHODS, Models, SourceViews
+
+#: Largest panorama height (rows; width = 2x) of a render, single or along a camera path.
+MAX_HEIGHT = 4096
+
+__all__ = [
+    "MAX_HEIGHT",
+    "DepthRun",
+    "PreparedScene",
+    "default_models",
+    "estimate_scene",
+    "prepare_scene",
+    "weight_files",
+]
 
 
 def default_models() -> Models:
     """`Models` that load the shipped weights (each network once per process)."""
-    from panogrf.app.depth_weights import NETWORKS, load_depth_estimator, load_renderer
+    from panogrf.app.weights.networks import NETWORKS, load_depth_estimator, load_renderer
 
     def estimator(mode: str):
         return load_depth_estimator(NETWORKS[mode])
@@ -35,7 +51,7 @@ def weight_files(method: str = "panogrf") -> list[Path]:
     """The weights files ``method``'s preparation reads: the monocular network, every MVS
     network its depth mode loads (mode full also runs the unguided network for the fusion)
     and its renderer."""
-    from panogrf.app import depth_weights as dw
+    from panogrf.app.weights import networks as dw
 
     spec = METHODS[method]
     names = []
@@ -52,10 +68,10 @@ class PreparedScene:
     """A scene ready to render: its files, its source views (depth and caches filled) and the
     networks that prepared it."""
 
-    scene: object  # panogrf.app.scene.Scene
+    scene: object  # panogrf.app.scene.folder.Scene
     views: SourceViews
     models: Models
-    cache: object  # panogrf.app.scene_cache.CacheResult
+    cache: object  # panogrf.app.scene.cache.CacheResult
 
 
 def prepare_scene(
@@ -66,8 +82,8 @@ def prepare_scene(
     ``~/.cache/panogrf``)."""
     import time
 
-    from panogrf.app.scene import load_scene
-    from panogrf.app.scene_cache import DEPTH_MODE, PRESET, CacheResult, prepare_cached
+    from panogrf.app.scene.cache import METHOD, CacheResult, prepare_cached
+    from panogrf.app.scene.folder import load_scene
 
     scene = load_scene(scene_dir, load_images=True)
     views = SourceViews(scene.images.images, scene.images.c2w)
@@ -83,7 +99,7 @@ def prepare_scene(
         # Other networks than the shipped files: the disk cache (keyed by those files) is
         # neither read nor written.
         start = time.perf_counter()
-        views.cache_for(PRESET, DEPTH_MODE, models)
+        views.cache_for(METHOD, models)
         seconds = time.perf_counter() - start
         result = CacheResult(Path("-"), "computed (given networks, not cached)", seconds)
     log(f"scene {result.status} in {result.seconds:.2f} s ({result.path})")

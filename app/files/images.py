@@ -5,7 +5,7 @@
   refused, since a transparent panorama is not a photograph of a place.
 - Depth maps are single-channel 16-bit PNGs holding spherical depth (distance from the camera
   centre) in millimetres; 0 means unknown. In memory they are ``float32`` metres, 0.0 unknown.
-- Every write goes through `panogrf.app.atomic` (a temporary beside the destination, then a
+- Every write goes through `panogrf.app.files.atomic` (a temporary beside the destination, then a
   rename), so a reader never sees a half-written file.
 """
 
@@ -19,8 +19,8 @@ import cv2
 import numpy as np
 import torch
 
-from panogrf.app.atomic import write_bytes_atomic, write_json_atomic  # noqa: F401 (re-exported)
 from panogrf.app.errors import UserError
+from panogrf.app.files.atomic import write_bytes_atomic, write_json_atomic  # noqa: F401 (re-exported)
 
 #: Largest depth a 16-bit millimetre PNG can hold, in metres.
 MAX_DEPTH_M = 65.535

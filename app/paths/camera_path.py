@@ -28,8 +28,8 @@ from typing import Any
 import numpy as np
 
 from panogrf.app.errors import UserError
-from panogrf.app.images import write_json_atomic
-from panogrf.app.scene import number_array, pose_problems
+from panogrf.app.files.images import write_json_atomic
+from panogrf.app.scene.folder import number_array, pose_problems
 
 CAMERA_TYPES = ("equirectangular", "perspective")
 #: nerfstudio viewer's default vertical field of view, used where a camera has none.

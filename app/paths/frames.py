@@ -19,7 +19,7 @@ import numpy as np
 import torch
 
 from panogrf.app.errors import UserError
-from panogrf.app.images import to_uint8
+from panogrf.app.files.images import to_uint8
 from panogrf.model.perspective import erp_to_perspective
 from panogrf.renderer.detail import DEFAULT_DETAIL
 from panogrf.renderer.methods import (

@@ -12,8 +12,8 @@ camera-to-world, OpenGL camera frame: x right, y up, looking down -z; metres) an
 ``depth_file_path``. Other keys (nerfstudio's ``fl_x``, ``cx``, a ``seed`` or ``baseline``) are
 kept as metadata and otherwise ignored.
 
-This module loads and writes scene folders. The containers live in `panogrf.app.scene_types` and
-the one validator, `inspect_scene`, in `panogrf.app.scene_check`; it collects every problem at
+This module loads and writes scene folders. The containers live in `panogrf.app.scene.types` and
+the one validator, `inspect_scene`, in `panogrf.app.scene.check`; it collects every problem at
 once, each naming the file or field, and both `load_scene` and ``panogrf scene check`` use it.
 Their public names are re-exported here.
 """
@@ -30,8 +30,8 @@ import numpy as np
 import torch
 
 from panogrf.app.errors import UserError
-from panogrf.app.images import write_depth, write_json_atomic, write_rgb
-from panogrf.app.scene_check import (
+from panogrf.app.files.images import write_depth, write_json_atomic, write_rgb
+from panogrf.app.scene.check import (
     MIN_VIEW_SEPARATION_M,
     POSE_TOLERANCE,
     SceneReport,
@@ -41,7 +41,7 @@ from panogrf.app.scene_check import (
     number_array,
     pose_problems,
 )
-from panogrf.app.scene_types import (
+from panogrf.app.scene.types import (
     CAMERA_MODEL,
     RESERVED_KEYS,
     TRANSFORMS,

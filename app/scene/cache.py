@@ -19,12 +19,13 @@ import torch
 from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 
-from panogrf.app.atomic import atomic_output
+from panogrf.app.files.atomic import atomic_output
 from panogrf.renderer.cache import SceneCache
-from panogrf.renderer.methods import Models, SourceViews
+from panogrf.renderer.methods import METHODS, Models, SourceViews
 
 FORMAT = "panogrf-scene-cache-3"  # 3: mono-guided and unguided MVS fused by the sweep
-PRESET, DEPTH_MODE = "panogrf", "full"
+#: The method whose depth and renderer maps the cache holds.
+METHOD = METHODS["panogrf"]
 #: Largest plausible depth in a cache (metres): far beyond any room or street scene.
 MAX_DEPTH_M = 1000.0
 
@@ -98,7 +99,7 @@ def prepare_cached(
     key = content_key(views.images, views.c2w, weight_files)
     path = cache_dir / f"{key}.safetensors"
     why = None
-    c = models.renderer(PRESET).config.feature_channels
+    c = models.renderer(METHOD.renderer).config.feature_channels
     if path.exists():
         try:
             tensors = load_file(str(path))
@@ -106,12 +107,12 @@ def prepare_cached(
         except (SafetensorError, OSError, ValueError, RuntimeError) as exc:
             why = f"unreadable ({type(exc).__name__})"
         if why is None:
-            views.depth[DEPTH_MODE] = tensors["depth"]
-            views.caches[(PRESET, DEPTH_MODE)] = SceneCache(
+            views.depth[METHOD.depth_mode] = tensors["depth"]
+            views.caches[METHOD.cache_key] = SceneCache(
                 views.images, views.c2w, tensors["depth"], tensors["maps"], c
             )
             return CacheResult(path, "loaded", time.perf_counter() - start)
-    cache = views.cache_for(PRESET, DEPTH_MODE, models)
+    cache = views.cache_for(METHOD, models)
     tensors = {
         "depth": cache.depth.contiguous(),
         "maps": cache.maps.contiguous(),

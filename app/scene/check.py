@@ -2,7 +2,7 @@
 
 Each problem names the file or field (and frame index) and says what is wrong; `load_scene` and
 ``panogrf scene check`` both use it. `number_array` and `pose_problems` are shared with
-`panogrf.app.camera_path` and `panogrf.app.scene.write_scene`.
+`panogrf.app.paths.camera_path` and `panogrf.app.scene.folder.write_scene`.
 """
 
 from __future__ import annotations
@@ -17,8 +17,8 @@ import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
-from panogrf.app.images import ImageReadError, read_depth, read_rgb_with_notes
-from panogrf.app.scene_types import (
+from panogrf.app.files.images import ImageReadError, read_depth, read_rgb_with_notes
+from panogrf.app.scene.types import (
     CAMERA_MODEL,
     RESERVED_KEYS,
     TRANSFORMS,

@@ -1,0 +1,223 @@
+"""Estimating a scene's depth and writing it as a scene folder (the library under `panogrf depth`).
+
+The output folder is itself a scene folder (docs/conventions.md): copies of the panoramas in
+``images/``, the estimated depth in ``depth/`` (16-bit PNG, millimetres) referenced by each
+frame's ``depth_file_path``, colour-mapped previews in ``preview/``, and a ``transforms.json``
+with the input's poses and metadata plus a ``panogrf_depth`` key describing the run.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+import torch
+
+from panogrf.app.errors import UserError
+
+if TYPE_CHECKING:
+    from panogrf.app.scene.folder import Scene
+    from panogrf.model.depth import DepthEstimator
+    from panogrf.model.metrics import DepthMetrics
+
+MODES = ("full", "mono", "mvs")
+#: Top-level key of the output transforms.json that describes the estimation.
+METADATA_KEY = "panogrf_depth"
+METRIC_COLUMNS = (("L1", "l1"), ("RMSE", "rmse"), ("WS-L1", "ws_l1"), ("WS-RMSE", "ws_rmse"))
+
+
+@dataclass(frozen=True)
+class DepthRun:
+    """What `estimate_scene` did: per-view figures in the order of the scene's frames."""
+
+    out_dir: Path
+    mode: str
+    views: tuple[str, ...]
+    """Frame names (image file stems)."""
+    seconds: float
+    """Wall time of the estimation itself (no file reading or writing)."""
+    d_max: float
+    """Top of the estimator's depth range (metres): depth there is clamped."""
+    out_of_range_fraction: tuple[float, ...]
+    """Share of pixels clamped at ``d_max``, per view."""
+    sources: tuple[tuple[str, ...], ...]
+    """Names of the views used as MVS sources, per view (empty: monocular depth)."""
+    warnings: tuple[str, ...]
+    metrics: tuple[DepthMetrics | None, ...] | None
+    """Per view against ground truth on 0 < gt <= d_max (None: view without valid GT);
+    None when the scene has no depth maps."""
+
+    @property
+    def mean_metrics(self) -> dict[str, float] | None:
+        """Mean over the views with metrics of l1, rmse, ws_l1, ws_rmse; None if none."""
+        rows = [m for m in self.metrics or () if m is not None]
+        if not rows:
+            return None
+        return {key: float(np.mean([getattr(m, key) for m in rows])) for _, key in METRIC_COLUMNS}
+
+
+def prepare_out_dir(scene_root: Path, out_dir: Path) -> None:
+    """Create ``out_dir``; one-line errors for a missing scene or an output folder that cannot
+    or must not be written (the input itself, another scene)."""
+    from panogrf.app.scene.folder import TRANSFORMS
+
+    if not scene_root.is_dir():
+        raise UserError(f"scene folder not found: {scene_root}")
+    if not (scene_root / TRANSFORMS).is_file():
+        raise UserError(f"{scene_root}: not a scene folder (no {TRANSFORMS})")
+    if out_dir.resolve() == scene_root.resolve():
+        raise UserError(
+            f"--out {out_dir} is the input scene folder: refusing to overwrite it, choose another"
+        )
+    if out_dir.exists() and not out_dir.is_dir():
+        raise UserError(f"--out {out_dir} exists and is not a folder")
+    existing = out_dir / TRANSFORMS
+    if existing.is_file():
+        try:
+            ours = METADATA_KEY in json.loads(existing.read_text(encoding="utf-8"))
+        except (ValueError, TypeError, OSError):
+            ours = False
+        if not ours:
+            raise UserError(
+                f"{existing} exists and was not written by `panogrf depth`: refusing to overwrite "
+                "another scene, choose an empty folder"
+            )
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UserError(f"cannot write to {out_dir}: {exc.strerror or exc}") from None
+
+
+def _unique_stems(names: list[str]) -> list[str]:
+    """Frame names as output file stems; a repeated stem (a/x.png, b/x.png) gets the index."""
+    seen: set[str] = set()
+    out = []
+    for i, name in enumerate(names):
+        stem = name if name not in seen else f"{name}_{i:03d}"
+        seen.add(stem)
+        out.append(stem)
+    return out
+
+
+def _metrics(
+    depth: torch.Tensor, gt: torch.Tensor | None, d_max: float
+) -> tuple[DepthMetrics | None, ...] | None:
+    """Per-view metrics of depth [V, 1, H, W] vs gt on 0 < gt <= d_max (metres)."""
+    from panogrf.model.metrics import depth_metrics
+
+    if gt is None:
+        return None
+    rows: list[DepthMetrics | None] = []
+    for i in range(depth.shape[0]):
+        in_range = gt[i] <= d_max
+        if not bool((in_range & (gt[i] > 0)).any()):
+            rows.append(None)  # a view without depth map, or only beyond the range
+            continue
+        rows.append(depth_metrics(depth[i], gt[i], in_range))
+    return tuple(rows)
+
+
+def estimate_scene(
+    scene: str | Path | Scene,
+    out_dir: str | Path,
+    estimator: DepthEstimator,
+    mode: str = "full",
+    *,
+    weights: dict[str, str] | None = None,
+) -> DepthRun:
+    """Estimate depth for every view of a scene and write the scene ``out_dir``.
+
+    ``scene`` is a scene folder or a `Scene` loaded with its images (``load_images=True``).
+    ``estimator`` must hold the networks of ``mode`` and sits on the device it runs on;
+    ``weights`` (network -> file name) is recorded in the output's metadata. Raises `UserError`
+    for an invalid scene or an output folder that cannot or must not be written.
+    """
+    from panogrf.app.files.images import (
+        write_bytes_atomic,
+        write_depth,
+        write_json_atomic,
+        write_rgb,
+    )
+    from panogrf.app.scene.folder import TRANSFORMS, Scene, load_scene
+    from panogrf.app.visualize import colorize_depth
+
+    if mode not in MODES:
+        raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+    out_dir = Path(out_dir)
+    if not isinstance(scene, Scene):
+        prepare_out_dir(Path(scene), out_dir)
+        scene = load_scene(scene, load_images=True)
+    elif scene.images is None:
+        raise ValueError("estimate_scene needs a scene loaded with load_images=True")
+    else:
+        prepare_out_dir(scene.root, out_dir)
+    scene_root, data = scene.root, scene.images
+    names = [f.name for f in scene.frames]
+
+    device = next(estimator.parameters()).device
+    start = time.perf_counter()
+    est = estimator(data.images.to(device), data.c2w.to(device), mode)
+    depth = est.depth.float().cpu()  # [V, 1, H, W] metres
+    out_of_range = est.out_of_range.cpu()
+    seconds = time.perf_counter() - start
+
+    d_max = float(estimator.d_max)
+    clamped = [float(x) for x in out_of_range.flatten(1).float().mean(dim=1)]
+    sources = [[names[j] for j in src] for src in est.sources]
+    stems = _unique_stems(names)
+    raw = json.loads((scene_root / TRANSFORMS).read_text(encoding="utf-8"))
+    meta = {
+        "mode": mode,
+        "weights": dict(weights or {}),
+        "clamped_at_m": d_max,
+        "out_of_range_fraction": dict(zip(names, clamped, strict=True)),
+        "sources": dict(zip(names, sources, strict=True)),
+        "warnings": list(est.warnings),
+    }
+    preview_max = float(depth.max())
+    frames = []
+    try:
+        for sub in ("images", "depth", "preview"):
+            (out_dir / sub).mkdir(parents=True, exist_ok=True)
+        for i, (frame, stem) in enumerate(zip(scene.frames, stems, strict=True)):
+            image_file = f"images/{stem}{frame.image_path.suffix.lower()}"
+            write_bytes_atomic(out_dir / image_file, frame.image_path.read_bytes())
+            depth_file = f"depth/{stem}.png"
+            write_depth(out_dir / depth_file, depth[i, 0].numpy())
+            write_rgb(
+                out_dir / f"preview/{stem}.png", colorize_depth(depth[i, 0].numpy(), preview_max)
+            )
+            # Keep the frame's own extra keys (nerfstudio intrinsics, ...), repoint the files.
+            frames.append(
+                {**raw["frames"][i], "file_path": image_file, "depth_file_path": depth_file}
+            )
+        top = {k: v for k, v in raw.items() if k != "frames"}
+        write_json_atomic(out_dir / TRANSFORMS, {**top, METADATA_KEY: meta, "frames": frames})
+    except OSError as exc:
+        raise UserError(f"cannot write to {out_dir}: {exc.strerror or exc}") from None
+
+    return DepthRun(
+        out_dir=out_dir,
+        mode=mode,
+        views=tuple(names),
+        seconds=seconds,
+        d_max=d_max,
+        out_of_range_fraction=tuple(clamped),
+        sources=tuple(tuple(s) for s in sources),
+        warnings=tuple(est.warnings),
+        metrics=_metrics(depth, data.depths, d_max),
+    )
+
+
+__all__ = [
+    "METADATA_KEY",
+    "METRIC_COLUMNS",
+    "MODES",
+    "DepthRun",
+    "estimate_scene",
+    "prepare_out_dir",
+]

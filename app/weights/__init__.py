@@ -1,0 +1,1 @@
+"""The shipped weights in `assets/`: depth and renderer networks (`networks`), LPIPS (`lpips`)."""
