@@ -33,6 +33,48 @@ def keep_freed_memory() -> bool:
     return bool(ok)
 
 
+class _MallInfo2(ctypes.Structure):
+    _fields_ = [
+        (name, ctypes.c_size_t)
+        for name in (
+            "arena",
+            "ordblks",
+            "smblks",
+            "hblks",
+            "hblkhd",
+            "usmblks",
+            "fsmblks",
+            "uordblks",
+            "fordblks",
+            "keepcost",
+        )
+    ]
+
+
+def _mallinfo2():
+    name = ctypes.util.find_library("c")
+    try:
+        fn = ctypes.CDLL(name or "libc.so.6").mallinfo2
+    except (OSError, AttributeError):
+        return None
+    fn.argtypes, fn.restype = (), _MallInfo2
+    return fn
+
+
+_MALLINFO2 = _mallinfo2()
+
+
+def heap_in_use() -> int | None:
+    """Bytes the C allocator has handed out and not had back (glibc's ``mallinfo2``: chunks in
+    use in the arenas plus mmapped blocks), or None off glibc 2.33+. Unlike the resident size,
+    this falls when tensors are freed even though the allocator keeps the pages
+    (`keep_freed_memory`), so its peak over a block is what the block needed at once."""
+    if _MALLINFO2 is None:
+        return None
+    info = _MALLINFO2()
+    return int(info.uordblks + info.hblkhd)
+
+
 def thread_count(text: str) -> int:
     """argparse type of ``--threads``: 0 (torch's default, every core) or a positive count."""
     import argparse

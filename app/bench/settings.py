@@ -17,6 +17,7 @@ import psutil
 import torch
 from torch import Tensor
 
+from panogrf.app.runtime import heap_in_use
 from panogrf.renderer.methods import METHODS, Kind, Models, SourceViews, prepare, render_view
 
 
@@ -154,18 +155,25 @@ def _count(module: torch.nn.Module) -> int:
 
 
 class PeakMemory:
-    """Peak resident memory of this process above its level on entry (MiB), polled by a
-    thread every ``interval`` seconds while the block runs. A lower bound of what the block
-    needs: memory it reuses from earlier blocks (the allocator keeps freed memory) is not
-    counted; GL memory is, as Mesa's CPU rasteriser lives in this process."""
+    """Peak memory a block needs at once (MiB): the most the C allocator had handed out above
+    its level on entry (`panogrf.app.runtime.heap_in_use`), polled by a thread every
+    ``interval`` seconds while the block runs. Tensors, the meshes and Mesa's CPU rasteriser
+    (it lives in this process) all allocate there. Off glibc: the resident size above entry, a
+    lower bound (memory the allocator reuses from earlier blocks is not counted)."""
 
-    def __init__(self, interval: float = 0.005) -> None:
+    def __init__(self, interval: float = 0.002) -> None:
         self.interval = interval
         self.mib = 0.0
+        self.kind = "heap" if heap_in_use() is not None else "rss"
+
+    def _now(self) -> int:
+        if self.kind == "heap":
+            return heap_in_use()
+        return self._proc.memory_info().rss
 
     def __enter__(self) -> PeakMemory:
         self._proc = psutil.Process()
-        self._start = self._peak = self._proc.memory_info().rss
+        self._start = self._peak = self._now()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._poll, daemon=True)
         self._thread.start()
@@ -173,10 +181,10 @@ class PeakMemory:
 
     def _poll(self) -> None:
         while not self._stop.wait(self.interval):
-            self._peak = max(self._peak, self._proc.memory_info().rss)
+            self._peak = max(self._peak, self._now())
 
     def __exit__(self, *exc) -> None:
         self._stop.set()
         self._thread.join()
-        self._peak = max(self._peak, self._proc.memory_info().rss)
+        self._peak = max(self._peak, self._now())
         self.mib = (self._peak - self._start) / 2**20

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import math
 import shutil
+import time
 
 import numpy as np
 import pytest
@@ -141,3 +142,22 @@ def test_bench_refuses_an_unknown_setting(tmp_path, capsys):
     args = ["bench", str(tmp_path), "--out", str(tmp_path / "o"), "--settings", "nope"]
     assert cli.main(args) == 2
     assert "unknown setting 'nope'" in capsys.readouterr().err
+
+
+def test_peak_memory_counts_what_a_block_holds_at_once_even_in_reused_memory():
+    from panogrf.app.bench.settings import PeakMemory
+    from panogrf.app.runtime import heap_in_use, keep_freed_memory
+
+    if heap_in_use() is None:
+        pytest.skip("needs glibc's mallinfo2")
+    keep_freed_memory()
+    peaks = []
+    for _ in range(2):  # the second time the allocator reuses the freed pages
+        with PeakMemory(interval=0.001) as mem:
+            x = torch.ones(64, 2**18)  # 64 MiB
+            y = x + 1  # 64 MiB more, both alive
+            time.sleep(0.02)
+            del x, y
+        peaks.append(mem.mib)
+    assert mem.kind == "heap"
+    assert all(120 <= p <= 140 for p in peaks), peaks
