@@ -76,13 +76,25 @@ def test_worker_refines_level_by_level_and_newer_requests_win():
 def test_cancel_stops_a_render_in_flight():
     net, cache = random_cache()
     worker = RenderWorker(net, cache, levels=((64, "paper"),)).start()
+    poses = [np.eye(4) for _ in range(3)]
+    for k, p in enumerate(poses):
+        p[0, 3] = 0.2 * k
     try:
-        gen = worker.request(np.eye(4))
-        time.sleep(0.05)
+        t0 = time.perf_counter()
+        first = _wait(worker, worker.request(poses[0]), 0)
+        whole = time.perf_counter() - t0  # what one render takes here
+        gen = worker.request(poses[1])
+        end = time.time() + 60
+        while worker.status[1] == 0.0 and time.time() < end:
+            time.sleep(0.005)
+        assert worker.status[1] > 0.0  # the render is under way
         worker.cancel()
-        time.sleep(0.5)
-        done = worker.latest()
-        assert done is None or done.generation != gen
+        time.sleep(1.5 * whole)  # long enough for it to finish, had it not stopped
+        assert worker.latest() is first  # the cancelled render was never published
+        assert worker.status == (0, 0.0)
+        # The worker goes on: the next request is rendered to the end.
+        done = _wait(worker, worker.request(poses[2]), 0)
+        assert done.generation > gen and np.allclose(done.c2w, poses[2])
     finally:
         worker.stop()
 
