@@ -57,7 +57,8 @@ def main() -> None:
         ("mono", "mono", {}),
         ("mvs", "mvs", {}),
         ("full, no fusion", "full", {"fuse": False}),
-        ("full, fused, mono aligned to MVS", "full", {"fuse": True, "align_mono": True}),
+        ("full, fused, mono aligned to MVS", "full", {"guide": "aligned"}),
+        ("full, fused, guided by the MVS depth", "full", {"guide": "mvs"}),
     ]
     for g in (float(x) for x in args.gains.split(",")):
         settings.append((f"full, fused, switch {g:g}", "full", {"fuse": True, "switch_gain": g}))
@@ -65,6 +66,7 @@ def main() -> None:
     for folder in args.data:
         data = load_triplets(folder, 256)
         for name, mode, attrs in settings:
+            estimator.fuse, estimator.switch_gain, estimator.guide = True, 0.0, "mono"
             for key, value in attrs.items():
                 setattr(estimator, key, value)
             errors, seconds = _pairs(estimator, data, mode)
@@ -72,7 +74,7 @@ def main() -> None:
             row["l1"][folder.name] = statistics.fmean(errors)
             row["seconds"] += seconds
             print(f"{folder.name} {name}: L1 {statistics.fmean(errors):.4f}", flush=True)
-        estimator.fuse, estimator.switch_gain, estimator.align_mono = True, 0.0, False
+        estimator.fuse, estimator.switch_gain, estimator.guide = True, 0.0, "mono"
     names = [f.name for f in args.data]
     lines = [
         "| setting | " + " | ".join(names) + " | mean | s / pair |",

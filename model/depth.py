@@ -28,6 +28,7 @@ from panogrf.model.mvs import MVSNet
 from panogrf.model.refine import SweepConfig, sweep_depth
 
 MODES = ("full", "mono", "mvs")
+GUIDES = ("mono", "aligned", "mvs")
 DEFAULT_SWEEP = SweepConfig()
 
 
@@ -66,11 +67,13 @@ class DepthEstimator(nn.Module):
         pixel keeping the one its sources agree with (see `sweep_depth`'s ``others``)."""
         self.switch_gain = 0.0
         """How much better the unguided depth must match to replace the mono-guided one."""
-        self.align_mono = False
-        """Mode "full" with the unguided network loaded too: before the monocular depth places
-        the mono-guided network's candidates, scale it per view by the median ratio of the
-        unguided MVS depth to it (a metric scale from the known poses, not from the room
-        sizes the monocular network has learned)."""
+        self.guide = "mono"
+        """Mode "full" with the unguided network loaded: the depth that places the mono-guided
+        network's candidates: "mono" (the paper), "aligned" (mono scaled per view by its median
+        ratio to the unguided MVS depth: a metric scale from the known poses, not from the room
+        sizes the monocular network learned) or "mvs" (the unguided MVS depth itself; the
+        monocular features still go in). Measured on the validation scenes
+        (`benchmarks/depth_fusion.py`): neither alternative helps, so "mono" stays."""
 
     @property
     def d_max(self) -> float:
@@ -127,6 +130,8 @@ class DepthEstimator(nn.Module):
         default ``images``), when the caller passes working-resolution images."""
         if mode not in MODES:
             raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+        if self.guide not in GUIDES:
+            raise ValueError(f"guide must be one of {GUIDES}, got {self.guide!r}")
         if mode != "mono" and mode not in self.mvs:
             raise ValueError(f"no weights loaded for mode {mode!r}")
         v, _, h, w = images.shape
@@ -161,8 +166,10 @@ class DepthEstimator(nn.Module):
             if self._fuses(mode):
                 unguided = self._mvs("mvs", small, c2w, mono, sources, mono.depth.clone())
                 others = (unguided,)
-                if self.align_mono:
+                if self.guide == "aligned":
                     guide = MonoOutput(self._aligned(mono.depth, unguided, sources), mono.features)
+                elif self.guide == "mvs":
+                    guide = MonoOutput(self._clean(unguided), mono.features)
             depth = self._mvs(mode, small, c2w, guide, sources, depth)
         depth = self._clean(depth)
         if mode != "mono" and self.sweep is not None and any(sources):

@@ -98,21 +98,30 @@ def _mono_batch(
     return img, dep
 
 
+class _DepthErrors:
+    """L1 and RMSE over every validation pixel with 0 < gt <= d_max, pooled."""
+
+    def __init__(self, d_max: float) -> None:
+        self.d_max, self.abs, self.sq, self.count = d_max, 0.0, 0.0, 0.0
+
+    def add(self, pred: Tensor, gt: Tensor) -> None:
+        diff = (pred - gt)[(gt > 0) & (gt <= self.d_max)]
+        self.abs += float(diff.abs().sum())
+        self.sq += float((diff**2).sum())
+        self.count += diff.numel()
+
+    def figures(self) -> dict:
+        return {"val_l1": self.abs / self.count, "val_rmse": math.sqrt(self.sq / self.count)}
+
+
 @torch.no_grad()
 def _validate_mono(net: MonoDepthNet, val: TripletSet) -> dict:
     net.eval()
-    d_max = net.config.d_max
-    errs, sq, total = 0.0, 0.0, 0.0
+    errors = _DepthErrors(net.config.d_max)
     for i in range(len(val)):
-        img = val.images[i].float() / 255.0
-        gt = val.depths[i][:, None]
-        pred = net(img).depth
-        valid = (gt > 0) & (gt <= d_max)
-        errs += float((pred - gt).abs()[valid].sum())
-        sq += float(((pred - gt) ** 2)[valid].sum())
-        total += float(valid.sum())
+        errors.add(net(val.images[i].float() / 255.0).depth, val.depths[i][:, None])
     net.train()
-    return {"val_l1": errs / total, "val_rmse": math.sqrt(sq / total)}
+    return errors.figures()
 
 
 def train_mono(cfg: TrainDepthConfig, log=print) -> dict:
@@ -202,8 +211,7 @@ def load_mono(path: Path) -> MonoDepthNet:
 @torch.no_grad()
 def _validate_mvs(net, mono, val: TripletSet) -> dict:
     net.eval()
-    d_max = net.config.d_max
-    errs, sq, total = 0.0, 0.0, 0.0
+    errors = _DepthErrors(net.config.d_max)
     for i in range(len(val)):
         img, c2w, gt = val.images[i].float() / 255.0, val.c2w[i], val.depths[i][:, None]
         for r, s in ((0, 2), (2, 0)):
@@ -214,13 +222,9 @@ def _validate_mvs(net, mono, val: TripletSet) -> dict:
             out = net(
                 img[r : r + 1], img[s : s + 1][None], c2w[r : r + 1], c2w[s : s + 1][None], **kw
             )
-            valid = (gt[r] > 0) & (gt[r] <= d_max)
-            diff = (out.depth[0] - gt[r])[valid]
-            errs += float(diff.abs().sum())
-            sq += float((diff**2).sum())
-            total += float(valid.sum())
+            errors.add(out.depth[0], gt[r])
     net.train()
-    return {"val_l1": errs / total, "val_rmse": math.sqrt(sq / total)}
+    return errors.figures()
 
 
 def train_mvs(cfg: TrainDepthConfig, log=print) -> dict:

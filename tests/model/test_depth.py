@@ -150,3 +150,36 @@ def test_bad_input(estimator):
     with pytest.raises(ValueError, match="no weights"):
         mono_only(images, c2w, mode="full")
     assert mono_only(images, c2w, mode="mono").depth.shape == (2, 1, 64, 128)
+
+
+def test_aligned_guide_scales_the_prior_by_the_mvs_ratio(estimator):
+    mono = torch.full((2, 1, 4, 8), 2.0)
+    mvs = torch.full((2, 1, 4, 8), 3.0)
+    mvs[0, 0, 0, 0] = 10.0  # at the top of the range: not counted
+    out = estimator._aligned(mono, mvs, [[1], []])
+    assert torch.allclose(out[0], torch.full((1, 4, 8), 3.0))  # median ratio 1.5
+    assert torch.equal(out[1], mono[1])  # no sources: left as it is
+    far = estimator._aligned(mono, torch.full_like(mono, 9.0), [[1], [0]])
+    assert torch.allclose(far, torch.full_like(mono, 4.0))  # the scale stays within 0.5-2
+
+
+@pytest.mark.parametrize("guide", ["aligned", "mvs"])
+def test_other_guides_change_the_full_depth_and_stay_finite(estimator, guide):
+    images, c2w = _images(2, 64, seed=3), _poses((0, 0, 0), (1.0, 0, 0))
+    base = estimator(images, c2w, "full").depth
+    estimator.guide = guide
+    try:
+        other = estimator(images, c2w, "full")
+    finally:
+        estimator.guide = "mono"
+    _check_finite(other, 2, 64)
+    assert not torch.equal(other.depth, base)
+
+
+def test_unknown_guide_is_refused(estimator):
+    estimator.guide = "oracle"
+    try:
+        with pytest.raises(ValueError, match="guide"):
+            estimator(_images(2, 64), _poses((0, 0, 0), (1.0, 0, 0)), "full")
+    finally:
+        estimator.guide = "mono"
