@@ -4,16 +4,17 @@ A `SourceViews` holds the posed source panoramas of one scene and memoises what 
 on the target pose: estimated depth per depth mode and the renderer's `SceneCache` per
 (renderer preset, depth mode). `render_view` renders a target pose with a named method:
 
-| method      | depth | renderer    | what it is                                             |
-|-------------|-------|-------------|--------------------------------------------------------|
-| panogrf     | full  | panogrf     | the method                                             |
-| no_mono     | mvs   | panogrf     | ablation: MVS depth without mono guidance              |
-| no_mvs      | mono  | panogrf     | ablation: monocular depth only                         |
-| no_geometry | full  | no_geometry | ablation: no visibility / depth features (retrained)   |
-| panogrf_tiny| full  | tiny        | the model-size ladder: half the renderer's widths       |
-| meshwarp    | full  | -           | baseline: depth-warped blend of the sources            |
-| nearest     | -     | -           | baseline: nearest source, rotated                      |
-| snerf       | -     | -           | baseline: radiance field fitted to the sources         |
+| method        | depth | renderer    | what it is                                           |
+|---------------|-------|-------------|------------------------------------------------------|
+| panogrf       | full  | panogrf     | the method                                           |
+| no_mono       | mvs   | panogrf     | ablation: MVS depth without mono guidance            |
+| no_mvs        | mono  | panogrf     | ablation: monocular depth only                       |
+| no_geometry   | full  | no_geometry | ablation: no visibility / depth features (retrained) |
+| panogrf_tiny  | full  | tiny        | the model-size ladder: half the renderer's widths    |
+| panogrf_large | full  | large       | the ladder's larger rung: 1.5x the renderer's widths |
+| meshwarp      | full  | -           | baseline: depth-warped blend of the sources          |
+| nearest       | -     | -           | baseline: nearest source, rotated                    |
+| snerf         | -     | -           | baseline: radiance field fitted to the sources       |
 
 Networks come from injected loaders, so this module reads no files.
 """
@@ -74,6 +75,7 @@ METHODS: dict[str, MethodSpec] = {
         MethodSpec("no_mvs", "mono", "panogrf", Kind.NEURAL),
         MethodSpec("no_geometry", "full", "no_geometry", Kind.NEURAL),
         MethodSpec("panogrf_tiny", "full", "tiny", Kind.NEURAL),
+        MethodSpec("panogrf_large", "full", "large", Kind.NEURAL),
         MethodSpec("meshwarp", "full", None, Kind.MESHWARP),
         MethodSpec("nearest", None, None, Kind.NEAREST),
         MethodSpec("snerf", None, None, Kind.SNERF),

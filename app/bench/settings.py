@@ -47,6 +47,8 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("tiny:fast", "panogrf_tiny", "fast"),
     Setting("panogrf:draft", "panogrf", "draft"),
     Setting("panogrf:fast", "panogrf", "fast"),
+    Setting("large:draft", "panogrf_large", "draft"),
+    Setting("large:fast", "panogrf_large", "fast"),
     Setting("no_mono", "no_mono", "fast"),
     Setting("no_mvs", "no_mvs", "fast"),
     Setting("panogrf:paper", "panogrf", "paper", slow=True),

@@ -39,6 +39,7 @@ RENDERER_WEIGHTS = {
     "panogrf": "renderer_panogrf.safetensors",
     "no_geometry": "renderer_no_geometry.safetensors",
     "tiny": "renderer_tiny.safetensors",
+    "large": "renderer_large.safetensors",
 }
 
 
