@@ -8,8 +8,11 @@ generator with seeds no training run used (``panogrf dataset make --split train 
 classic and ``--seed 90001 --world home``), never on the test split or a real capture. For every
 scene the first and last views are estimated, each the other's source, and compared with the
 ground truth on 0 < gt <= d_max. Rows: mono; MVS-only (with the sweep); full without fusion
-(mono-guided network and the sweep, round 2); full fused with the unguided depth at each
-``switch_gain`` (how much better the unguided depth must match to replace the mono-guided one).
+(mono-guided network and the sweep, round 2); full fused with the mono-guided network's
+candidates placed by another prior (``DepthEstimator.guide``: the monocular depth aligned to
+the unguided MVS depth, or the unguided MVS depth itself); full fused with the unguided depth
+at each ``switch_gain`` (how much better the unguided depth must match to replace the
+mono-guided one).
 Prints a table of mean L1 (m) per dataset and overall, and the seconds per pair.
 """
 
