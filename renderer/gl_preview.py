@@ -29,8 +29,12 @@ import numpy as np
 
 from panogrf.shaders import load as load_shader
 
-#: Kept triangles span at most this ratio of source depths (larger: a depth discontinuity).
-MAX_STRETCH = 1.15
+#: A triangle is kept unless its depths differ more than a plane this oblique to the source's
+#: rays (tan of the angle between ray and normal, here 80.5 deg) would make them differ at the
+#: mesh's row spacing: beyond it the triangle spans a depth discontinuity (a "stretched"
+#: triangle). The ratio of depths allowed is 1 + (pi / rows) * MAX_OBLIQUE_TAN: 1.15 at 128
+#: rows, 1.29 at 64. A fixed ratio of 1.15 dropped floors and walls seen obliquely at 64 rows.
+MAX_OBLIQUE_TAN = 6.0
 #: Triangles whose longitudes (in half turns) spread wider than this surround a pole.
 MAX_LON_SPAN = 0.5
 #: Sources whose surface is within this relative distance of the nearest one are blended.
@@ -158,12 +162,14 @@ class PreviewRenderer:
             *self.blend_vaos.values(),
             self.fill_vao,
         ]
-        uv, grid = sphere_mesh(min(mesh_height or depth.shape[1], depth.shape[1]))
+        rows = min(mesh_height or depth.shape[1], depth.shape[1])
+        uv, grid = sphere_mesh(rows)
+        max_stretch = 1.0 + (np.pi / rows) * MAX_OBLIQUE_TAN
         self.textures, self.points, self.triangles, self.corners, self.buffers = [], [], [], [], []
         for k in range(v):
             pts, dd = _uv_world_points(uv, np.asarray(depth[k], np.float32), self.c2w[k])
             tri_d = dd[grid]
-            keep = (tri_d.min(1) > 0) & (tri_d.max(1) <= MAX_STRETCH * tri_d.min(1))
+            keep = (tri_d.min(1) > 0) & (tri_d.max(1) <= max_stretch * tri_d.min(1))
             tris = np.ascontiguousarray(grid[keep])
             data = np.concatenate((pts.astype(np.float32), uv), -1)
             vbo = ctx.buffer(np.ascontiguousarray(data, np.float32).tobytes())

@@ -80,6 +80,13 @@ def register(subparsers) -> None:
         help="seconds of camera motion per frame (default: the wall clock)",
     )
     parser.add_argument(
+        "--moving-rows",
+        type=int,
+        default=None,
+        help="rows of the GL preview while the camera moves, shown upsampled (default: the "
+        "viewer's, ViewerSetup.moving_height; 512: full resolution); a still camera's has 512",
+    )
+    parser.add_argument(
         "--threads", type=thread_count, default=0, help="torch threads (default: all)"
     )
     parser.set_defaults(func=run)
@@ -99,6 +106,8 @@ def run(args: argparse.Namespace) -> int:
         )
     if args.frames is not None and args.frames < 1:
         raise UserError("--frames must be at least 1")
+    if args.moving_rows is not None and not 16 <= args.moving_rows <= 512:
+        raise UserError("--moving-rows must be between 16 and 512")
     if args.threads:
         torch.set_num_threads(args.threads)
     try:
@@ -124,6 +133,7 @@ def run(args: argparse.Namespace) -> int:
         fixed_step=args.fixed_step,
         frames=args.frames,
         script=script,
+        **({"moving_height": args.moving_rows} if args.moving_rows else {}),
     )
     start = time.perf_counter()
     try:

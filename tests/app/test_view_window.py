@@ -166,6 +166,12 @@ def test_view_errors(tmp_path):
         text=True,
     )
     assert run.returncode == 2 and "Traceback" not in run.stderr
+    run = subprocess.run(
+        [PANOGRF, "view", str(DEMO), "--window", "headless", "--moving-rows", "8"],
+        capture_output=True,
+        text=True,
+    )
+    assert run.returncode == 2 and "--moving-rows" in run.stderr
 
 
 def test_headless_session_survives_a_failed_save_and_plays_in_real_time(tmp_path):
@@ -232,7 +238,7 @@ def test_a_dead_render_worker_is_reported_and_exits_non_zero(tmp_path, monkeypat
 
 
 def test_every_refinement_level_reaches_the_screen(tmp_path, capsys):
-    """Both levels are 512 rows (the network at 128, then 256, rows): the second must replace
+    """Both levels are 512 rows (the network at 128, then 192, rows): the second must replace
     the first on screen although it has the same size."""
     from panogrf.app import cli
 
@@ -244,3 +250,25 @@ def test_every_refinement_level_reaches_the_screen(tmp_path, capsys):
     out = capsys.readouterr().out
     assert code == 0
     assert "refined level 1/2" in out and "refined level 2/2" in out, out
+
+
+@pytest.mark.parametrize(("script", "frames", "rows"), [("w*30", 8, 64), ("w*3,wait*30", 10, 128)])
+def test_the_preview_has_fewer_rows_while_moving(tmp_path, script, frames, rows):
+    """While the camera moves the preview is drawn at ``moving_height`` rows (shown upsampled);
+    the first still frame draws it at ``preview_height``."""
+    from panogrf.app.scene.session import prepare_scene
+    from panogrf.app.viewer.window import ViewerSetup, parse_script, run_viewer
+
+    views = prepare_scene(DEMO, tmp_path / "c", log=lambda *a: None).views
+    setup = ViewerSetup.from_views(
+        views,
+        worker=None,
+        script=parse_script(script),
+        frames=frames,
+        fixed_step=0.05,
+        preview_height=128,
+        moving_height=64,
+        log=lambda *a: None,
+    )
+    config = run_viewer(setup, "headless", (256, 128))
+    assert config.preview_out.blend.size == (2 * rows, rows)
