@@ -47,8 +47,9 @@ def main() -> None:
     parser.add_argument(
         "--ladder",
         default="",
-        help="only rows QUALITY@NET_ROWS + detail, e.g. draft@128,draft@192,draft@256,fast@256 "
-        "(the viewer's refinement levels; the agreement is the first of --agreement)",
+        help="only rows QUALITY@NET_ROWS[@CUTOFF] + detail, e.g. draft@128,fast@192,fast@192@96 "
+        "(the viewer's refinement levels; the agreement is the first of --agreement; CUTOFF: "
+        "DetailConfig.cutoff)",
     )
     parser.add_argument("--threads", type=int, default=0)
     parser.add_argument("--out", type=Path, default=None)
@@ -78,12 +79,16 @@ def main() -> None:
             if args.ladder:
                 a = float(args.agreement.split(",")[0])
                 for item in args.ladder.split(","):
-                    quality, rows_net = item.split("@")
-                    cfg = DetailConfig(net_height=int(rows_net), agreement=a)
+                    quality, rows_net, *cut = item.split("@")
+                    cfg = DetailConfig(
+                        net_height=int(rows_net),
+                        agreement=a,
+                        cutoff=int(cut[0]) if cut else None,
+                    )
                     t0 = time.perf_counter()
                     out = render_detailed(net, cache, c2w, h, quality, cfg)
                     record(
-                        f"{quality} at {rows_net} + detail",
+                        f"{quality} at {rows_net} + detail" + (f" above {cut[0]}" if cut else ""),
                         out.rgb,
                         target,
                         time.perf_counter() - t0,

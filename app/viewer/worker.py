@@ -24,17 +24,15 @@ from panogrf.renderer.render import render_panorama
 
 #: (height, sampling, sources, network rows) of each refinement level, coarse to fine; both
 #: are shown at 512 x 1024, the network running at the last number's rows and the sources
-#: giving the detail (`panogrf.renderer.detail`): a quick draft from the two sources nearest
-#: the camera (what the renderer was trained with; the GL preview draws the same two) with
-#: the network at 128 rows, then the fast sampling from all of them with the network at 192.
-#: Chosen on 12 validation scenes at 512 rows (`python benchmarks/detail.py --ladder ...`, 2
-#: sources, WS-PSNR / LPIPS / median s): draft at 128 + detail 25.01 / 0.164 / 0.17, at 192
-#: 25.08 / 0.169 / 0.30, at 256 25.22 / 0.174 / 0.46; fast at 192 26.10 / 0.141 / 0.75, at
-#: 256 26.34 / 0.147 / 1.18 (the network at every 512-row pixel: 26.11 / 0.175 / 7.03). Fast
-#: at 192 holds the 2 s budget from stop to the last level on the bundled scene (1.84 s at
-#: 256 rows 2.51 s, `benchmarks/viewer.py`); 0.24 dB lower, its LPIPS better.
-LEVELS = ((512, "draft", 2, 128), (512, "fast", None, 192))
-
+#: giving the colour above `DEFAULT_DETAIL.cutoff` rows (`panogrf.renderer.detail`): a quick
+#: draft from the two sources nearest the camera (what the renderer was trained with; the GL
+#: preview draws the same two), then the fast sampling from all of them, both with the
+#: network at 128 rows. Chosen on 12 validation scenes at 512 rows (`python
+#: benchmarks/detail.py --ladder ...`, 2 sources, detail above 32 rows, WS-PSNR / LPIPS /
+#: median s): draft at 128 25.61 / 0.152 / 0.22; fast at 128 26.52 / 0.121 / 0.46, at 192
+#: 26.59 / 0.124 / 0.98, at 256 26.61 / 0.126 / 1.50 (detail_cutoff_val.json): the network
+#: above 128 rows costs twice as much for under 0.1 dB.
+LEVELS = ((512, "draft", 2, 128), (512, "fast", None, 128))
 
 @dataclass
 class Refined:

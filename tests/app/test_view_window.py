@@ -238,7 +238,7 @@ def test_a_dead_render_worker_is_reported_and_exits_non_zero(tmp_path, monkeypat
 
 
 def test_every_refinement_level_reaches_the_screen(tmp_path, capsys):
-    """Both levels are 512 rows (the network at 128, then 192, rows): the second must replace
+    """Both levels are 512 rows (the network at 128 rows): the second must replace
     the first on screen although it has the same size."""
     from panogrf.app import cli
 

@@ -79,3 +79,22 @@ def test_no_detail_where_no_source_agrees_with_the_network():
     out = add_detail(cache, target, low, H, DetailConfig(net_height=low_h))
     up = torch.nn.functional.interpolate(grey[None], size=(H, 2 * H))[0]
     assert (out - up).abs().max() < 0.05
+
+
+def test_a_cutoff_below_the_networks_rows_replaces_its_soft_band():
+    """A volume render is softer than its pixels: here the "network" is the truth at 24 rows
+    shown at 48. With the cutoff at 24 rows the sources give the band between 24 and 48 rows
+    as well, and the output comes closer to the truth; the low-pass below the cutoff stays the
+    network's."""
+    cache, target, truth, truth_depth = _scene()
+    low_h, soft_h = H // 2, H // 4
+    soft = resize_erp(resize_erp(truth[None], soft_h), low_h)[0]
+    low = RenderOutput(
+        rgb=soft,
+        depth=1.0 / resize_erp(1.0 / truth_depth[None], low_h)[0],
+        opacity=torch.ones(1, low_h, 2 * low_h),
+    )
+    plain = add_detail(cache, target, low, H, DetailConfig(net_height=low_h))
+    cut = add_detail(cache, target, low, H, DetailConfig(net_height=low_h, cutoff=soft_h))
+    assert _psnr(cut, truth) > _psnr(plain, truth) + 1.0
+    assert _psnr(resize_erp(cut[None], soft_h)[0], resize_erp(soft[None], soft_h)[0]) > 30
