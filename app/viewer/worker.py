@@ -34,6 +34,7 @@ from panogrf.renderer.render import render_panorama
 #: above 128 rows costs twice as much for under 0.1 dB.
 LEVELS = ((512, "draft", 2, 128), (512, "fast", None, 128))
 
+
 @dataclass
 class Refined:
     """A finished refinement: RGB uint8 [H, 2H, 3] of pose ``c2w`` at ladder level ``level``."""
