@@ -124,9 +124,11 @@ def add_detail(
     up_rgb, up_gate, up_w = up[:3], up[3:4], up[4:]
     blend = (up_w[:, None] * proj).sum(0)  # [3, H, W]
     cut = min(config.cutoff or h, h)
-    detail = blend - _upsample(resize_erp(blend[None], cut)[0], size)
-    if cut < h:  # the network's own band above the cutoff is replaced, not added to
-        detail = detail - (up_rgb - _upsample(resize_erp(up_rgb[None], cut)[0], size))
+    # Above the cutoff the blend replaces the network's colour: (blend - low-pass of blend) -
+    # (rgb - low-pass of rgb), one low-pass of the difference. At the network's own rows its
+    # colour has nothing above the cutoff to replace.
+    diff = blend - up_rgb if cut < h else blend
+    detail = diff - _upsample(resize_erp(diff[None], cut)[0], size)
     return (up_rgb + up_gate * detail).clamp(0, 1)
 
 
