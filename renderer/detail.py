@@ -23,7 +23,7 @@ Shapes: V views, H x 2H the output, h x 2h the network's pass.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 import torch.nn.functional as F
@@ -144,11 +144,18 @@ def render_detailed(
     should_stop: Callable[[], bool] | None = None,
 ) -> RenderOutput | None:
     """`render_panorama` at ``height`` rows with the network at ``config.net_height`` (when
-    ``height`` is larger; otherwise the plain render); None if ``should_stop`` said so."""
+    ``height`` is larger; otherwise at ``height``), the sources giving the colour above
+    ``config.cutoff`` rows; None if ``should_stop`` said so."""
     if height <= config.net_height:
-        return render_panorama(
+        out = render_panorama(
             net, cache, c2w, height, quality, progress=progress, should_stop=should_stop
         )
+        if out is None or not config.cutoff or config.cutoff >= height:
+            return out
+        # The network's own resolution: the sources replace its soft band above the cutoff
+        # (validation, 24 scenes at 256 rows, fast, WS-PSNR / LPIPS: plain 25.41 / 0.155,
+        # above 32 rows 25.44 / 0.124, above 64 25.45 / 0.128).
+        return replace(out, rgb=add_detail(cache, c2w, out, height, config, out.depth))
     low = render_panorama(
         net, cache, c2w, config.net_height, quality, progress=progress, should_stop=should_stop
     )
