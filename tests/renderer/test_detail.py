@@ -98,3 +98,24 @@ def test_a_cutoff_below_the_networks_rows_replaces_its_soft_band():
     cut = add_detail(cache, target, low, H, DetailConfig(net_height=low_h, cutoff=soft_h))
     assert _psnr(cut, truth) > _psnr(plain, truth) + 1.0
     assert _psnr(resize_erp(cut[None], soft_h)[0], resize_erp(soft[None], soft_h)[0]) > 30
+
+
+def test_at_the_networks_own_rows_the_cutoff_still_applies():
+    """A render at (or below) the network's rows is the plain render without a cutoff; with
+    one, the sources' colour replaces its band above the cutoff (its low-pass stays)."""
+    from helpers.nets import random_cache
+
+    from panogrf.renderer.detail import render_detailed
+    from panogrf.renderer.render import render_panorama
+
+    net, cache = random_cache()
+    c2w = cache.c2w[0].clone()
+    c2w[0, 3] += 0.5
+    plain = render_panorama(net, cache, c2w, 32, "fast")
+    same = render_detailed(net, cache, c2w, 32, "fast", DetailConfig(net_height=32))
+    cut = render_detailed(net, cache, c2w, 32, "fast", DetailConfig(net_height=32, cutoff=8))
+    assert torch.equal(same.rgb, plain.rgb)
+    assert (cut.rgb - plain.rgb).abs().max() > 0.05
+    assert torch.equal(cut.depth, plain.depth)
+    low = [resize_erp(x.rgb[None], 8)[0] for x in (cut, plain)]
+    assert (low[0] - low[1]).abs().mean() < 0.25 * (cut.rgb - plain.rgb).abs().mean()
