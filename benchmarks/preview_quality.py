@@ -60,14 +60,10 @@ def frame_costs(views, configs, rounds: int = 3, frames: int = 15) -> dict[tuple
 def upsample(rgb: np.ndarray, height: int) -> torch.Tensor:
     """An ERP preview [h, 2h, 3] uint8 -> [3, height, 2 height] in [0, 1], bilinear (the
     display's texture sampling), wrapping at the seam."""
-    x = torch.from_numpy(rgb).permute(2, 0, 1).float()[None] / 255
-    if x.shape[-2] == height:
-        return x[0]
-    x = torch.cat((x[..., -1:], x, x[..., :1]), -1)
-    s = height / rgb.shape[0]
-    up = torch.nn.functional.interpolate(x, scale_factor=s, mode="bilinear")
-    p = round(s)
-    return up[0, :, :, p : p + 2 * height]
+    from panogrf.renderer.detail import upsample_erp
+
+    x = torch.from_numpy(rgb).permute(2, 0, 1).float() / 255
+    return upsample_erp(x, (height, 2 * height))
 
 
 def main() -> None:

@@ -64,8 +64,11 @@ class DetailConfig:
 DEFAULT_DETAIL = DetailConfig(cutoff=32)
 
 
-def _upsample(x: Tensor, size: tuple[int, int]) -> Tensor:
-    """Bilinear upsampling of [C, h, w] panoramas to ``size``, wrapping at the seam."""
+def upsample_erp(x: Tensor, size: tuple[int, int]) -> Tensor:
+    """Bilinear upsampling of [C, h, w] panoramas to ``size``, wrapping at the seam (``x``
+    itself when it has that size already)."""
+    if tuple(x.shape[-2:]) == tuple(size):
+        return x
     h, w = size
     scale = w / x.shape[-1]
     p = round(scale)
@@ -75,7 +78,7 @@ def _upsample(x: Tensor, size: tuple[int, int]) -> Tensor:
 
 def _upsample_depth(depth: Tensor, size: tuple[int, int]) -> Tensor:
     """Depth [1, h, w] upsampled in inverse depth (edges stay between their two sides)."""
-    return 1.0 / _upsample(1.0 / depth.clamp(min=1e-3), size).clamp(min=1e-4)
+    return 1.0 / upsample_erp(1.0 / depth.clamp(min=1e-3), size).clamp(min=1e-4)
 
 
 def _smooth(x: Tensor) -> Tensor:
@@ -120,7 +123,7 @@ def add_detail(
     blend_w = weight / total.clamp(min=1e-6)
     gate = total.clamp(max=1.0)  # no source agrees: no detail
     # One upsampling for the network's colour, the gate and the sources' weights.
-    up = _upsample(torch.cat((low.rgb, gate, blend_w)), size)
+    up = upsample_erp(torch.cat((low.rgb, gate, blend_w)), size)
     up_rgb, up_gate, up_w = up[:3], up[3:4], up[4:]
     blend = (up_w[:, None] * proj).sum(0)  # [3, H, W]
     cut = min(config.cutoff or h, h)
@@ -128,7 +131,7 @@ def add_detail(
     # (rgb - low-pass of rgb), one low-pass of the difference. At the network's own rows its
     # colour has nothing above the cutoff to replace.
     diff = blend - up_rgb if cut < h else blend
-    detail = diff - _upsample(resize_erp(diff[None], cut)[0], size)
+    detail = diff - upsample_erp(resize_erp(diff[None], cut)[0], size)
     return (up_rgb + up_gate * detail).clamp(0, 1)
 
 
@@ -166,5 +169,5 @@ def render_detailed(
     return RenderOutput(
         rgb=add_detail(cache, c2w, low, height, config, depth),
         depth=depth,
-        opacity=_upsample(low.opacity, size).clamp(0, 1),
+        opacity=upsample_erp(low.opacity, size).clamp(0, 1),
     )
