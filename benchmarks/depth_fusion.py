@@ -31,16 +31,17 @@ from panogrf.app.weights.networks import load_depth_estimator
 from panogrf.model.metrics import depth_metrics
 
 
-def _pairs(estimator, data, mode: str) -> tuple[list[float], list[float]]:
+def _pairs(estimator, data, mode: str, scale: float = 1.0) -> tuple[list[float], list[float]]:
     errors, seconds = [], []
     for i in range(len(data)):
         images = data.images[i, [0, 2]].float() / 255.0
-        c2w = data.c2w[i, [0, 2]]
+        c2w = data.c2w[i, [0, 2]].clone()
+        c2w[:, :3, 3] *= scale
         t0 = time.perf_counter()
         est = estimator(images, c2w, mode)
         seconds.append(time.perf_counter() - t0)
         for k, v in enumerate((0, 2)):
-            gt = data.depths[i, v]
+            gt = data.depths[i, v] * scale
             mask = (gt > 0) & (gt <= estimator.d_max)
             errors.append(float(depth_metrics(est.depth[k, 0], gt, mask).l1))
     return errors, seconds
@@ -50,6 +51,14 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--data", type=Path, nargs="+", required=True)
     parser.add_argument("--gains", default="0,0.01,0.03")
+    parser.add_argument(
+        "--scales",
+        default="1",
+        help="world scales: every scene also measured with its translations and true depth "
+        "times each (the same images: a room of another size than the monocular network "
+        "learned, which it cannot tell)",
+    )
+    parser.add_argument("--settings", default="", help="only settings whose name has one of these")
     parser.add_argument("--threads", type=int, default=0)
     parser.add_argument("--out", type=Path, default=None)
     args = parser.parse_args()
@@ -65,20 +74,27 @@ def main() -> None:
     ]
     for g in (float(x) for x in args.gains.split(",")):
         settings.append((f"full, fused, switch {g:g}", "full", {"fuse": True, "switch_gain": g}))
+    if args.settings:
+        keep = args.settings.split(",")
+        settings = [s for s in settings if any(k in s[0] for k in keep)]
+    scales = [float(x) for x in args.scales.split(",")]
     results: dict[str, dict] = {}
-    for folder in args.data:
+    columns: list[str] = []
+    for folder, scale in ((f, s) for f in args.data for s in scales):
         data = load_triplets(folder, 256)
+        column = folder.name if scale == 1 else f"{folder.name} x{scale:g}"
+        columns.append(column)
         for name, mode, attrs in settings:
             estimator.fuse, estimator.switch_gain, estimator.guide = True, 0.0, "mono"
             for key, value in attrs.items():
                 setattr(estimator, key, value)
-            errors, seconds = _pairs(estimator, data, mode)
+            errors, seconds = _pairs(estimator, data, mode, scale)
             row = results.setdefault(name, {"l1": {}, "seconds": []})
-            row["l1"][folder.name] = statistics.fmean(errors)
+            row["l1"][column] = statistics.fmean(errors)
             row["seconds"] += seconds
-            print(f"{folder.name} {name}: L1 {statistics.fmean(errors):.4f}", flush=True)
+            print(f"{column} {name}: L1 {statistics.fmean(errors):.4f}", flush=True)
         estimator.fuse, estimator.switch_gain, estimator.guide = True, 0.0, "mono"
-    names = [f.name for f in args.data]
+    names = columns
     lines = [
         "| setting | " + " | ".join(names) + " | mean | s / pair |",
         "|---" * (len(names) + 3) + "|",

@@ -38,6 +38,17 @@ def scenes(root: Path) -> list[Path]:
     return [root / entry["folder"] for entry in index["scenes"]]
 
 
+def _extras(extras: list[str]) -> dict:
+    """Ladder suffix ``:bicubic`` or ``:bilinear`` (DetailConfig.sampling)."""
+    kw: dict = {}
+    for x in extras:
+        if x in ("bilinear", "bicubic"):
+            kw["sampling"] = x
+        else:
+            raise SystemExit(f"unknown ladder suffix {x!r}: bilinear or bicubic")
+    return kw
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--data", type=Path, nargs="+", required=True)
@@ -49,7 +60,8 @@ def main() -> None:
         default="",
         help="only rows QUALITY@NET_ROWS[@CUTOFF] + detail, e.g. draft@128,fast@192,fast@192@96 "
         "(the viewer's refinement levels; the agreement is the first of --agreement; CUTOFF: "
-        "DetailConfig.cutoff)",
+        "DetailConfig.cutoff), each optionally followed by :bicubic or :bilinear "
+        "(DetailConfig.sampling)",
     )
     parser.add_argument("--threads", type=int, default=0)
     parser.add_argument("--out", type=Path, default=None)
@@ -79,16 +91,20 @@ def main() -> None:
             if args.ladder:
                 a = float(args.agreement.split(",")[0])
                 for item in args.ladder.split(","):
-                    quality, rows_net, *cut = item.split("@")
+                    head, *extras = item.split(":")
+                    quality, rows_net, *cut = head.split("@")
                     cfg = DetailConfig(
                         net_height=int(rows_net),
                         agreement=a,
                         cutoff=int(cut[0]) if cut else None,
+                        **_extras(extras),
                     )
                     t0 = time.perf_counter()
                     out = render_detailed(net, cache, c2w, h, quality, cfg)
                     record(
-                        f"{quality} at {rows_net} + detail" + (f" above {cut[0]}" if cut else ""),
+                        f"{quality} at {rows_net} + detail"
+                        + (f" above {cut[0]}" if cut else "")
+                        + "".join(f", {x}" for x in extras),
                         out.rgb,
                         target,
                         time.perf_counter() - t0,

@@ -136,17 +136,18 @@ def erp_to_world(depth: Tensor, c2w: Tensor) -> Tensor:
     return transform_points(cam, c2w)
 
 
-def pad_seam(image: Tensor) -> Tensor:
-    """[B, C, H, W] -> [B, C, H, W + 2]: one wrapped column on each side, for `sample_padded`
-    (pad once, sample many times)."""
-    return torch.cat((image[..., -1:], image, image[..., :1]), dim=-1)
+def pad_seam(image: Tensor, pad: int = 1) -> Tensor:
+    """[B, C, H, W] -> [B, C, H, W + 2 pad]: ``pad`` wrapped columns on each side, for
+    `sample_padded` (pad once, sample many times; bicubic sampling needs 2)."""
+    return torch.cat((image[..., -pad:], image, image[..., :pad]), dim=-1)
 
 
-def sample_padded(padded: Tensor, uv: Tensor, mode: str = "bilinear") -> Tensor:
-    """`sample_erp` on a panorama already padded by `pad_seam`: [B, C, H, W + 2] -> [B, C, N]."""
-    height, width = padded.shape[-2], padded.shape[-1] - 2
+def sample_padded(padded: Tensor, uv: Tensor, mode: str = "bilinear", pad: int = 1) -> Tensor:
+    """`sample_erp` on a panorama already padded by `pad_seam` with ``pad`` columns:
+    [B, C, H, W + 2 pad] -> [B, C, N]. ``mode``: "bilinear", "nearest" or "bicubic" (pad 2)."""
+    height, width = padded.shape[-2], padded.shape[-1] - 2 * pad
     u = torch.remainder(uv[..., 0] + 0.5, width) - 0.5  # in [-0.5, W - 0.5)
-    x = (u + 1.5) / (width + 2) * 2.0 - 1.0
+    x = (u + 0.5 + pad) / (width + 2 * pad) * 2.0 - 1.0
     y = (uv[..., 1] + 0.5) / height * 2.0 - 1.0
     grid = torch.stack((x, y), -1)[:, None]  # [B, 1, N, 2]
     out = F.grid_sample(padded, grid, mode=mode, padding_mode="border", align_corners=False)

@@ -369,6 +369,34 @@ def test_sample_erp_bilinear_between_pixels():
     torch.testing.assert_close(erp.sample_erp(img, uv)[..., 0], 0.5 * (top + bottom))
 
 
+def test_bicubic_sampling_is_exact_at_pixel_centres_and_wraps_across_the_seam():
+    img = _image(dtype=F64)
+    padded = erp.pad_seam(img, 2)
+    assert padded.shape[-1] == W + 4
+    u, v = all_pixels(H, W, dtype=F64)
+    uv = torch.stack((u, v), -1).reshape(1, -1, 2).expand(2, -1, -1)
+    out = erp.sample_padded(padded, uv, "bicubic", pad=2)
+    torch.testing.assert_close(out.reshape(img.shape), img, atol=1e-10, rtol=0)
+    # Across the seam: the panorama rolled by half its width, sampled at the rolled position,
+    # gives the same values (both reads use two real neighbours on each side).
+    gen = _gen(11)
+    uv = torch.stack(
+        (
+            torch.rand(2, 200, generator=gen, dtype=F64) * 3 - 1.5,  # around u = 0 (the seam)
+            torch.rand(2, 200, generator=gen, dtype=F64) * (H - 5) + 2,
+        ),
+        -1,
+    )
+    rolled = torch.roll(img, W // 2, -1)
+    moved = uv + torch.tensor([W // 2, 0.0], dtype=F64)
+    torch.testing.assert_close(
+        erp.sample_padded(padded, uv, "bicubic", pad=2),
+        erp.sample_padded(erp.pad_seam(rolled, 2), moved, "bicubic", pad=2),
+        atol=1e-10,
+        rtol=0,
+    )
+
+
 def test_sample_erp_directions_any_direction_is_finite():
     img = _image()
     special = torch.tensor(

@@ -67,6 +67,23 @@ def test_detail_restores_what_the_low_resolution_render_lost():
     assert _psnr(resize_erp(out[None], low_h)[0], low.rgb) > 30
 
 
+def test_bicubic_reading_keeps_more_of_the_sources_detail_than_bilinear():
+    cache, target, truth, truth_depth = _scene()
+    low_h = H // 2
+    low = RenderOutput(
+        rgb=resize_erp(truth[None], low_h)[0],
+        depth=1.0 / resize_erp(1.0 / truth_depth[None], low_h)[0],
+        opacity=torch.ones(1, low_h, 2 * low_h),
+    )
+    scores = {
+        mode: _psnr(
+            add_detail(cache, target, low, H, DetailConfig(net_height=low_h, sampling=mode)), truth
+        )
+        for mode in ("bilinear", "bicubic")
+    }
+    assert scores["bicubic"] > scores["bilinear"] + 0.3, scores
+
+
 def test_no_detail_where_no_source_agrees_with_the_network():
     cache, target, _, truth_depth = _scene()
     low_h = H // 2
