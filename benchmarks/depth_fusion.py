@@ -10,7 +10,9 @@ scene the first and last views are estimated, each the other's source, and compa
 ground truth on 0 < gt <= d_max. Rows: mono; MVS-only (with the sweep); full without fusion
 (mono-guided network and the sweep, round 2); full fused with the mono-guided network's
 candidates placed by another prior (``DepthEstimator.guide``: the monocular depth aligned to
-the unguided MVS depth, or the unguided MVS depth itself); full fused with the unguided depth
+the unguided MVS depth, or the unguided MVS depth itself); full fused in the canonical world
+(``DepthEstimator.canonical``: the world scaled to the monocular network's sense of size);
+full fused with the unguided depth
 at each ``switch_gain`` (how much better the unguided depth must match to replace the
 mono-guided one).
 Prints a table of mean L1 (m) per dataset and overall, and the seconds per pair.
@@ -71,6 +73,7 @@ def main() -> None:
         ("full, no fusion", "full", {"fuse": False}),
         ("full, fused, mono aligned to MVS", "full", {"guide": "aligned"}),
         ("full, fused, guided by the MVS depth", "full", {"guide": "mvs"}),
+        ("full, fused, canonical world", "full", {"canonical": True}),
     ]
     for g in (float(x) for x in args.gains.split(",")):
         settings.append((f"full, fused, switch {g:g}", "full", {"fuse": True, "switch_gain": g}))
@@ -86,6 +89,7 @@ def main() -> None:
         columns.append(column)
         for name, mode, attrs in settings:
             estimator.fuse, estimator.switch_gain, estimator.guide = True, 0.0, "mono"
+            estimator.canonical = False
             for key, value in attrs.items():
                 setattr(estimator, key, value)
             errors, seconds = _pairs(estimator, data, mode, scale)
@@ -94,6 +98,7 @@ def main() -> None:
             row["seconds"] += seconds
             print(f"{column} {name}: L1 {statistics.fmean(errors):.4f}", flush=True)
         estimator.fuse, estimator.switch_gain, estimator.guide = True, 0.0, "mono"
+        estimator.canonical = False
     names = columns
     lines = [
         "| setting | " + " | ".join(names) + " | mean | s / pair |",

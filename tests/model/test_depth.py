@@ -183,3 +183,37 @@ def test_unknown_guide_is_refused(estimator):
             estimator(_images(2, 64), _poses((0, 0, 0), (1.0, 0, 0)), "full")
     finally:
         estimator.guide = "mono"
+
+
+def test_world_scale_is_the_median_ratio_of_mono_to_mvs_where_both_are_in_range(estimator):
+    mono = torch.full((2, 1, 4, 8), 3.0)
+    mvs = torch.full((2, 1, 4, 8), 2.0)
+    mvs[0, 0, 0, :3] = 10.0  # at the top of the range: not counted
+    mono[1] = 30.0  # a view without sources: not counted either
+    assert estimator._world_scale(mono, mvs, [[1], []]) == pytest.approx(1.5)
+    # Clamped to 0.25-4; nothing to measure: 1.
+    assert estimator._world_scale(mono, mvs * 0.1, [[1], []]) == pytest.approx(4.0)
+    assert estimator._world_scale(mono, mvs, [[], []]) == 1.0
+
+
+def test_the_canonical_world_makes_the_depth_follow_the_worlds_scale(estimator):
+    """Two worlds that differ only in scale s (the same images) land in the same canonical
+    world when their scales k differ by 1 / s: the depth of the scaled one is s times the
+    other's, whatever the networks do (their weights here are random)."""
+    images = _images(2, 64, seed=5)
+    c2w = _poses((0, 0, 0), (1.0, 0.1, 0))
+    s, k = 0.7, 1.3
+    scaled = c2w.clone()
+    scaled[:, :3, 3] *= s
+    try:
+        estimator._world_scale = lambda *args: k
+        base = estimator(images, c2w, "full").depth
+        estimator._world_scale = lambda *args: k / s
+        other = estimator(images, scaled, "full").depth
+        estimator.canonical = False
+        plain = estimator(images, scaled, "full").depth
+    finally:
+        del estimator._world_scale
+        estimator.canonical = True
+    torch.testing.assert_close(other, s * base, rtol=1e-4, atol=1e-5)
+    assert not torch.allclose(plain, other, rtol=1e-3)
