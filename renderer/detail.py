@@ -51,7 +51,11 @@ class DetailConfig:
     between the cutoff and its resolution (a volume render is softer than its pixels)."""
     sampling: str = "bilinear"
     """How the full-resolution sources are read: "bilinear" or "bicubic" (keeps more of the
-    band near the sources' own resolution)."""
+    band near the sources' own resolution). Bicubic applies to outputs of at least the
+    sources' rows; a smaller output reads them bilinearly (validation, 256-row output from
+    512-row sources, fast at 256 + detail above 32: bilinear 27.97 / 0.094, bicubic 27.55 /
+    0.096; sources area-averaged to 256 rows first: 27.12 / 0.110 bilinear, 27.57 / 0.098
+    bicubic)."""
 
 
 #: Chosen on 12 validation scenes at 512 rows generated from the train split's generator with
@@ -129,7 +133,8 @@ def add_detail(
     h = low.rgb.shape[-2]
     if depth is None:
         depth = _upsample_depth(low.depth, size)
-    proj = project_sources(cache, c2w.to(depth.dtype), depth[0], config.sampling)
+    sampling = config.sampling if height >= cache.images.shape[-2] else "bilinear"
+    proj = project_sources(cache, c2w.to(depth.dtype), depth[0], sampling)
     proj_low = resize_erp(proj, h)  # [V, 3, h, 2h]
     diff = _smooth((proj_low - low.rgb[None]).abs().mean(1))  # [V, h, 2h]
     weight = torch.exp(-diff / config.agreement)

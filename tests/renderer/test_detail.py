@@ -84,6 +84,21 @@ def test_bicubic_reading_keeps_more_of_the_sources_detail_than_bilinear():
     assert scores["bicubic"] > scores["bilinear"] + 0.3, scores
 
 
+def test_an_output_smaller_than_the_sources_reads_them_bilinearly():
+    cache, target, truth, truth_depth = _scene()
+    out_h, low_h = H // 2, H // 4
+    low = RenderOutput(
+        rgb=resize_erp(truth[None], low_h)[0],
+        depth=1.0 / resize_erp(1.0 / truth_depth[None], low_h)[0],
+        opacity=torch.ones(1, low_h, 2 * low_h),
+    )
+    a, b = (
+        add_detail(cache, target, low, out_h, DetailConfig(net_height=low_h, sampling=mode))
+        for mode in ("bicubic", "bilinear")
+    )
+    torch.testing.assert_close(a, b)
+
+
 def test_no_detail_where_no_source_agrees_with_the_network():
     cache, target, _, truth_depth = _scene()
     low_h = H // 2
