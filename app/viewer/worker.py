@@ -22,7 +22,8 @@ from panogrf.renderer.cache import SceneCache
 from panogrf.renderer.detail import DEFAULT_DETAIL, render_detailed
 from panogrf.renderer.render import render_panorama
 
-#: (height, sampling, sources, network rows) of each refinement level, coarse to fine; both
+#: (height, sampling, sources, network rows, detail sampling) of each refinement level, coarse
+#: to fine; both
 #: are shown at 512 x 1024, the network running at the last number's rows and the sources
 #: giving the colour above `DEFAULT_DETAIL.cutoff` rows (`panogrf.renderer.detail`): a quick
 #: draft from the two sources nearest the camera (what the renderer was trained with; the GL
@@ -31,8 +32,11 @@ from panogrf.renderer.render import render_panorama
 #: benchmarks/detail.py --ladder ...`, 2 sources, detail above 32 rows, WS-PSNR / LPIPS /
 #: median s): draft at 128 25.61 / 0.152 / 0.22; fast at 128 26.52 / 0.121 / 0.46, at 192
 #: 26.59 / 0.124 / 0.98, at 256 26.61 / 0.126 / 1.50 (detail_cutoff_val.json): the network
-#: above 128 rows costs twice as much for under 0.1 dB.
-LEVELS = ((512, "draft", 2, 128), (512, "fast", None, 128))
+#: above 128 rows costs twice as much for under 0.1 dB. The draft reads the sources' detail
+#: bilinearly, the fast level bicubically (`DetailConfig.sampling`; validation, draft 25.61 /
+#: 0.152 bilinear, 25.68 / 0.141 bicubic): bicubic reads cost about 50-80 ms more per 512-row
+#: frame here, which the first frame (target 0.5 s) cannot spare and the last can.
+LEVELS = ((512, "draft", 2, 128, "bilinear"), (512, "fast", None, 128, "bicubic"))
 
 
 @dataclass
@@ -63,6 +67,7 @@ class RenderWorker:
                 lv[1],
                 lv[2] if len(lv) > 2 else None,
                 lv[3] if len(lv) > 3 else DEFAULT_DETAIL.net_height,
+                lv[4] if len(lv) > 4 else DEFAULT_DETAIL.sampling,
             )
             for lv in levels
         ]
@@ -141,7 +146,7 @@ class RenderWorker:
         """A small render of the first level before the first request: the first real one
         otherwise pays for growing the heap and first use of the kernels (a few tenths of a
         second here). 64 rows fill whole chunks of rays, as a real render does."""
-        height, quality, sources, _ = self.levels[0]
+        height, quality, sources, *_ = self.levels[0]
         pose = self.cache.c2w[0].double().numpy()
         render_panorama(
             self.net,
@@ -190,9 +195,9 @@ class RenderWorker:
                         self._progress = f
 
             tgt = torch.from_numpy(pose).to(self.cache.images.dtype)
-            for level, (height, quality, sources, rows) in enumerate(self.levels):
+            for level, (height, quality, sources, rows, reads) in enumerate(self.levels):
                 # Above ``rows`` the network renders at ``rows`` and the sources add the detail.
-                detail = replace(DEFAULT_DETAIL, net_height=rows)
+                detail = replace(DEFAULT_DETAIL, net_height=rows, sampling=reads)
                 out = render_detailed(
                     self.net,
                     self._nearest(pose, sources),
