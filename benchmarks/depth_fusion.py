@@ -49,6 +49,12 @@ def _pairs(estimator, data, mode: str, scale: float = 1.0) -> tuple[list[float],
     return errors, seconds
 
 
+def _reset(estimator) -> None:
+    """The settings each row starts from (the canonical world off: rows name what they add)."""
+    estimator.fuse, estimator.switch_gain, estimator.guide = True, 0.0, "mono"
+    estimator.canonical = False
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--data", type=Path, nargs="+", required=True)
@@ -88,8 +94,7 @@ def main() -> None:
         column = folder.name if scale == 1 else f"{folder.name} x{scale:g}"
         columns.append(column)
         for name, mode, attrs in settings:
-            estimator.fuse, estimator.switch_gain, estimator.guide = True, 0.0, "mono"
-            estimator.canonical = False
+            _reset(estimator)
             for key, value in attrs.items():
                 setattr(estimator, key, value)
             errors, seconds = _pairs(estimator, data, mode, scale)
@@ -97,8 +102,7 @@ def main() -> None:
             row["l1"][column] = statistics.fmean(errors)
             row["seconds"] += seconds
             print(f"{column} {name}: L1 {statistics.fmean(errors):.4f}", flush=True)
-        estimator.fuse, estimator.switch_gain, estimator.guide = True, 0.0, "mono"
-        estimator.canonical = False
+        _reset(estimator)
     names = columns
     lines = [
         "| setting | " + " | ".join(names) + " | mean | s / pair |",

@@ -222,9 +222,10 @@ class DepthEstimator(nn.Module):
                 others=clean,
                 switch_gain=self.switch_gain,
             )
-        # Clamped at the top of the range in the canonical world: flagged in the metric one.
-        canonical_far = depth >= 0.98 * self.d_max if scale != 1.0 else None
+        canonical_far = None
         if scale != 1.0:
+            # Clamped at the top of the range in the canonical world: flagged in the metric one.
+            canonical_far = depth >= 0.98 * self.d_max
             depth = self._clean(depth / scale)
         mono_depth = mono.depth
         if (h, w) != hw:

@@ -32,6 +32,14 @@ class SceneCache:
         # Padded once for the seam, sampled for every chunk of points.
         self.maps_padded = pad_seam(self.maps)
         self.images_padded = pad_seam(self.images)
+        self._images_padded = {1: self.images_padded}
+
+    def images_padded_by(self, pad: int) -> Tensor:
+        """The sources with ``pad`` wrapped columns on each side (bicubic reads need 2),
+        padded once per cache."""
+        if pad not in self._images_padded:
+            self._images_padded[pad] = pad_seam(self.images, pad)
+        return self._images_padded[pad]
 
     @property
     def num_views(self) -> int:

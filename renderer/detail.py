@@ -29,7 +29,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from panogrf.model.erp import direction_to_pixel, erp_directions, pad_seam, sample_padded
+from panogrf.model.erp import direction_to_pixel, erp_directions, sample_padded
 from panogrf.model.layers import circular_pad
 from panogrf.model.render_net import RendererNet
 from panogrf.renderer.cache import SceneCache, resize_erp
@@ -112,10 +112,8 @@ def project_sources(
     cam = points.reshape(1, -1, 3) @ w2c[:, :3, :3].transpose(1, 2) + w2c[:, None, :3, 3]
     hi, wi = cache.images.shape[-2:]
     uv = direction_to_pixel(cam, hi, wi)  # [V, N, 2]
-    if sampling == "bicubic":
-        colour = sample_padded(pad_seam(cache.images, 2), uv, "bicubic", pad=2)  # [V, 3, N]
-    else:
-        colour = sample_padded(cache.images_padded, uv, sampling)
+    pad = 2 if sampling == "bicubic" else 1
+    colour = sample_padded(cache.images_padded_by(pad), uv, sampling, pad=pad)  # [V, 3, N]
     return colour.reshape(-1, 3, h, w)
 
 

@@ -23,9 +23,8 @@ from panogrf.renderer.detail import DEFAULT_DETAIL, render_detailed
 from panogrf.renderer.render import render_panorama
 
 #: (height, sampling, sources, network rows, detail sampling) of each refinement level, coarse
-#: to fine; both
-#: are shown at 512 x 1024, the network running at the last number's rows and the sources
-#: giving the colour above `DEFAULT_DETAIL.cutoff` rows (`panogrf.renderer.detail`): a quick
+#: to fine; both are shown at 512 x 1024, the network running at the fourth entry's rows and
+#: the sources giving the colour above `DEFAULT_DETAIL.cutoff` rows (`renderer/detail.py`): a quick
 #: draft from the two sources nearest the camera (what the renderer was trained with; the GL
 #: preview draws the same two), then the fast sampling from all of them, both with the
 #: network at 128 rows. Chosen on 12 validation scenes at 512 rows (`python

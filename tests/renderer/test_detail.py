@@ -45,6 +45,15 @@ def _psnr(a: torch.Tensor, b: torch.Tensor) -> float:
     return float(10 * torch.log10(1 / ((a - b) ** 2).mean()))
 
 
+def _low_pass(truth: torch.Tensor, truth_depth: torch.Tensor, low_h: int) -> RenderOutput:
+    """The truth at ``low_h`` rows as the "network" output (depth averaged in inverse depth)."""
+    return RenderOutput(
+        rgb=resize_erp(truth[None], low_h)[0],
+        depth=1.0 / resize_erp(1.0 / truth_depth[None], low_h)[0],
+        opacity=torch.ones(1, low_h, 2 * low_h),
+    )
+
+
 def test_projection_at_the_true_depth_reads_the_source_itself():
     cache, _, _, _ = _scene()
     proj = project_sources(cache, cache.c2w[0], cache.depth[0, 0])
@@ -54,11 +63,7 @@ def test_projection_at_the_true_depth_reads_the_source_itself():
 def test_detail_restores_what_the_low_resolution_render_lost():
     cache, target, truth, truth_depth = _scene()
     low_h = H // 2
-    low = RenderOutput(
-        rgb=resize_erp(truth[None], low_h)[0],
-        depth=1.0 / resize_erp(1.0 / truth_depth[None], low_h)[0],
-        opacity=torch.ones(1, low_h, 2 * low_h),
-    )
+    low = _low_pass(truth, truth_depth, low_h)
     out = add_detail(cache, target, low, H, DetailConfig(net_height=low_h))
     up = torch.nn.functional.interpolate(low.rgb[None], size=(H, 2 * H), mode="bilinear")[0]
     assert out.shape == truth.shape and torch.isfinite(out).all()
@@ -70,11 +75,7 @@ def test_detail_restores_what_the_low_resolution_render_lost():
 def test_bicubic_reading_keeps_more_of_the_sources_detail_than_bilinear():
     cache, target, truth, truth_depth = _scene()
     low_h = H // 2
-    low = RenderOutput(
-        rgb=resize_erp(truth[None], low_h)[0],
-        depth=1.0 / resize_erp(1.0 / truth_depth[None], low_h)[0],
-        opacity=torch.ones(1, low_h, 2 * low_h),
-    )
+    low = _low_pass(truth, truth_depth, low_h)
     scores = {
         mode: _psnr(
             add_detail(cache, target, low, H, DetailConfig(net_height=low_h, sampling=mode)), truth
@@ -87,11 +88,7 @@ def test_bicubic_reading_keeps_more_of_the_sources_detail_than_bilinear():
 def test_an_output_smaller_than_the_sources_reads_them_bilinearly():
     cache, target, truth, truth_depth = _scene()
     out_h, low_h = H // 2, H // 4
-    low = RenderOutput(
-        rgb=resize_erp(truth[None], low_h)[0],
-        depth=1.0 / resize_erp(1.0 / truth_depth[None], low_h)[0],
-        opacity=torch.ones(1, low_h, 2 * low_h),
-    )
+    low = _low_pass(truth, truth_depth, low_h)
     a, b = (
         add_detail(cache, target, low, out_h, DetailConfig(net_height=low_h, sampling=mode))
         for mode in ("bicubic", "bilinear")
