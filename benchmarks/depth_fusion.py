@@ -30,7 +30,12 @@ import torch
 
 from panogrf.app.train.data import load_triplets
 from panogrf.app.weights.networks import load_depth_estimator
+from panogrf.model.depth import DEFAULT_SWEEP, FUSION_SWEEP
 from panogrf.model.metrics import depth_metrics
+from panogrf.model.refine import SweepConfig
+
+#: The monocular depth as a third hypothesis of the fusion.
+MONO = {"mono_hypothesis": True}
 
 
 def _pairs(estimator, data, mode: str, scale: float = 1.0) -> tuple[list[float], list[float]]:
@@ -53,6 +58,8 @@ def _reset(estimator) -> None:
     """The settings each row starts from (the canonical world off: rows name what they add)."""
     estimator.fuse, estimator.switch_gain, estimator.guide = True, 0.0, "mono"
     estimator.canonical = False
+    estimator.mono_hypothesis = False
+    estimator.sweep, estimator.fusion_sweep = DEFAULT_SWEEP, FUSION_SWEEP
 
 
 def main() -> None:
@@ -66,25 +73,40 @@ def main() -> None:
         "times each (the same images: a room of another size than the monocular network "
         "learned, which it cannot tell)",
     )
-    parser.add_argument("--settings", default="", help="only settings whose name has one of these")
+    parser.add_argument(
+        "--settings",
+        default="",
+        help="only settings whose name contains one of these |-separated parts (names hold commas)",
+    )
     parser.add_argument("--threads", type=int, default=0)
     parser.add_argument("--out", type=Path, default=None)
     args = parser.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
     estimator = load_depth_estimator(("full", "mvs"))
+    wide = {"fusion_sweep": DEFAULT_SWEEP}  # mode full's sweep up to round 6
+    canonical = {"canonical": True}
     settings: list[tuple[str, str, dict]] = [
         ("mono", "mono", {}),
         ("mvs", "mvs", {}),
-        ("full, no fusion", "full", {"fuse": False}),
-        ("full, fused, mono aligned to MVS", "full", {"guide": "aligned"}),
-        ("full, fused, guided by the MVS depth", "full", {"guide": "mvs"}),
-        ("full, fused, canonical world", "full", {"canonical": True}),
+        ("mvs, no sweep", "mvs", {"sweep": None}),
+        ("full, no sweep", "full", {"sweep": None}),
+        ("full, canonical world, no sweep", "full", canonical | {"sweep": None}),
+        ("full, no fusion", "full", wide | {"fuse": False}),
+        ("full, fused, mono aligned to MVS", "full", wide | {"guide": "aligned"}),
+        ("full, fused, guided by the MVS depth", "full", wide | {"guide": "mvs"}),
+        ("full, fused, canonical world (round 6)", "full", wide | canonical),
+        ("full, fused, canonical world, mono hypothesis", "full", wide | canonical | MONO),
     ]
+    for span, n in ((0.0, 1), (0.15, 7), (0.25, 11)):
+        search = {"fusion_sweep": SweepConfig(candidates=n, span=span)}
+        name = f"full, fused, search +-{span:g}, canonical world"
+        settings.append((name, "full", search | canonical))
+        settings.append((f"{name}, mono hypothesis", "full", search | canonical | MONO))
     for g in (float(x) for x in args.gains.split(",")):
         settings.append((f"full, fused, switch {g:g}", "full", {"fuse": True, "switch_gain": g}))
     if args.settings:
-        keep = args.settings.split(",")
+        keep = args.settings.split("|")
         settings = [s for s in settings if any(k in s[0] for k in keep)]
     scales = [float(x) for x in args.scales.split(",")]
     results: dict[str, dict] = {}

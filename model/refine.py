@@ -194,7 +194,7 @@ def sweep_depth(
     )  # [K, V, H, W]
     offsets = torch.linspace(-config.span, config.span, config.candidates, dtype=depth.dtype)
     centre = int(torch.argmin(offsets.abs()))
-    step = float(offsets[1] - offsets[0])
+    step = float(offsets[1] - offsets[0]) if len(offsets) > 1 else 0.0
     out = depth.clone()
     for r in range(v):
         if not sources[r]:

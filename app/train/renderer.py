@@ -98,8 +98,9 @@ def pair_depths(
     """Estimated depth of view r with view s as its only source, for every scene and ordered
     pair: {"r{r}s{s}": [N, 1, h, w] float16}. Cached in ``root`` keyed by the depth weights and
     the scenes; the cache is written to a temporary file and renamed."""
-    # The sweep costs seconds per pair: the renderer trains on the networks' depth alone.
-    estimator.sweep = None
+    # The sweep costs seconds per pair: the renderer trains on the networks' depth alone, in
+    # the world as given (the depth its shipped weights were trained on).
+    estimator.sweep, estimator.canonical = None, False
     key = _weights_key(estimator)
     names = hashlib.sha256("\n".join(data.names).encode()).hexdigest()[:8]
     path = root / f".depth_full_{key}_{names}_{estimator.working_height}.safetensors"

@@ -14,6 +14,7 @@ from panogrf.model.depth import DepthEstimator
 from panogrf.model.erp import rotation_about
 from panogrf.model.mono import MonoDepthConfig, MonoDepthNet
 from panogrf.model.mvs import PRESETS, MVSNet
+from panogrf.model.refine import SweepConfig
 
 WORKING = 64  # working height of the estimator in these tests (the default is 128)
 
@@ -73,11 +74,12 @@ def test_depth_is_the_mvs_networks_output(estimator, mode):
     """At the working size, a view's depth is its MVS output with the other views as sources."""
     images = _images(3, WORKING, seed=1)
     c2w = _poses((0, 0, 0), (0.5, 0, 0), (1.0, 0.1, 0))
-    sweep, estimator.sweep = estimator.sweep, None  # the network alone
+    # The network alone, in the world as given.
+    sweep, estimator.sweep, estimator.canonical = estimator.sweep, None, False
     try:
         est = estimator(images, c2w, mode=mode)
     finally:
-        estimator.sweep = sweep
+        estimator.sweep, estimator.canonical = sweep, True
     assert est.sources == [[1, 2], [0, 2], [0, 1]]
     net = estimator.mvs[mode]
     with torch.no_grad():
@@ -87,6 +89,29 @@ def test_depth_is_the_mvs_networks_output(estimator, mode):
             kw = {"mono_depth": mono.depth, "mono_features": mono.features}
         out = net(images[2:3], images[None, :2], c2w[2:3], c2w[None, :2], **kw)
     torch.testing.assert_close(est.depth[2:3], out.depth, atol=1e-5, rtol=1e-5)
+
+
+def test_mode_full_sweeps_with_its_own_config(estimator):
+    """Mode full's sweep is `fusion_sweep`, mode mvs's is `sweep`: with a fusion sweep of one
+    candidate and nothing to fuse, the full depth is the network's, while mode mvs still moves."""
+    images = _images(2, WORKING, seed=3)
+    c2w = _poses((0, 0, 0), (1.0, 0, 0))
+    saved = estimator.fusion_sweep, estimator.fuse, estimator.canonical
+    try:
+        estimator.fuse, estimator.canonical = False, False
+        estimator.fusion_sweep = SweepConfig(candidates=1, span=0.0)
+        full = estimator(images, c2w, "full").depth
+        sweep, estimator.sweep = estimator.sweep, None
+        try:
+            network = estimator(images, c2w, "full").depth
+            mvs_network = estimator(images, c2w, "mvs").depth
+        finally:
+            estimator.sweep = sweep
+        mvs = estimator(images, c2w, "mvs").depth
+    finally:
+        estimator.fusion_sweep, estimator.fuse, estimator.canonical = saved
+    torch.testing.assert_close(full, network)
+    assert not torch.allclose(mvs, mvs_network)
 
 
 def test_one_view_falls_back_to_mono(estimator):

@@ -105,6 +105,23 @@ def test_fusion_on_a_blank_scene_keeps_the_first_hypothesis(scene):
     torch.testing.assert_close(out, small)
 
 
+@pytest.mark.parametrize("span", [0.15, 0.0])
+def test_a_short_search_moves_no_pixel_beyond_its_span(scene, span):
+    """A prior 25 % too far on a sphere, where the sources say so everywhere: a search of
+    +-``span`` in log depth (one candidate for 0: no search) moves the depth towards the truth
+    by at most that span and a half step."""
+    images, c2w, depth = scene
+    small = torch.nn.functional.interpolate(depth, size=(32, 64), mode="area")
+    cfg = SweepConfig(height=64, window=5, candidates=7 if span else 1, span=span)
+    out = sweep_depth(images, c2w, small * 1.25, [[1], [0]], cfg)
+    moved = torch.log(out / (small * 1.25))
+    assert float(moved.abs().max()) <= span * (1 + 1 / 6) + 1e-5
+    if span:
+        assert float(moved.mean()) < -0.8 * span  # most of the way to the end of its range
+    else:
+        torch.testing.assert_close(out, small * 1.25)
+
+
 def test_no_sources_no_change(scene):
     images, c2w, depth = scene
     small = torch.nn.functional.interpolate(depth, size=(32, 64), mode="area")
