@@ -24,28 +24,37 @@ import argparse
 import json
 import statistics
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import torch
 
+from panogrf.app.train.augment import corrupt_mono
 from panogrf.app.train.data import load_triplets
 from panogrf.app.weights.networks import load_depth_estimator
-from panogrf.model.depth import DEFAULT_SWEEP, FUSION_SWEEP
+from panogrf.model.depth import DEFAULT_SWEEP
 from panogrf.model.metrics import depth_metrics
+from panogrf.model.mono import MonoOutput
 from panogrf.model.refine import SweepConfig
 
 #: The monocular depth as a third hypothesis of the fusion.
 MONO = {"mono_hypothesis": True}
 
 
-def _pairs(estimator, data, mode: str, scale: float = 1.0) -> tuple[list[float], list[float]]:
+def _pairs(
+    estimator, data, mode: str, scale: float = 1.0, mono_shape: bool = False
+) -> tuple[list[float], list[float]]:
     errors, seconds = [], []
     for i in range(len(data)):
         images = data.images[i, [0, 2]].float() / 255.0
         c2w = data.c2w[i, [0, 2]].clone()
         c2w[:, :3, 3] *= scale
         t0 = time.perf_counter()
-        est = estimator(images, c2w, mode)
+        if mono_shape:
+            with _mono_wrong_in_shape(estimator, seed=i):
+                est = estimator(images, c2w, mode)
+        else:
+            est = estimator(images, c2w, mode)
         seconds.append(time.perf_counter() - t0)
         for k, v in enumerate((0, 2)):
             gt = data.depths[i, v] * scale
@@ -54,12 +63,31 @@ def _pairs(estimator, data, mode: str, scale: float = 1.0) -> tuple[list[float],
     return errors, seconds
 
 
+@contextmanager
+def _mono_wrong_in_shape(estimator, seed: int):
+    """The monocular network's depth made wrong as on real rooms while inside: smooth regions
+    off by up to +-40 % and a global scale of 0.7-1.4x (`corrupt_mono`, every view), seeded."""
+    net = estimator.mono
+    forward = net.forward
+    gen = torch.Generator().manual_seed(seed)
+
+    def wrong(images):
+        out = forward(images)
+        return MonoOutput(corrupt_mono(out.depth, gen, p=1.0), out.features)
+
+    net.forward = wrong
+    try:
+        yield
+    finally:
+        del net.forward
+
+
 def _reset(estimator) -> None:
     """The settings each row starts from (the canonical world off: rows name what they add)."""
     estimator.fuse, estimator.switch_gain, estimator.guide = True, 0.0, "mono"
     estimator.canonical = False
     estimator.mono_hypothesis = False
-    estimator.sweep, estimator.fusion_sweep = DEFAULT_SWEEP, FUSION_SWEEP
+    estimator.sweep, estimator.fusion_sweep = DEFAULT_SWEEP, DEFAULT_SWEEP
 
 
 def main() -> None:
@@ -78,6 +106,13 @@ def main() -> None:
         default="",
         help="only settings whose name contains one of these |-separated parts (names hold commas)",
     )
+    parser.add_argument(
+        "--mono-shape",
+        choices=("no", "also", "only"),
+        default="no",
+        help="measure every scene (at scale 1) also / only with its monocular depth wrong in "
+        "shape, as on real captures (column 'DATA mono-shape')",
+    )
     parser.add_argument("--threads", type=int, default=0)
     parser.add_argument("--out", type=Path, default=None)
     args = parser.parse_args()
@@ -95,7 +130,7 @@ def main() -> None:
         ("full, no fusion", "full", wide | {"fuse": False}),
         ("full, fused, mono aligned to MVS", "full", wide | {"guide": "aligned"}),
         ("full, fused, guided by the MVS depth", "full", wide | {"guide": "mvs"}),
-        ("full, fused, canonical world (round 6)", "full", wide | canonical),
+        ("full, fused, canonical world (round 6, shipped)", "full", wide | canonical),
         ("full, fused, canonical world, mono hypothesis", "full", wide | canonical | MONO),
     ]
     for span, n in ((0.0, 1), (0.15, 7), (0.25, 11)):
@@ -111,15 +146,18 @@ def main() -> None:
     scales = [float(x) for x in args.scales.split(",")]
     results: dict[str, dict] = {}
     columns: list[str] = []
-    for folder, scale in ((f, s) for f in args.data for s in scales):
+    shapes = {"no": (False,), "also": (False, True), "only": (True,)}[args.mono_shape]
+    runs = [(f, s, m) for f in args.data for s in scales for m in shapes if not (m and s != 1)]
+    for folder, scale, mono_shape in runs:
         data = load_triplets(folder, 256)
         column = folder.name if scale == 1 else f"{folder.name} x{scale:g}"
+        column += " mono-shape" if mono_shape else ""
         columns.append(column)
         for name, mode, attrs in settings:
             _reset(estimator)
             for key, value in attrs.items():
                 setattr(estimator, key, value)
-            errors, seconds = _pairs(estimator, data, mode, scale)
+            errors, seconds = _pairs(estimator, data, mode, scale, mono_shape)
             row = results.setdefault(name, {"l1": {}, "seconds": []})
             row["l1"][column] = statistics.fmean(errors)
             row["seconds"] += seconds
