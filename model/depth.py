@@ -72,7 +72,7 @@ class DepthEstimator(nn.Module):
         (`benchmarks/depth_fusion.py`, `depth_fusion_round7.json`): on 36 validation scenes
         (12 of them home rooms 3-5 m apart; the worlds also scaled by 0.7 and 1.4) a short
         search (`SHORT_SWEEP`, +-0.15 in log depth) with the monocular depth as a third
-        hypothesis has the lower mean L1, 0.157 m against 0.186 for this +-0.5, and it also
+        hypothesis has the lower mean L1, 0.139 m against 0.172 for this +-0.5, and it also
         does with the monocular depth made wrong in shape (0.182 against 0.201). On the real
         triplet it is the other way round (full 0.231 against 0.173 m; 0.202 for +-0.25 and
         0.218 for +-0.15 without the monocular hypothesis): a real capture's mono-guided depth
