@@ -14,7 +14,10 @@ the unguided MVS depth, or the unguided MVS depth itself); full fused in the can
 (``DepthEstimator.canonical``: the world scaled to the monocular network's sense of size);
 full fused with the unguided depth
 at each ``switch_gain`` (how much better the unguided depth must match to replace the
-mono-guided one).
+mono-guided one); without any sweep; with mode full's search at +-0, +-0.15 and +-0.25 in log
+depth (``DepthEstimator.fusion_sweep``), each with and without the monocular depth as a third
+hypothesis. ``--mono-shape`` also measures every setting with the monocular depth made wrong in
+shape (`corrupt_mono`), as on real captures.
 Prints a table of mean L1 (m) per dataset and overall, and the seconds per pair.
 """
 
@@ -24,7 +27,7 @@ import argparse
 import json
 import statistics
 import time
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
 from pathlib import Path
 
 import torch
@@ -50,10 +53,7 @@ def _pairs(
         c2w = data.c2w[i, [0, 2]].clone()
         c2w[:, :3, 3] *= scale
         t0 = time.perf_counter()
-        if mono_shape:
-            with _mono_wrong_in_shape(estimator, seed=i):
-                est = estimator(images, c2w, mode)
-        else:
+        with _mono_wrong_in_shape(estimator, seed=i) if mono_shape else nullcontext():
             est = estimator(images, c2w, mode)
         seconds.append(time.perf_counter() - t0)
         for k, v in enumerate((0, 2)):
