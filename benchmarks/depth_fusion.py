@@ -138,6 +138,10 @@ def main() -> None:
         name = f"full, fused, search +-{span:g}, canonical world"
         settings.append((name, "full", search | canonical))
         settings.append((f"{name}, mono hypothesis", "full", search | canonical | MONO))
+    # Round 8: the wide search with a stronger prior (far moves need more evidence).
+    for prior in (0.05, 0.1):
+        name = f"full, fused, search +-0.5, prior {prior:g}, canonical world"
+        settings.append((name, "full", {"fusion_sweep": SweepConfig(prior=prior)} | canonical))
     for g in (float(x) for x in args.gains.split(",")):
         settings.append((f"full, fused, switch {g:g}", "full", {"fuse": True, "switch_gain": g}))
     if args.settings:
