@@ -88,6 +88,7 @@ def _reset(estimator) -> None:
     estimator.canonical = False
     estimator.mono_hypothesis = False
     estimator.sweep, estimator.fusion_sweep = DEFAULT_SWEEP, DEFAULT_SWEEP
+    estimator.median = 1
 
 
 def main() -> None:
@@ -142,6 +143,11 @@ def main() -> None:
     for prior in (0.05, 0.1):
         name = f"full, fused, search +-0.5, prior {prior:g}, canonical world"
         settings.append((name, "full", {"fusion_sweep": SweepConfig(prior=prior)} | canonical))
+    # Round 8: the sweep's speckle taken out by a median.
+    for k in (5, 7):
+        name = f"full, fused, canonical world, median {k}"
+        settings.append((name, "full", wide | canonical | {"median": k}))
+        settings.append((f"mvs, median {k}", "mvs", {"median": k}))
     for g in (float(x) for x in args.gains.split(",")):
         settings.append((f"full, fused, switch {g:g}", "full", {"fuse": True, "switch_gain": g}))
     if args.settings:

@@ -155,6 +155,19 @@ class SweepConfig:
     """A pixel moves only if its best cost is this much below the cost at the network's depth."""
 
 
+def median_filter(depth: Tensor, window: int) -> Tensor:
+    """Depth [V, 1, h, w] through a window x window median (ERP: wrapping at the seam, rows
+    repeated at the poles). The sweep picks each pixel's depth on its own; where the sources'
+    match is ambiguous (around thin objects, on repeated texture) single pixels jump to another
+    candidate, and the median takes that speckle out while keeping depth steps where they are."""
+    if window <= 1:
+        return depth
+    p = window // 2
+    v, _, h, w = depth.shape
+    patches = F.unfold(_pad_w(depth, p), window)  # [V, window^2, h w]
+    return patches.median(1).values.reshape(v, 1, h, w)
+
+
 def _box(x: Tensor, k: int) -> Tensor:
     p = k // 2
     return F.avg_pool2d(_pad_w(x, p), k, 1)

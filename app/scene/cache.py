@@ -23,7 +23,7 @@ from panogrf.app.files.atomic import atomic_output
 from panogrf.renderer.cache import SceneCache
 from panogrf.renderer.methods import METHODS, Models, SourceViews
 
-FORMAT = "panogrf-scene-cache-4"  # 4: the MVS networks work in the canonical world
+FORMAT = "panogrf-scene-cache-5"  # 5: a median after the depth's sweep
 #: The method whose depth and renderer maps the cache holds.
 METHOD = METHODS["panogrf"]
 #: Largest plausible depth in a cache (metres): far beyond any room or street scene.

@@ -96,9 +96,9 @@ def test_mode_full_sweeps_with_its_own_config(estimator):
     candidate and nothing to fuse, the full depth is the network's, while mode mvs still moves."""
     images = _images(2, WORKING, seed=3)
     c2w = _poses((0, 0, 0), (1.0, 0, 0))
-    saved = estimator.fusion_sweep, estimator.fuse, estimator.canonical
+    saved = estimator.fusion_sweep, estimator.fuse, estimator.canonical, estimator.median
     try:
-        estimator.fuse, estimator.canonical = False, False
+        estimator.fuse, estimator.canonical, estimator.median = False, False, 1
         estimator.fusion_sweep = SweepConfig(candidates=1, span=0.0)
         full = estimator(images, c2w, "full").depth
         sweep, estimator.sweep = estimator.sweep, None
@@ -109,7 +109,7 @@ def test_mode_full_sweeps_with_its_own_config(estimator):
             estimator.sweep = sweep
         mvs = estimator(images, c2w, "mvs").depth
     finally:
-        estimator.fusion_sweep, estimator.fuse, estimator.canonical = saved
+        estimator.fusion_sweep, estimator.fuse, estimator.canonical, estimator.median = saved
     torch.testing.assert_close(full, network)
     assert not torch.allclose(mvs, mvs_network)
 
@@ -242,3 +242,24 @@ def test_the_canonical_world_makes_the_depth_follow_the_worlds_scale(estimator):
         estimator.canonical = True
     torch.testing.assert_close(other, s * base, rtol=1e-4, atol=1e-5)
     assert not torch.allclose(plain, other, rtol=1e-3)
+
+
+@pytest.mark.parametrize("mode", ["full", "mvs"])
+def test_the_median_follows_the_sweep(estimator, mode):
+    """After the sweep the depth goes through `median_filter` (``median``), in the canonical
+    world or not: the median of the unfiltered depth, at working resolution."""
+    from panogrf.model.refine import median_filter
+
+    images = _images(2, WORKING, seed=5)
+    c2w = _poses((0, 0, 0), (1.0, 0, 0))
+    saved = estimator.median
+    try:
+        estimator.median = 1
+        raw = estimator(images, c2w, mode).depth
+        estimator.median = 7
+        filtered = estimator(images, c2w, mode).depth
+    finally:
+        estimator.median = saved
+    assert saved == 7
+    torch.testing.assert_close(filtered, median_filter(raw, 7))
+    assert not torch.equal(filtered, raw)

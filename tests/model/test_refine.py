@@ -12,6 +12,7 @@ from panogrf.model.erp import erp_directions
 from panogrf.model.refine import (
     RefineConfig,
     SweepConfig,
+    median_filter,
     photometric_error,
     refine_depth,
     sweep_depth,
@@ -136,3 +137,17 @@ def test_gradient_refinement_reduces_the_error(scene):
     out = refine_depth(images, c2w, wrong, [[1], [0]], RefineConfig(iterations=40, height=64))
     assert (out - small).abs().mean() < (wrong - small).abs().mean()
     assert math.isfinite(float(out.sum()))
+
+
+def test_the_median_takes_out_speckle_and_keeps_steps():
+    """Single wrong pixels vanish, also across the seam; a step between two surfaces stays
+    where it is with nothing in between; window 1 changes nothing."""
+    depth = torch.full((1, 1, 32, 64), 3.0)
+    depth[..., 20:44] = 1.0  # a near box, columns 20-43
+    noisy = depth.clone()
+    noisy[0, 0, 10, 0] = 9.0  # on the seam
+    noisy[0, 0, 16, 30] = 0.2  # on the box
+    noisy[0, 0, 5, 50] = 7.0
+    out = median_filter(noisy, 5)
+    torch.testing.assert_close(out, depth)
+    assert torch.equal(median_filter(noisy, 1), noisy)
