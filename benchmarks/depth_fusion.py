@@ -16,7 +16,9 @@ full fused with the unguided depth
 at each ``switch_gain`` (how much better the unguided depth must match to replace the
 mono-guided one); without any sweep; with mode full's search at +-0, +-0.15 and +-0.25 in log
 depth (``DepthEstimator.fusion_sweep``), each with and without the monocular depth as a third
-hypothesis. ``--mono-shape`` also measures every setting with the monocular depth made wrong in
+hypothesis; round 8's rows: the wide search with a stronger prior (far moves need more
+evidence), and a median after the sweep (``DepthEstimator.median``, in modes full and mvs).
+``--mono-shape`` also measures every setting with the monocular depth made wrong in
 shape (`corrupt_mono`), as on real captures.
 Prints a table of mean L1 (m) per dataset and overall, and the seconds per pair.
 """

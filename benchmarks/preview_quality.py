@@ -87,12 +87,6 @@ def main() -> None:
         "to the data's rows, with --rows mesh rows",
     )
     parser.add_argument("--rows", type=int, default=64, help="mesh rows for --heights")
-    parser.add_argument(
-        "--median",
-        default="",
-        help="DEPTH_MEDIAN values to score as well (comma-separated; 1: none), with --rows mesh "
-        "rows, at the data's rows and each of --heights",
-    )
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/preview_quality.json"))
     args = parser.parse_args()
 
@@ -132,11 +126,6 @@ def main() -> None:
         (r, o, 0): [] for r in ROWS for o in obliques
     }
     scores |= {(args.rows, obliques[0], h): [] for h in heights if h}
-    medians = [int(x) for x in args.median.split(",") if x]
-    by_median: dict[tuple[int, int], list[float]] = {
-        (m, h): [] for m in medians for h in dict.fromkeys([0, *heights])
-    }
-    shipped_median = gl_preview.DEPTH_MEDIAN
     for folder in folders:
         d = load_scene(folder, load_images=True).images
         v = SourceViews(d.images[[0, 2]], d.c2w[[0, 2]])
@@ -152,13 +141,6 @@ def main() -> None:
                 rgb, _ = pr.render(d.c2w[1].numpy(), h or height)
             x = upsample(rgb, height)
             scores[r, o, h].append(image_scores(x, d.images[1:2])["ws_psnr"])
-        gl_preview.MAX_OBLIQUE_TAN = obliques[0]
-        for m, h in by_median:
-            c2w = d.c2w[[0, 2]].numpy()
-            with PreviewRenderer(ctx, images, depth, c2w, args.rows, depth_median=m) as pr:
-                rgb, _ = pr.render(d.c2w[1].numpy(), h or height)
-            x = upsample(rgb, height)
-            by_median[m, h].append(image_scores(x, d.images[1:2])["ws_psnr"])
     ctx.release()
     draft = statistics.mean(drafts)
 
@@ -178,10 +160,6 @@ def main() -> None:
             for k in scores
             if (h := k[2])
         },
-        "depth_median": {
-            f"{m}@{h or height}": statistics.mean(v) for (m, h), v in by_median.items()
-        },
-        "depth_median_shipped": shipped_median,
         "draft_ws_psnr": draft,
         "machine": "2-core CPU, Mesa llvmpipe (EGL)",
     }
@@ -200,13 +178,6 @@ def main() -> None:
                 f"preview at {h} rows ({r}-row meshes), shown at {height}: "
                 f"{m:.1f} ms ({1000 / m:.1f} fps), WS-PSNR {statistics.mean(v):.2f}"
             )
-    if medians:
-        hs = list(dict.fromkeys(h for _, h in by_median))
-        heads = "".join(f"{f'WS-PSNR@{h or height}':>14}" for h in hs)
-        print(f"\n{'depth median':>12}{heads}")
-        for m in medians:
-            print(f"{m:>12}" + "".join(f"{statistics.mean(by_median[m, h]):>14.2f}" for h in hs))
-        print(f"({args.rows}-row meshes; shown at {height} rows; shipped: {shipped_median})")
     print(f"draft refinement (3 + 1 samples, the network at the data's rows): {draft:.2f}")
     names = ", ".join(str(d) for d in args.data)
     print(f"({len(folders)} validation scenes of {names}; wrote {args.out})")

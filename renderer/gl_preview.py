@@ -1,7 +1,6 @@
 """The instant preview: the sources' depth meshes warped into the target view on the GPU (GL).
 
-Each source panorama becomes a mesh over its (estimated) depth map, median-filtered first
-(`DEPTH_MEDIAN`), rows at pixel latitudes
+Each source panorama becomes a mesh over its (estimated) depth map, rows at pixel latitudes
 and as many vertices per row as the row's circumference needs (`sphere_mesh`), lifted to the
 world once, textured with the full-resolution panorama; triangles spanning a depth
 discontinuity (the "stretched" triangles of a depth mesh) are dropped once, there. Per frame
@@ -23,7 +22,6 @@ window) or is a standalone EGL context made here (`create_headless_context`).
 
 from __future__ import annotations
 
-import warnings
 from typing import NamedTuple
 
 import moderngl
@@ -47,13 +45,6 @@ FAR = 100.0
 LOG_NEAR = 0.1
 #: Sources drawn per frame at most (their layers sit side by side in one texture).
 MAX_VIEWS = 16
-#: Side of the median window each mesh vertex takes its depth from, in pixels of a 128-row
-#: depth map (1: the vertex's own pixel; see `_uv_world_points`): about 10 deg. The estimated
-#: depth is speckled where the photometric sweep moved single pixels (around thin objects
-#: above all), and every speckle breaks the mesh into stretched triangles, which are dropped
-#: in both sources and leave holes the fill can only blur. Chosen on the 512-row validation
-#: scenes (`benchmarks/preview_quality.py --median`).
-DEPTH_MEDIAN = 7
 
 
 class PreviewTextures(NamedTuple):
@@ -104,30 +95,13 @@ def sphere_mesh(rows: int) -> tuple[np.ndarray, np.ndarray]:
     return uv, np.concatenate(tris).astype(np.int32)
 
 
-def _uv_world_points(uv: np.ndarray, depth: np.ndarray, c2w: np.ndarray, median: int = 1) -> tuple:
-    """Depth [h, w] sampled at ERP coordinates uv [N, 2] -> (world points [N, 3], the depths
-    [N]) of a camera c2w [4, 4]. With ``median`` > 1 each vertex takes the median of the depth
-    over a window of ``median`` x ``median`` pixels of a 128-row map around its own pixel (on a
-    finer map as many samples spread over the same angle; on a coarser one fewer), wrapping at
-    the seam, rows clamped at the poles, pixels without depth (<= 0) left out; a vertex whose
-    own pixel has no depth keeps 0."""
+def _uv_world_points(uv: np.ndarray, depth: np.ndarray, c2w: np.ndarray) -> tuple:
+    """Depth [h, w] sampled (nearest) at ERP coordinates uv [N, 2] -> (world points [N, 3],
+    the depths [N]) of a camera c2w [4, 4]."""
     h, w = depth.shape
     row = np.minimum((uv[:, 1] * h).astype(np.int64), h - 1)
     col = np.minimum(((uv[:, 0] % 1.0) * w).astype(np.int64), w - 1)
     d = depth[row, col].astype(np.float64)
-    if median > 1:
-        off = np.unique(np.round((np.arange(median) - median // 2) * (h / 128)).astype(np.int64))
-        rr = np.clip(row[:, None, None] + off[None, :, None], 0, h - 1)
-        cc = (col[:, None, None] + off[None, None, :]) % w
-        near = depth[rr, cc].reshape(len(row), -1).astype(np.float64)
-        if (near > 0).all():
-            d = np.median(near, axis=1)
-        else:
-            near[near <= 0] = np.nan
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", RuntimeWarning)  # no depth in the whole window
-                med = np.nanmedian(near, axis=1)
-            d = np.where(d > 0, np.nan_to_num(med, nan=0.0), 0.0)
     lon = 2 * np.pi * (uv[:, 0].astype(np.float64) - 0.5)
     lat = np.pi * (0.5 - uv[:, 1].astype(np.float64))
     dirs = np.stack((np.cos(lat) * np.sin(lon), np.sin(lat), -np.cos(lat) * np.cos(lon)), -1)
@@ -146,13 +120,10 @@ class PreviewRenderer:
         c2w: np.ndarray,  # [V, 4, 4]
         mesh_height: int | None = None,
         max_views: int | None = None,
-        depth_median: int = DEPTH_MEDIAN,
     ) -> None:
         """``mesh_height``: rows of the depth meshes (default: the depth's own; fewer rows,
         fewer triangles). ``max_views``: draw only this many sources per frame, the nearest to
-        the camera (default: all of them, at most `MAX_VIEWS`). ``depth_median``: the median
-        window of the vertices' depth (`DEPTH_MEDIAN`, for estimated depth; 1 for a depth
-        known to be exact, whose small features the median would erase)."""
+        the camera (default: all of them, at most `MAX_VIEWS`)."""
         v = images.shape[0]
         if v < 1:
             raise ValueError("the preview needs at least one view")
@@ -196,8 +167,7 @@ class PreviewRenderer:
         max_stretch = 1.0 + (np.pi / rows) * MAX_OBLIQUE_TAN
         self.textures, self.points, self.triangles, self.corners, self.buffers = [], [], [], [], []
         for k in range(v):
-            d = np.asarray(depth[k], np.float32)
-            pts, dd = _uv_world_points(uv, d, self.c2w[k], depth_median)
+            pts, dd = _uv_world_points(uv, np.asarray(depth[k], np.float32), self.c2w[k])
             tri_d = dd[grid]
             keep = (tri_d.min(1) > 0) & (tri_d.max(1) <= max_stretch * tri_d.min(1))
             tris = np.ascontiguousarray(grid[keep])

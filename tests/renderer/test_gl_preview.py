@@ -46,9 +46,7 @@ def test_preview_matches_the_golden_image_and_the_real_view(gl, demo):
     from panogrf.renderer.gl_preview import PreviewRenderer
 
     data, images, depth = demo
-    # The true depth: no median (it is for estimated depth; here it would erase small things).
-    c2w = data.c2w[[0, 2]].numpy()
-    with PreviewRenderer(gl, images[[0, 2]], depth[[0, 2]], c2w, depth_median=1) as pr:
+    with PreviewRenderer(gl, images[[0, 2]], depth[[0, 2]], data.c2w[[0, 2]].numpy()) as pr:
         rgb, dist = pr.render(data.c2w[1].numpy(), 256)
     assert rgb.shape == (256, 512, 3) and dist.shape == (256, 512)
     assert np.isfinite(dist).all() and (dist > 0).mean() > 0.97  # 0: filled holes
@@ -207,51 +205,3 @@ def test_oblique_walls_are_kept_and_depth_steps_dropped(gl, mesh_rows):
     assert (dist[6:-6] > 0).all()  # holes only in the polar caps (no vertices there)
     # Both sides of the box's outline lose triangles in every mesh row it crosses.
     assert len(room) - len(with_box) >= 2 * 8 * mesh_rows // 128
-
-
-def test_vertices_take_the_median_depth_around_them():
-    """Each vertex's depth is the median of the window around its pixel: single wrong pixels
-    (speckle) vanish, a step between two surfaces stays a step (no depth in between), and
-    pixels without depth stay without."""
-    from panogrf.renderer.gl_preview import _uv_world_points, sphere_mesh
-
-    uv, _ = sphere_mesh(64)
-    depth = np.full((128, 256), 3.0, np.float32)
-    depth[:, 128:] = 1.0  # a step at the middle column
-    rng = np.random.default_rng(0)
-    speckle = rng.random(depth.shape) < 0.05
-    noisy = np.where(speckle, 7.0, depth).astype(np.float32)
-    noisy[20:30, 40:60] = 0.0  # no depth
-    _, own = _uv_world_points(uv, noisy, np.eye(4), median=1)
-    _, med = _uv_world_points(uv, noisy, np.eye(4), median=7)
-    assert (own == 7.0).sum() > 100  # the speckle reaches the vertices without the median
-    row = np.minimum((uv[:, 1] * 128).astype(int), 127)
-    col = np.minimum(((uv[:, 0] % 1.0) * 256).astype(int), 255)
-    unknown = noisy[row, col] == 0
-    assert (med[unknown] == 0).all() and unknown.sum() > 0
-    assert np.isin(med[~unknown], (1.0, 3.0)).all()  # no speckle, nothing between the two
-    away = np.abs(col - 128) > 4  # away from the step the surface is the one of its side
-    assert (med[~unknown & away] == np.where(col >= 128, 1.0, 3.0)[~unknown & away]).all()
-
-
-def test_speckled_depth_leaves_no_holes(gl):
-    """Speckle in an estimated depth map breaks the mesh into stretched triangles, dropped as
-    depth steps: holes in the preview. The vertices' median (on by default) keeps the surface
-    whole."""
-    from panogrf.renderer import gl_preview
-
-    depth = _box_room_depth(128, (4.0, 1.5, 4.0))
-    rng = np.random.default_rng(1)
-    noisy = np.where(rng.random(depth.shape) < 0.03, 0.6 * depth, depth).astype(np.float32)
-    images = np.full((1, 128, 256, 3), 128, np.uint8)
-    pose = np.eye(4)
-    pose[:3, 3] = [0.3, 0.0, 0.2]  # off the source's centre: dropped triangles leave holes
-    holes = {}
-    for median in (1, None):
-        kw = {} if median is None else {"depth_median": median}
-        with gl_preview.PreviewRenderer(gl, images, noisy[None], np.eye(4)[None], 64, **kw) as pr:
-            _, dist = pr.render(pose, 64)
-        holes[median] = float((dist[6:-6] == 0).mean())
-    assert gl_preview.DEPTH_MEDIAN > 1
-    assert holes[1] > 0.05  # the speckle tears the mesh
-    assert holes[None] < 0.01
