@@ -151,3 +151,7 @@ def test_the_median_takes_out_speckle_and_keeps_steps():
     out = median_filter(noisy, 5)
     torch.testing.assert_close(out, depth)
     assert torch.equal(median_filter(noisy, 1), noisy)
+    # The seam is like any other column: turning the panorama turns the result.
+    x = torch.rand(2, 1, 16, 32, generator=torch.Generator().manual_seed(0))
+    turned = median_filter(torch.roll(x, 5, -1), 5)
+    assert torch.equal(turned, torch.roll(median_filter(x, 5), 5, -1))
