@@ -1,13 +1,15 @@
-"""Renders with mode full's depth fused as shipped and with the short search, on validation scenes.
+"""Renders with mode full's depth as shipped and as other settings of it, on validation scenes.
 
     python benchmarks/fusion_renders.py --data data/val_wide_home data/val_fusion_classic \
-        data/val_fusion_home [--out benchmarks/results/fusion_val_renders.json]
+        data/val_fusion_home [--fusions shipped,short] [--out FILE.json]
 
-For each dataset and each fusion (``shipped``: the `DEFAULT_SWEEP` search of +-0.5 in log
-depth, no monocular hypothesis, as in round 6; ``short``: `SHORT_SWEEP` and the monocular
-hypothesis) runs ``panogrf eval`` on every scene (every baseline the dataset has), methods
-panogrf and meshwarp (the two that read mode full's depth), in a process of its own, and prints
-mean WS-PSNR / LPIPS and the median preparation time. Validation scenes only.
+For each dataset and each depth setting (``shipped``: the estimator's defaults; ``round6``: as
+shipped in rounds 6 and 7, without the median after the sweep; ``short``: `SHORT_SWEEP` and the
+monocular hypothesis, on top of the defaults) runs ``panogrf eval`` on every scene (every
+baseline the dataset has), methods panogrf and meshwarp (the two that read mode full's depth),
+in a process of its own, and prints mean WS-PSNR / LPIPS and the median preparation time.
+Validation scenes only. (Round 7's ``fusion_val_renders.json`` compared the round-6 defaults,
+then named ``shipped``, with ``short`` without the median.)
 """
 
 from __future__ import annotations
@@ -20,19 +22,25 @@ import sys
 import tempfile
 from pathlib import Path
 
-FUSIONS = ("shipped", "short")
+FUSIONS = ("shipped", "round6", "short")
 
 
 def _run_eval(fusion: str, argv: list[str]) -> int:
-    """``panogrf eval`` in this process with mode full's fusion set to ``fusion``."""
+    """``panogrf eval`` in this process with the depth estimator set to ``fusion``."""
     import panogrf.model.depth as depth
 
-    if fusion == "short":
+    attrs = {
+        "shipped": {},
+        "round6": {"median": 1},
+        "short": {"fusion_sweep": depth.SHORT_SWEEP, "mono_hypothesis": True},
+    }[fusion]
+    if attrs:
         init = depth.DepthEstimator.__init__
 
         def _init(self, *args, **kwargs):
             init(self, *args, **kwargs)
-            self.fusion_sweep, self.mono_hypothesis = depth.SHORT_SWEEP, True
+            for key, value in attrs.items():
+                setattr(self, key, value)
 
         depth.DepthEstimator.__init__ = _init
     from panogrf.app.cli import main
@@ -51,15 +59,19 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--data", type=Path, nargs="+", required=True)
     parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--fusions", default="shipped,short", help=f"comma-separated, of {FUSIONS}")
     parser.add_argument(
         "--out", type=Path, default=Path("benchmarks/results/fusion_val_renders.json")
     )
     args = parser.parse_args()
+    unknown = set(args.fusions.split(",")) - set(FUSIONS)
+    if unknown:
+        parser.error(f"unknown fusions {sorted(unknown)}; choose from {FUSIONS}")
     summary: dict[str, dict] = {}
     runs: dict[str, dict] = {}
     with tempfile.TemporaryDirectory() as tmp:
         for folder in args.data:
-            for fusion in FUSIONS:
+            for fusion in args.fusions.split(","):
                 out = Path(tmp) / f"{fusion}_{folder.name}.json"
                 cmd = [sys.executable, __file__, "--eval-with", fusion, str(folder)]
                 cmd += ["--baselines", _baselines(folder), "--methods", "panogrf,meshwarp"]
