@@ -146,7 +146,7 @@ def main() -> None:
         name = f"full, fused, search +-0.5, prior {prior:g}, canonical world"
         settings.append((name, "full", {"fusion_sweep": SweepConfig(prior=prior)} | canonical))
     # Round 8: the sweep's speckle taken out by a median.
-    for k in (5, 7):
+    for k in (5, 7, 9):
         name = f"full, fused, canonical world, median {k}"
         settings.append((name, "full", wide | canonical | {"median": k}))
         settings.append((f"mvs, median {k}", "mvs", {"median": k}))
