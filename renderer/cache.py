@@ -31,8 +31,7 @@ class SceneCache:
     def __post_init__(self) -> None:
         # Padded once for the seam, sampled for every chunk of points.
         self.maps_padded = pad_seam(self.maps)
-        self.images_padded = pad_seam(self.images)
-        self._images_padded = {1: self.images_padded}
+        self._images_padded = {1: pad_seam(self.images)}
 
     def images_padded_by(self, pad: int) -> Tensor:
         """The sources with ``pad`` wrapped columns on each side (bicubic reads need 2),

@@ -163,7 +163,7 @@ def point_features(cache: SceneCache, points: Tensor, ray_dirs: Tensor, t: Tenso
     hi, wi = cache.images.shape[-2:]
     if (hi, wi) != (h, w):
         uv = uv * (wi / w) + 0.5 * (wi / w - 1.0)  # same directions on the finer grid
-    colour = sample_padded(cache.images_padded, uv).transpose(1, 2)  # [V, N, 3]
+    colour = sample_padded(cache.images_padded_by(1), uv).transpose(1, 2)  # [V, N, 3]
     c = cache.feature_channels
     params, depth = sampled[..., c : c + 6], sampled[..., c + 6]
     src_dirs = (points[None] - cache.centres[:, None]) / z[..., None]
