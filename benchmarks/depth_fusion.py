@@ -26,7 +26,6 @@ Prints a table of mean L1 (m) per dataset and overall, and the seconds per pair.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import statistics
 import time
@@ -90,7 +89,6 @@ def _reset(estimator) -> None:
     estimator.fuse, estimator.switch_gain, estimator.guide = True, 0.0, "mono"
     estimator.canonical = False
     estimator.mono_hypothesis = False
-    estimator.metric_hypothesis = False
     estimator.sweep, estimator.fusion_sweep = DEFAULT_SWEEP, DEFAULT_SWEEP
     estimator.median = 1
 
@@ -152,23 +150,6 @@ def main() -> None:
         name = f"full, fused, canonical world, median {k}"
         settings.append((name, "full", wide | canonical | {"median": k}))
         settings.append((f"mvs, median {k}", "mvs", {"median": k}))
-    # Round 9: the unguided network's metric-world pass as a further hypothesis of the fusion.
-    shipped = wide | canonical | {"median": 7}
-    name = "full, median 7, metric-world MVS hypothesis"
-    settings.append((name, "full", shipped | {"metric_hypothesis": True}))
-    # Round 9: the sweep's error summed over an edge-aware (guided) window instead of a box,
-    # and the sweep's depth kept at its own resolution (twice the working one).
-    variants = {
-        "guided 7 eps 1e-3": {"window": 7, "guided_eps": 1e-3},
-        "guided 11 eps 1e-3": {"window": 11, "guided_eps": 1e-3},
-        "guided 15 eps 1e-4": {"window": 15, "guided_eps": 1e-4},
-        "fine": {"fine": True},
-        "fine, guided 11 eps 1e-3": {"fine": True, "window": 11, "guided_eps": 1e-3},
-    }
-    for label, change in variants.items():
-        sweep = dataclasses.replace(DEFAULT_SWEEP, **change)
-        settings.append((f"full, median 7, {label}", "full", shipped | {"fusion_sweep": sweep}))
-        settings.append((f"mvs, median 7, {label}", "mvs", {"median": 7, "sweep": sweep}))
     for g in (float(x) for x in args.gains.split(",")):
         settings.append((f"full, fused, switch {g:g}", "full", {"fuse": True, "switch_gain": g}))
     if args.settings:

@@ -103,10 +103,6 @@ class DepthEstimator(nn.Module):
         """Mode "full" fused: the monocular depth enters the sweep as a third hypothesis, kept
         where the sources agree with it better than with both MVS depths. Off: it pays on the
         validation scenes with the short search (see ``fusion_sweep``), not with this one."""
-        self.metric_hypothesis = False
-        """Mode "full" fused in the canonical world: the unguided network's first pass (in the
-        metric world, as mode "mvs" runs it) enters the sweep as a further hypothesis, scaled
-        into the canonical world; no extra network pass."""
         self.canonical = True
         """Mode "full" with the unguided network loaded: the MVS networks and the sweep work in
         the world scaled by k = median(mono / unguided MVS depth) (`_world_scale`), the room
@@ -227,17 +223,13 @@ class DepthEstimator(nn.Module):
             guide = mono
             if self._fuses(mode) or self._canonical(mode):
                 unguided = self._mvs("mvs", small, c2w, mono, sources, mono.depth.clone())
-                metric = None
                 if self._canonical(mode):
                     scale = self._world_scale(mono.depth, self._clean(unguided), sources)
                     c2w = c2w.clone()
                     c2w[:, :3, 3] *= scale
-                    metric = self._clean(unguided) * scale
                     unguided = self._mvs("mvs", small, c2w, mono, sources, mono.depth.clone())
                 if self._fuses(mode):
                     others = (unguided, mono.depth) if self.mono_hypothesis else (unguided,)
-                    if self.metric_hypothesis and metric is not None:
-                        others += (metric,)
                 if self.guide == "aligned":
                     guide = MonoOutput(self._aligned(mono.depth, unguided, sources), mono.features)
                 elif self.guide == "mvs":
@@ -264,23 +256,20 @@ class DepthEstimator(nn.Module):
                 others=clean,
                 switch_gain=self.switch_gain,
             )
-            # The window is given in working-resolution pixels (the sweep may return finer).
-            k = self.median * depth.shape[-2] / self.working_height
-            depth = median_filter(depth, 2 * int(k / 2) + 1 if self.median > 1 else 1)
+            depth = median_filter(depth, self.median)
         canonical_far = None
         if scale != 1.0:
             # Clamped at the top of the range in the canonical world: flagged in the metric one.
             canonical_far = depth >= 0.98 * self.d_max
             depth = self._clean(depth / scale)
         mono_depth = mono.depth
-        if depth.shape[-2:] != (h, w):
-            depth = F.interpolate(depth, size=(h, w), mode="bilinear", align_corners=False)
-            if canonical_far is not None:
-                canonical_far = F.interpolate(canonical_far.float(), size=(h, w)) > 0.5
         if (h, w) != hw:
+            depth = F.interpolate(depth, size=(h, w), mode="bilinear", align_corners=False)
             mono_depth = F.interpolate(
                 mono_depth, size=(h, w), mode="bilinear", align_corners=False
             )
+            if canonical_far is not None:
+                canonical_far = F.interpolate(canonical_far.float(), size=(h, w)) > 0.5
         out_of_range = depth >= 0.98 * self.d_max
         if canonical_far is not None:
             out_of_range |= canonical_far

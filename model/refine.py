@@ -153,14 +153,6 @@ class SweepConfig:
     """Cost per unit of |log(d / d_net)|: where the error is flat, the network's depth wins."""
     min_gain: float = 0.02
     """A pixel moves only if its best cost is this much below the cost at the network's depth."""
-    guided_eps: float = 0.0
-    """0: the error is summed over a plain box. Above 0: over a guided filter of the reference
-    view's grey image with this regulariser (an edge-aware window, as in cost-volume filtering:
-    a pixel's window keeps to its own side of an image edge, so depth steps stay at the
-    edges)."""
-    fine: bool = False
-    """Return the depth at the sweep's resolution (``height`` rows) instead of averaging the
-    change down to the network's grid."""
 
 
 def median_filter(depth: Tensor, window: int) -> Tensor:
@@ -181,18 +173,6 @@ def median_filter(depth: Tensor, window: int) -> Tensor:
 def _box(x: Tensor, k: int) -> Tensor:
     p = k // 2
     return F.avg_pool2d(_pad_w(x, p), k, 1)
-
-
-def guided_filter(guide: Tensor, x: Tensor, k: int, eps: float) -> Tensor:
-    """x [B, C, H, W] smoothed over k x k windows guided by the grey image guide [1, 1, H, W]
-    (He et al.'s guided filter, ERP: wrapping at the seam): locally q = a I + b, so the result
-    follows the guide's edges instead of blurring across them."""
-    mean_i = _box(guide, k)
-    var_i = _box(guide * guide, k) - mean_i**2
-    mean_x = _box(x, k)
-    a = (_box(guide * x, k) - mean_i * mean_x) / (var_i + eps)
-    b = mean_x - a * mean_i
-    return _box(a, k) * guide + _box(b, k)
 
 
 def sweep_depth(
@@ -230,7 +210,7 @@ def sweep_depth(
     offsets = torch.linspace(-config.span, config.span, config.candidates, dtype=depth.dtype)
     centre = int(torch.argmin(offsets.abs()))
     step = float(offsets[1] - offsets[0]) if len(offsets) > 1 else 0.0
-    out = torch.exp(log_hyp[0])[:, None] if config.fine else depth.clone()
+    out = depth.clone()
     for r in range(v):
         if not sources[r]:
             continue
@@ -259,9 +239,6 @@ def sweep_depth(
         # The change against ``depth``, averaged down to the depth's grid: pixels that keep
         # the first hypothesis and do not move stay exactly as given.
         change = base + moved - log_hyp[0, r]
-        if config.fine:
-            out[r] = torch.exp(log_hyp[0, r] + change)[None].clamp(*d_range)
-            continue
         small = F.interpolate(change[None, None], size=(h, w), mode="area")[0]
         out[r] = (depth[r] * torch.exp(small)).clamp(*d_range)
     return out
@@ -269,7 +246,6 @@ def sweep_depth(
 
 def _sweep_costs(img, c2w, r, sources, log_d0, offsets, dirs, config, d_range) -> Tensor:
     """Window-summed photometric cost [D, H, W] of view r at log depths log_d0 + offsets."""
-    grey = img[r : r + 1].mean(1, keepdim=True)
     costs = []
     for off in offsets.tolist():
         d = torch.exp(log_d0 + off).clamp(*d_range)
@@ -277,10 +253,6 @@ def _sweep_costs(img, c2w, r, sources, log_d0, offsets, dirs, config, d_range) -
             photometric_error(warp_from(img[s : s + 1], d, c2w[r], c2w[s], dirs), img[r : r + 1])
             for s in sources
         ]
-        err = torch.stack(errs).amin(0)[None]  # [1, 1, H, W]
-        if config.guided_eps > 0:
-            err = guided_filter(grey, err, config.window, config.guided_eps)
-        else:
-            err = _box(err, config.window)
-        costs.append(err[0, 0] + config.prior * abs(off))
+        err = torch.stack(errs).amin(0)  # [1, H, W]
+        costs.append(_box(err[None], config.window)[0, 0] + config.prior * abs(off))
     return torch.stack(costs)
