@@ -64,6 +64,8 @@ def main() -> int:
         "--out", type=Path, default=Path("benchmarks/results/fusion_val_renders.json")
     )
     args = parser.parse_args()
+    from panogrf.app.files.atomic import write_json_atomic
+
     unknown = set(args.fusions.split(",")) - set(FUSIONS)
     if unknown:
         parser.error(f"unknown fusions {sorted(unknown)}; choose from {FUSIONS}")
@@ -89,9 +91,7 @@ def main() -> int:
                     }
     report = {"what": __doc__.split("\n\n")[0], "summary": summary, "runs": runs}
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    tmp_out = args.out.with_suffix(".json.tmp")
-    tmp_out.write_text(json.dumps(report, indent=1))
-    tmp_out.replace(args.out)
+    write_json_atomic(args.out, report)
     print(f"{'data':<20} {'fusion:method':<18} {'WS-PSNR':>8} {'LPIPS':>7} {'prep s':>7}")
     for name, rows in summary.items():
         for key, r in rows.items():
