@@ -47,14 +47,27 @@ LOG_NEAR = 0.1
 MAX_VIEWS = 16
 
 
-class PreviewTextures(NamedTuple):
-    """One drawn preview, on the GPU (H x 2H textures, row 0 = the top)."""
+class SharpInputs(NamedTuple):
+    """What the sharp preview's colours (shaders/preview_sharp.glsl) are computed from; a pass
+    that computes them binds these with `PreviewRenderer.bind_sharp`."""
 
-    color: moderngl.Texture | None  # the filled RGB preview (None: fill_top=False)
+    geo: moderngl.Texture  # the layers: each source's viewing direction, log distance
+    filled: moderngl.Texture  # the filled preview at the layers' rows (for holes)
+    weights: np.ndarray  # float32 [layers]: closeness of each drawn source
+    sources: np.ndarray  # float32 [layers]: which source each layer holds
+    layer: tuple[float, float]  # one layer's width and height
+
+
+class PreviewTextures(NamedTuple):
+    """One drawn preview, on the GPU (H x 2H textures at the geometry's rows, row 0 = the top;
+    ``color`` at the sharp preview's rows when it has them)."""
+
+    color: moderngl.Texture | None  # the filled RGB preview (None: left to the caller's pass)
     blend: moderngl.Texture  # the blend: rgb premultiplied by coverage, coverage in alpha
     coarse: moderngl.Texture  # push-pull level 1, filled: blend + (1 - a) * coarse = color
     dist: moderngl.Texture | None  # distance of the visible surface (metres; 0: none)
     dist_fbo: moderngl.Framebuffer  # holds dist as attachment 1 (for read-back)
+    sharp: SharpInputs | None = None  # the sharp preview's inputs (None: not sharp)
 
 
 def create_headless_context() -> moderngl.Context:
@@ -109,6 +122,43 @@ def _uv_world_points(uv: np.ndarray, depth: np.ndarray, c2w: np.ndarray) -> tupl
     return cam @ c2w[:3, :3].T + c2w[:3, 3], d
 
 
+def decimate(
+    points: np.ndarray, tris: np.ndarray, target: int, c2w: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A source's depth mesh (world points [N, 3], triangles [T, 3]) simplified to at most
+    ``target`` triangles by quadric edge collapse (fast_simplification), its open borders (the
+    edges at depth discontinuities, the seam, the rows nearest the poles) kept where they are:
+    flat walls and floors need few triangles, edges and furniture keep theirs. Returns (points,
+    ERP texture coordinates in the source ``c2w`` [4, 4], triangles); a triangle that crosses
+    the source's seam gets copies of its vertices at u + 1 (the texture repeats in u), as the
+    undecimated mesh's last column has."""
+    import fast_simplification
+
+    used = np.unique(tris)
+    index = np.full(len(points), -1, np.int64)
+    index[used] = np.arange(len(used))
+    pts, faces = fast_simplification.simplify(
+        np.asarray(points[used], np.float64),
+        index[tris].astype(np.int32),
+        target_count=target,
+        preserve_border=True,
+    )
+    cam = (pts - c2w[:3, 3]) @ c2w[:3, :3]
+    d = cam / np.maximum(np.linalg.norm(cam, axis=-1, keepdims=True), 1e-9)
+    lon = np.arctan2(d[:, 0], -d[:, 2])
+    lat = np.arcsin(np.clip(d[:, 1], -1.0, 1.0))
+    uv = np.stack((lon / (2 * np.pi) + 0.5, 0.5 - lat / np.pi), -1)
+    faces = np.asarray(faces, np.int64)
+    u = uv[faces, 0]
+    low = ((u.max(1) - u.min(1)) > 0.5)[:, None] & (u < 0.5)
+    if low.any():
+        dup, where = np.unique(faces[low], return_inverse=True)
+        faces[low] = len(pts) + where
+        pts = np.concatenate((pts, pts[dup]))
+        uv = np.concatenate((uv, uv[dup] + [1.0, 0.0]))
+    return pts.astype(np.float32), uv.astype(np.float32), faces.astype(np.int32)
+
+
 class PreviewRenderer:
     """Depth-mesh warping of V posed panoramas into any ERP view, on a moderngl context."""
 
@@ -120,10 +170,12 @@ class PreviewRenderer:
         c2w: np.ndarray,  # [V, 4, 4]
         mesh_height: int | None = None,
         max_views: int | None = None,
+        mesh_triangles: int | None = None,
     ) -> None:
         """``mesh_height``: rows of the depth meshes (default: the depth's own; fewer rows,
         fewer triangles). ``max_views``: draw only this many sources per frame, the nearest to
-        the camera (default: all of them, at most `MAX_VIEWS`)."""
+        the camera (default: all of them, at most `MAX_VIEWS`). ``mesh_triangles``: simplify
+        each source's mesh to at most this many triangles (`decimate`; default: keep all)."""
         v = images.shape[0]
         if v < 1:
             raise ValueError("the preview needs at least one view")
@@ -135,63 +187,85 @@ class PreviewRenderer:
         self.views = v
         self.max_views = min(v, max_views or v, MAX_VIEWS)
         self.c2w = np.asarray(c2w, np.float64)
-        self.mesh_prog = ctx.program(
-            vertex_shader=load_shader("preview_mesh.vert", {"LOG_NEAR": f"{LOG_NEAR:.6f}"}),
-            fragment_shader=load_shader("preview_mesh.frag"),
-        )
-        # The blend with exact distances (written out) and without (the viewer's colour view).
+        # The mesh pass writing colours (GEO = 0) or, for the sharp preview, where each source
+        # saw the surface (GEO = 1).
+        self.mesh_progs = {
+            geo: ctx.program(
+                vertex_shader=load_shader("preview_mesh.vert", {"LOG_NEAR": f"{LOG_NEAR:.6f}"}),
+                fragment_shader=load_shader("preview_mesh.frag", {"GEO": int(geo)}),
+            )
+            for geo in (False, True)
+        }
+        # The blend with exact distances (written out), without (the viewer's colour view), and
+        # on the sharp preview's layers (its colours read from the sources). Keyed (dist, geo).
         self.blend_progs = {
-            dist: ctx.program(
+            (dist, geo): ctx.program(
                 vertex_shader=load_shader("fullscreen.vert"),
                 fragment_shader=load_shader(
-                    "preview_blend.frag", {"VIEWS": self.max_views, "DIST": int(dist)}
+                    "preview_blend.frag",
+                    {"VIEWS": self.max_views, "DIST": int(dist), "GEO": int(geo)},
                 ),
             )
             for dist in (True, False)
+            for geo in (False, True)
         }
+        self.sharp_prog = ctx.program(
+            vertex_shader=load_shader("fullscreen.vert"),
+            fragment_shader=load_shader("preview_sharp.frag", {"VIEWS": self.max_views}),
+        )
+        self.sharp_vao = ctx.vertex_array(self.sharp_prog, [])
         self.fill_prog = ctx.program(
             vertex_shader=load_shader("fullscreen.vert"),
             fragment_shader=load_shader("preview_fill.frag"),
         )
-        self.blend_vaos = {d: ctx.vertex_array(p, []) for d, p in self.blend_progs.items()}
+        self.blend_vaos = {k: ctx.vertex_array(p, []) for k, p in self.blend_progs.items()}
         self.fill_vao = ctx.vertex_array(self.fill_prog, [])
         self._objects: list = [
-            self.mesh_prog,
+            *self.mesh_progs.values(),
             *self.blend_progs.values(),
+            self.sharp_prog,
             self.fill_prog,
             *self.blend_vaos.values(),
             self.fill_vao,
+            self.sharp_vao,
         ]
         rows = min(mesh_height or depth.shape[1], depth.shape[1])
         uv, grid = sphere_mesh(rows)
         max_stretch = 1.0 + (np.pi / rows) * MAX_OBLIQUE_TAN
-        self.textures, self.points, self.triangles, self.corners, self.buffers = [], [], [], [], []
+        self.points, self.triangles, self.corners, self.buffers = [], [], [], []
         for k in range(v):
             pts, dd = _uv_world_points(uv, np.asarray(depth[k], np.float32), self.c2w[k])
             tri_d = dd[grid]
             keep = (tri_d.min(1) > 0) & (tri_d.max(1) <= max_stretch * tri_d.min(1))
-            tris = np.ascontiguousarray(grid[keep])
-            data = np.concatenate((pts.astype(np.float32), uv), -1)
+            tris, vuv = np.ascontiguousarray(grid[keep]), uv
+            if mesh_triangles and len(tris) > mesh_triangles:
+                pts, vuv, tris = decimate(pts, tris, mesh_triangles, self.c2w[k])
+            data = np.concatenate((pts.astype(np.float32), vuv), -1)
             vbo = ctx.buffer(np.ascontiguousarray(data, np.float32).tobytes())
             main_ibo = ctx.buffer(reserve=max(tris.nbytes, 4), dynamic=True)
             seam_ibo = ctx.buffer(reserve=max(tris.nbytes, 4), dynamic=True)
-            vaos = [
-                ctx.vertex_array(self.mesh_prog, [(vbo, "3f 2f", "in_pos", "in_uv")], ibo)
-                for ibo in (main_ibo, seam_ibo)
-            ]
-            rgba = np.concatenate(
-                (images[k], np.full(images[k].shape[:2] + (1,), 255, np.uint8)), -1
-            )
-            tex = ctx.texture((images.shape[2], images.shape[1]), 4, np.ascontiguousarray(rgba))
-            tex.repeat_x, tex.repeat_y = True, False
-            tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
-            self.textures.append(tex)
+            vaos = {
+                geo: [
+                    ctx.vertex_array(prog, [(vbo, "3f 2f", "in_pos", "in_uv")], ibo)
+                    for ibo in (main_ibo, seam_ibo)
+                ]
+                for geo, prog in self.mesh_progs.items()
+            }
             self.points.append(pts.astype(np.float32))
             self.triangles.append(tris)
             self.corners.append(np.ascontiguousarray(tris.T))
             self.buffers.append((main_ibo, seam_ibo, vaos))
-            self._objects += [vbo, main_ibo, seam_ibo, *vaos, tex]
+            self._objects += [vbo, main_ibo, seam_ibo, *vaos[False], *vaos[True]]
+        # The source panoramas, one layer each, RGBA (GL has no 3-byte alignment to spare).
+        rgba = np.concatenate((images, np.full(images.shape[:3] + (1,), 255, np.uint8)), -1)
+        self.images = ctx.texture_array(
+            (images.shape[2], images.shape[1], v), 4, np.ascontiguousarray(rgba)
+        )
+        self.images.repeat_x, self.images.repeat_y = True, False
+        self.images.filter = (moderngl.LINEAR, moderngl.LINEAR)
+        self._objects.append(self.images)
         self._targets: dict[tuple[int, int], tuple] = {}
+        self._sharp: dict[int, tuple] = {}
 
     def _targets_for(self, height: int, width: int) -> dict:
         key = (height, width)
@@ -264,30 +338,71 @@ class PreviewRenderer:
         ordinary[suspect] = span <= MAX_LON_SPAN
         return tris[ordinary], cand[wrapped]
 
+    def _geo_fbo(self, t: dict, height: int, width: int) -> moderngl.Framebuffer:
+        """The sharp preview's layers (16-bit floats: the direction in which each source saw
+        the surface, and its log distance; sampled bilinearly by the sharp colours) with the
+        layers' depth buffer; made on first use."""
+        if "geo_fbo" not in t:
+            geo = self.ctx.texture((width * self.max_views, height), 4, dtype="f4")
+            geo.filter = (moderngl.LINEAR, moderngl.LINEAR)
+            geo.repeat_x, geo.repeat_y = False, False
+            t["geo"] = geo
+            t["geo_fbo"] = self.ctx.framebuffer(
+                color_attachments=[geo], depth_attachment=t["depth"]
+            )
+        return t["geo_fbo"]
+
+    def _sharp_target(self, height: int) -> tuple:
+        if height not in self._sharp:
+            tex = self.ctx.texture((2 * height, height), 4)
+            tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
+            tex.repeat_x, tex.repeat_y = True, False
+            self._sharp[height] = (tex, self.ctx.framebuffer(color_attachments=[tex]))
+        return self._sharp[height]
+
     def render_to_framebuffer(
-        self, c2w: np.ndarray, height: int, fill_top: bool = True, distance: bool = True
+        self,
+        c2w: np.ndarray,
+        height: int,
+        fill_top: bool = True,
+        distance: bool = True,
+        sharp_height: int | None = None,
+        sharp_pass: bool = True,
     ) -> PreviewTextures:
         """Draw the preview of camera ``c2w`` [4, 4], left on the GPU: a `PreviewTextures`.
 
         ``fill_top=False`` skips the last, full-resolution push-pull step: whoever draws the
         preview next (the viewer's display pass) does it as it samples, one pass fewer.
         ``distance=False`` leaves ``dist`` unwritten and blends on 8-bit log distances (the
-        viewer's colour view: half the blend's cost on llvmpipe)."""
+        viewer's colour view: half the blend's cost on llvmpipe).
+
+        ``sharp_height`` (at least ``height``): the sharp preview. The geometry is drawn at
+        ``height`` rows and the colours are read from the sources at ``sharp_height`` rows
+        (shaders/preview_sharp.glsl), into ``color``; with ``sharp_pass=False`` they are left
+        to the caller's own pass (``sharp`` has what it needs, `bind_sharp` binds it: the
+        viewer computes them as it shows them). Validation (12 scenes, 512 rows, 64-row meshes,
+        `benchmarks/preview_quality.py`): geometry at 192 rows reads as sharp as drawing it all
+        at 512, for less."""
         width = 2 * height
+        sharp = sharp_height is not None
+        if sharp and sharp_height < height:
+            raise ValueError(f"sharp_height {sharp_height} is below the geometry's {height} rows")
         t = self._targets_for(height, width)
-        layer_fbo = t["layer_fbo"]
+        layer_fbo = self._geo_fbo(t, height, width) if sharp else t["layer_fbo"]
         rot = np.asarray(c2w, np.float64)[:3, :3]
         w2c = np.eye(4)
         w2c[:3, :3] = rot.T
         w2c[:3, 3] = -rot.T @ np.asarray(c2w, np.float64)[:3, 3]
         ctx = self.ctx
-        prog = self.mesh_prog
+        prog = self.mesh_progs[sharp]
         prog["u_w2c"].write(w2c.T.astype("f4").tobytes())  # GL is column-major
         prog["u_far"].value = FAR
-        prog["u_image"].value = 0
+        if not sharp:
+            prog["u_images"].value = 0
         centre = np.asarray(c2w, np.float64)[:3, 3]
         dists = np.linalg.norm(self.c2w[:, :3, 3] - centre, axis=-1)
         chosen = np.argsort(dists, kind="stable")[: self.max_views]
+        self.images.use(location=0)
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.disable(moderngl.CULL_FACE)
         layer_fbo.use()
@@ -295,9 +410,11 @@ class PreviewRenderer:
         layer_fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)  # alpha 0: nothing drawn
         for slot, k in enumerate(chosen):
             layer_fbo.viewport = (slot * width, 0, width, height)
-            self.textures[k].use(location=0)
+            if not sharp:
+                prog["u_source"].value = float(k)
             ordinary, crossing = self._split_seam(k, w2c)
-            main_ibo, seam_ibo, (main_vao, seam_vao) = self.buffers[k]
+            main_ibo, seam_ibo, vaos = self.buffers[k]
+            main_vao, seam_vao = vaos[sharp]
             main_ibo.write(ordinary.tobytes())
             prog["u_unwrap"].value = 0
             prog["u_shift"].value = 0.0
@@ -309,8 +426,9 @@ class PreviewRenderer:
                     prog["u_shift"].value = shift
                     seam_vao.render(moderngl.TRIANGLES, vertices=crossing.size)
         ctx.disable(moderngl.DEPTH_TEST)
-        bp = self.blend_progs[distance]
+        bp = self.blend_progs[distance, sharp]
         weights = (1.0 / (dists[chosen] + 1e-2)).astype(np.float32)
+        sources = chosen.astype(np.float32)
         uniforms = {
             "u_layers": 1,
             "u_depth": 4,
@@ -324,21 +442,61 @@ class PreviewRenderer:
             if name in bp:  # some are compiled out (one view; no exact distances)
                 bp[name].value = value
         bp["u_weights"].write(weights.tobytes())
-        t["layers"].use(location=1)
+        if sharp:
+            bp["u_images"].value = 0
+            bp["u_source"].write(sources.tobytes())
+        t["geo" if sharp else "layers"].use(location=1)
         t["depth"].use(location=4)
         t["blend_fbo"].use()
         t["blend_fbo"].viewport = (0, 0, width, height)
-        self.blend_vaos[distance].render(moderngl.TRIANGLES, vertices=3)
+        self.blend_vaos[distance, sharp].render(moderngl.TRIANGLES, vertices=3)
         levels = t["filled"]
-        fill_top = fill_top or len(levels) < 2
+        fill_top = fill_top or sharp or len(levels) < 2
         self._fill(t, 0 if fill_top else 1)
+        color, inputs = (levels[0][0] if fill_top else None), None
+        if sharp:
+            inputs = SharpInputs(
+                t["geo"], levels[0][0], weights, sources, (float(width), float(height))
+            )
+            color = self._draw_sharp(inputs, sharp_height) if sharp_pass else None
         return PreviewTextures(
-            color=levels[0][0] if fill_top else None,
+            color=color,
             blend=t["blend"],
             coarse=levels[min(1, len(levels) - 1)][0],
             dist=t["dist"] if distance else None,
             dist_fbo=t["blend_fbo"],
+            sharp=inputs,
         )
+
+    def bind_sharp(self, prog: moderngl.Program, inputs: SharpInputs, first_unit: int) -> None:
+        """Set up ``prog`` (a program including shaders/preview_sharp.glsl, compiled with this
+        renderer's ``max_views`` as VIEWS) to compute the sharp colours from ``inputs``; its
+        three textures go to units ``first_unit`` to ``first_unit + 2``."""
+        values = {
+            "u_images": first_unit,
+            "u_geo": first_unit + 1,
+            "u_filled": first_unit + 2,
+            "u_tolerance": float(np.log1p(BLEND_TOLERANCE) / np.log(FAR / LOG_NEAR)),
+            "u_layer": inputs.layer,
+        }
+        for name, value in values.items():
+            if name in prog:  # some are compiled out (one view)
+                prog[name].value = value
+        prog["u_weights"].write(inputs.weights.tobytes())
+        prog["u_source"].write(inputs.sources.tobytes())
+        self.images.use(location=first_unit)
+        inputs.geo.use(location=first_unit + 1)
+        inputs.filled.use(location=first_unit + 2)
+
+    def _draw_sharp(self, inputs: SharpInputs, out_height: int) -> moderngl.Texture:
+        """The sharp colours as a pass of their own, into an ``out_height``-row texture."""
+        tex, fbo = self._sharp_target(out_height)
+        self.bind_sharp(self.sharp_prog, inputs, 0)
+        self.sharp_prog["u_size"].value = (float(2 * out_height), float(out_height))
+        fbo.use()
+        fbo.viewport = (0, 0, 2 * out_height, out_height)
+        self.sharp_vao.render(moderngl.TRIANGLES, vertices=3)
+        return tex
 
     def _fill(self, t: dict, last: int) -> None:
         """Push-pull: mipmap the blended preview, then fill each level's holes from the filled
@@ -360,15 +518,24 @@ class PreviewRenderer:
             fbo.viewport = (0, 0, tex.width, tex.height)
             self.fill_vao.render(moderngl.TRIANGLES, vertices=3)
 
-    def render(self, c2w: np.ndarray, height: int) -> tuple[np.ndarray, np.ndarray]:
+    def render(
+        self, c2w: np.ndarray, height: int, geometry_height: int | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """The preview of camera ``c2w`` read back: RGB uint8 [H, 2H, 3] and the distance of
         the visible surface from the camera, float32 [H, 2H] (metres; 0 where no source saw
-        it and the colour was filled in)."""
-        out = self.render_to_framebuffer(c2w, height)
+        it and the colour was filled in). ``geometry_height`` (below ``height``): the sharp
+        preview, its geometry drawn at that many rows (the distances too, repeated to H)."""
+        sharp = geometry_height is not None and geometry_height < height
+        g = geometry_height if sharp else height
+        out = self.render_to_framebuffer(c2w, g, sharp_height=height if sharp else None)
         rgba = np.empty((height, 2 * height, 4), np.uint8)
-        d = np.empty((height, 2 * height), np.float32)
+        d = np.empty((g, 2 * g), np.float32)
         out.color.read_into(rgba)
         out.dist_fbo.read_into(d, components=1, attachment=1, dtype="f4")
+        if sharp:  # nearest: a distance between two surfaces would be neither
+            rows = np.minimum((np.arange(height) + 0.5) * g // height, g - 1).astype(np.int64)
+            cols = np.minimum((np.arange(2 * height) + 0.5) * g // height, 2 * g - 1)
+            d = d[rows][:, cols.astype(np.int64)]
         return rgba[..., :3].copy(), d
 
     def release(self) -> None:
@@ -380,6 +547,10 @@ class PreviewRenderer:
             for obj in reversed(list(t.values())):
                 obj.release()
         self._targets.clear()
+        for tex, fbo in self._sharp.values():
+            fbo.release()
+            tex.release()
+        self._sharp.clear()
         for obj in reversed(self._objects):
             obj.release()
         self._objects.clear()

@@ -7,8 +7,10 @@
 // is the GL preview's blend, rgb premultiplied by coverage, and u_coarse its filled next
 // coarser level) does the preview's last push-pull step here. ROTATE (1: u_pano is in another
 // camera's frame, a source view) turns each viewing direction by u_rot first, so the source
-// view follows the camera's heading. The image fills the viewport at u_origin (window pixels,
-// a letterbox keeps the whole panorama 2:1).
+// view follows the camera's heading. SHARP (1: the GL preview's sharp colours, computed here
+// from its layers, preview_sharp.glsl; u_pano unused) saves the preview a full-resolution pass.
+// The image fills the viewport at u_origin (window pixels, a letterbox keeps the whole
+// panorama 2:1).
 uniform sampler2D u_pano;
 uniform sampler2D u_coarse;
 uniform float u_fov;           // vertical field of view (radians)
@@ -17,6 +19,9 @@ uniform vec2 u_origin;         // viewport's bottom-left corner in window pixels
 uniform mat3 u_rot;            // ROTATE: viewing direction -> the texture's camera frame
 uniform float u_max_depth;
 out vec4 out_color;
+#if SHARP
+#include "preview_sharp.glsl"
+#endif
 
 const float PI = 3.14159265358979;
 
@@ -52,7 +57,9 @@ void main() {
 #else
     uv = vec2(p.x, 1.0 - p.y);
 #endif
-#if FILL
+#if SHARP
+    vec4 c = vec4(sharp_preview(uv), 1.0);
+#elif FILL
     vec4 c = textureLod(u_pano, uv, 0.0);
     c = vec4(c.rgb + (1.0 - c.a) * texture(u_coarse, uv).rgb, 1.0);
 #else

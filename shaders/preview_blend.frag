@@ -7,7 +7,14 @@
 // DIST = 1: distances from the depth buffer (24 bits), the visible one written to out_dist.
 // DIST = 0: distances from the layers' alpha (8-bit log scale, steps of under 3 %: enough to
 // compare surfaces at u_tolerance, at half the cost: depth reads are slow on llvmpipe).
+// GEO = 1: the layers hold the direction in which each source saw the surface and its log
+// distance (preview_mesh.frag), and the colours are read from the sources here, once per pixel
+// and source rather than once per drawn fragment.
 uniform sampler2D u_layers;       // the sources' layers side by side: rgb, log distance
+#if GEO
+uniform sampler2DArray u_images;  // the source panoramas, repeating in u
+uniform float u_source[VIEWS];    // each layer's source in u_images
+#endif
 uniform sampler2D u_depth;        // their depth buffer: distance / u_far (1: nothing drawn)
 uniform float u_far;
 uniform float u_weights[VIEWS];   // closeness of each drawn source to the target
@@ -18,6 +25,8 @@ layout(location = 0) out vec4 out_color;
 layout(location = 1) out float out_dist;
 #endif
 
+const float PI = 3.14159265358979;
+
 void main() {
     ivec2 px = ivec2(gl_FragCoord.xy);
     float best = 1e30;
@@ -25,6 +34,13 @@ void main() {
     for (int j = 0; j < VIEWS; ++j) {
         ivec2 at = ivec2(px.x + j * u_width, px.y);
         c[j] = texelFetch(u_layers, at, 0);
+#if GEO
+        vec3 d = c[j].xyz;
+        vec2 st = vec2(atan(d.x, -d.z) / (2.0 * PI) + 0.5, 0.5 - asin(clamp(d.y, -1.0, 1.0)) / PI);
+        c[j] = dot(d, d) > 0.25
+            ? vec4(texture(u_images, vec3(st, u_source[j])).rgb, c[j].w)
+            : vec4(0.0);
+#endif
 #if DIST
         float z = texelFetch(u_depth, at, 0).r;
         c[j].a = z < 1.0 ? z * u_far : 0.0;

@@ -62,7 +62,9 @@ class ExportsMixin:
             total = self.refinement.levels
             rgb, what = self.refined_rgb, f"refined level {self.shown_level + 1}/{total}"
         else:
-            rgb, _ = self.preview.render(pose, self.setup.preview_height)
+            s = self.setup
+            geometry = s.moving_height if s.sharp else None  # what the viewer shows
+            rgb, _ = self.preview.render(pose, s.preview_height, geometry_height=geometry)
             self.preview_key = None  # its textures were drawn again
             what = "GL preview"
             self.wnd.use()

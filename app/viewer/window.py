@@ -58,12 +58,15 @@ class ViewerSetup:
     worker: object | None  # RenderWorker (None: preview only)
     start_pose: np.ndarray
     preview_height: int = 512
-    # Rows of the preview while the camera moves (None: preview_height), shown upsampled; the
-    # first still frame draws it at preview_height. `python benchmarks/preview_quality.py
-    # --data data/val_detail_classic data/val_detail_home --heights 384,256` (64-row meshes,
-    # GL ms per frame / WS-PSNR at 512 rows on 12 validation scenes): 512 rows 21.1 / 24.50,
-    # 384 16.7 / 24.10, 256 10.3 / 23.89: twice the frame rate for 0.6 dB while moving.
-    moving_height: int | None = 256
+    # Rows of the preview's geometry while the camera moves (None: preview_height). With
+    # ``sharp`` (the sharp preview) its colours are read from the sources at preview_height
+    # rows all the same, and a still camera keeps the same geometry; without, the preview is
+    # drawn at these rows and shown upsampled, and the first still frame draws it at
+    # preview_height. The defaults here (sharp, 128 rows, 128-row meshes simplified to 10000
+    # triangles) come from `python benchmarks/preview_quality.py` on 12 validation scenes:
+    # see the README's "The GL preview".
+    moving_height: int | None = 128
+    sharp: bool = True
     path_out: Path = Path("camera_path.json")
     screenshot_dir: Path = Path(".")
     fixed_step: float | None = None  # seconds per frame (None: wall clock)
@@ -71,7 +74,8 @@ class ViewerSetup:
     script: list[tuple[str, int]] = field(default_factory=list)  # (key name, frames held)
     fps: float = 30.0
     log: object = print
-    mesh_height: int | None = 64  # rows of the preview's depth meshes (None: the depth's own)
+    mesh_height: int | None = 128  # rows of the preview's depth meshes (None: the depth's own)
+    mesh_triangles: int | None = 10000  # each mesh simplified to this many (None: all kept)
     max_views: int | None = 2  # sources drawn per frame, the nearest (None: all)
 
     @classmethod
@@ -103,13 +107,20 @@ class PanoViewer(ExportsMixin, OverlayMixin, mglw.WindowConfig):
         from panogrf.renderer.gl_preview import PreviewRenderer
 
         s = self.setup
-        # The two nearest sources and 64-row meshes: a CPU rasteriser's vertex stage and the
+        # The two nearest sources and simplified meshes: a CPU rasteriser's vertex stage and the
         # per-frame seam split scale with the triangles (see benchmarks/viewer.py).
         self.preview = PreviewRenderer(
-            self.ctx, s.images, s.depth, s.c2w, mesh_height=s.mesh_height, max_views=s.max_views
+            self.ctx,
+            s.images,
+            s.depth,
+            s.c2w,
+            mesh_height=s.mesh_height,
+            max_views=s.max_views,
+            mesh_triangles=s.mesh_triangles,
         )
-        # One display program per (perspective, distance, fill) mode, made when first needed.
-        self.displays: dict[tuple[int, int, int, int], tuple] = {}
+        # One display program per (perspective, distance, fill, rotate, sharp) mode, made when
+        # first needed.
+        self.displays: dict[tuple[int, ...], tuple] = {}
         self.overlay_prog = self.ctx.program(
             vertex_shader=load_shader("fullscreen.vert"),
             fragment_shader=load_shader("overlay.frag"),
@@ -279,25 +290,35 @@ class PanoViewer(ExportsMixin, OverlayMixin, mglw.WindowConfig):
                 if new:
                     self._upload_refined(done.rgb)
                 refined, self.shown_level = self.refined_tex, done.level
-        coarse, is_depth, fill = None, False, False
+        coarse, is_depth, fill, sharp_inputs = None, False, False, None
         if self.mode == "sources":
             pano = self.sources[self.source_index]
         elif refined is not None:
             pano = refined
         else:
             distance = self.mode == "distance"  # exact distances only when shown
-            height = self.setup.preview_height
-            if moved and self.setup.moving_height:
-                height = self.setup.moving_height
-            key = (pose.tobytes(), height, distance)
+            s = self.setup
+            height, sharp = s.preview_height, None
+            if s.moving_height and (moved or s.sharp):
+                height = min(s.moving_height, s.preview_height)
+            if s.sharp and not distance:
+                sharp = s.preview_height
+            key = (pose.tobytes(), height, distance, sharp)
             if key != self.preview_key:  # a still camera's preview is on the GPU already
                 self.preview_out = self.preview.render_to_framebuffer(
-                    pose, height, fill_top=False, distance=distance
+                    pose,
+                    height,
+                    fill_top=False,
+                    distance=distance,
+                    sharp_height=sharp,
+                    sharp_pass=False,
                 )
                 self.preview_key = key
             out = self.preview_out
             if distance:
                 pano, is_depth = out.dist, True
+            elif out.sharp is not None:
+                pano, sharp_inputs = None, out.sharp
             else:
                 pano, coarse, fill = out.blend, out.coarse, True
         self.wnd.use()
@@ -305,10 +326,19 @@ class PanoViewer(ExportsMixin, OverlayMixin, mglw.WindowConfig):
         # The panorama keeps 2:1 (black bars); a perspective view fills the window.
         box = (0, 0, w, hh) if self.perspective else screen.letterbox(w, hh)
         self.ctx.viewport = box
-        pano.use(location=0)
         rotate = self.mode == "sources"
-        d, quad = self._display(int(self.perspective), int(is_depth), int(fill), int(rotate))
-        d["u_pano"].value = 0
+        d, quad = self._display(
+            int(self.perspective),
+            int(is_depth),
+            int(fill),
+            int(rotate),
+            int(sharp_inputs is not None),
+        )
+        if sharp_inputs is not None:  # the preview's colours computed as they are shown
+            self.preview.bind_sharp(d, sharp_inputs, 2)
+        else:
+            pano.use(location=0)
+            d["u_pano"].value = 0
         if fill:
             coarse.use(location=1)
             d["u_coarse"].value = 1
@@ -337,10 +367,19 @@ class PanoViewer(ExportsMixin, OverlayMixin, mglw.WindowConfig):
         if self.setup.frames is not None and self.frame_count >= self.setup.frames:
             self.wnd.close()
 
-    def _display(self, perspective: int, depth: int, fill: int, rotate: int) -> tuple:
-        key = (perspective, depth, fill, rotate)
+    def _display(
+        self, perspective: int, depth: int, fill: int, rotate: int, sharp: int = 0
+    ) -> tuple:
+        key = (perspective, depth, fill, rotate, sharp)
         if key not in self.displays:
-            defines = {"PERSPECTIVE": perspective, "DEPTH": depth, "FILL": fill, "ROTATE": rotate}
+            defines = {
+                "PERSPECTIVE": perspective,
+                "DEPTH": depth,
+                "FILL": fill,
+                "ROTATE": rotate,
+                "SHARP": sharp,
+                "VIEWS": self.preview.max_views,
+            }
             prog = self.ctx.program(
                 vertex_shader=load_shader("fullscreen.vert"),
                 fragment_shader=load_shader("display.frag", defines),

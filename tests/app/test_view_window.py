@@ -252,10 +252,20 @@ def test_every_refinement_level_reaches_the_screen(tmp_path, capsys):
     assert "refined level 1/2" in out and "refined level 2/2" in out, out
 
 
-@pytest.mark.parametrize(("script", "frames", "rows"), [("w*30", 8, 64), ("w*3,wait*30", 10, 128)])
-def test_the_preview_has_fewer_rows_while_moving(tmp_path, script, frames, rows):
-    """While the camera moves the preview is drawn at ``moving_height`` rows (shown upsampled);
-    the first still frame draws it at ``preview_height``."""
+@pytest.mark.parametrize(
+    ("script", "frames", "sharp", "rows"),
+    [
+        ("w*30", 8, False, 64),
+        ("w*3,wait*30", 10, False, 128),
+        ("w*30", 8, True, 64),
+        ("w*3,wait*30", 10, True, 64),
+    ],
+)
+def test_the_preview_has_fewer_rows_while_moving(tmp_path, script, frames, sharp, rows):
+    """While the camera moves the preview's geometry is drawn at ``moving_height`` rows. Sharp
+    (the default) reads the colours at ``preview_height`` rows as it shows them and keeps that
+    geometry when the camera stops; otherwise the preview is shown upsampled and the first
+    still frame draws it at ``preview_height``."""
     from panogrf.app.scene.session import prepare_scene
     from panogrf.app.viewer.window import ViewerSetup, parse_script, run_viewer
 
@@ -268,7 +278,9 @@ def test_the_preview_has_fewer_rows_while_moving(tmp_path, script, frames, rows)
         fixed_step=0.05,
         preview_height=128,
         moving_height=64,
+        sharp=sharp,
         log=lambda *a: None,
     )
     config = run_viewer(setup, "headless", (256, 128))
+    assert (config.preview_out.sharp is not None) == sharp
     assert config.preview_out.blend.size == (2 * rows, rows)

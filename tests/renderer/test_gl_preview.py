@@ -205,3 +205,137 @@ def test_oblique_walls_are_kept_and_depth_steps_dropped(gl, mesh_rows):
     assert (dist[6:-6] > 0).all()  # holes only in the polar caps (no vertices there)
     # Both sides of the box's outline lose triangles in every mesh row it crosses.
     assert len(room) - len(with_box) >= 2 * 8 * mesh_rows // 128
+
+
+def _score(rgb: np.ndarray, reference: torch.Tensor) -> float:
+    x = torch.from_numpy(rgb).permute(2, 0, 1)[None].float() / 255
+    if x.shape[-2] != reference.shape[-2]:
+        x = F.interpolate(x, size=reference.shape[-2:], mode="bilinear", align_corners=False)
+    return float(ws_psnr(x, reference))
+
+
+def test_the_sharp_preview_reads_the_sources_at_full_resolution(gl, demo):
+    """Geometry drawn at a quarter of the rows, colours read at all of them: as good as
+    drawing everything at full resolution, clearly better than upsampling the small draw."""
+    from panogrf.renderer.gl_preview import PreviewRenderer
+
+    data, images, depth = demo
+    pose = data.c2w[1].numpy()
+    with PreviewRenderer(gl, images[[0, 2]], depth[[0, 2]], data.c2w[[0, 2]].numpy()) as pr:
+        sharp, dist = pr.render(pose, 256, geometry_height=64)
+        full, _ = pr.render(pose, 256)
+        small, _ = pr.render(pose, 64)
+        with pytest.raises(ValueError, match="below the geometry"):
+            pr.render_to_framebuffer(pose, 128, sharp_height=64)
+    assert sharp.shape == (256, 512, 3) and dist.shape == (256, 512)
+    real = data.images[1:2]
+    s, f, u = _score(sharp, real), _score(full, real), _score(small, real)
+    assert s > f - 0.3 and s > u + 1.0, (s, f, u)
+    gt = data.depths[1, 0].numpy()
+    ok = (gt > 0) & (dist > 0)
+    assert ok.mean() > 0.95 and np.median(np.abs(dist[ok] - gt[ok]) / gt[ok]) < 0.02
+
+
+def test_the_sharp_preview_at_a_source_pose_is_that_source(gl, demo):
+    """Seams and poles: the directions the layers hold wrap round the source's seam and its
+    poles without a line where u jumps from 1 to 0."""
+    from panogrf.renderer.gl_preview import PreviewRenderer
+
+    data, images, depth = demo
+    with PreviewRenderer(gl, images, depth, data.c2w.numpy()) as pr:
+        # Turned half round: the source's seam runs down the middle of the picture.
+        pose = data.c2w[0].numpy().copy()
+        turn = np.array([[-1.0, 0, 0], [0, 1, 0], [0, 0, -1]])
+        pose[:3, :3] = pose[:3, :3] @ turn
+        rgb, _ = pr.render(pose, 256, geometry_height=64)
+        drawn, _ = pr.render(pose, 256)
+    expected = np.roll(images[0], 256, axis=1)  # the same panorama, turned half round
+    y = torch.from_numpy(expected).permute(2, 0, 1)[None].float() / 255
+    assert _score(rgb, y) > 28.0 and _score(rgb, y) > _score(drawn, y) - 1.0
+    middle = np.abs(rgb[:, 255].astype(float) - rgb[:, 256].astype(float)).mean()
+    inner = np.abs(np.diff(rgb.astype(float), axis=1)).mean()
+    assert middle < 3 * inner + 2.0
+    poles = np.abs(rgb[:8].astype(float) - expected[:8]).mean()
+    assert poles < 12.0
+
+
+def test_the_viewers_display_computes_the_same_sharp_colours(gl, demo):
+    """display.frag with SHARP = 1 (the viewer's one pass) and the sharp pass of its own
+    (what `render` reads back) share preview_sharp.glsl and agree pixel for pixel."""
+    import moderngl
+
+    from panogrf.renderer.gl_preview import PreviewRenderer
+    from panogrf.shaders import load
+
+    data, images, depth = demo
+    with PreviewRenderer(gl, images, depth, data.c2w.numpy(), max_views=2) as pr:
+        pose = data.c2w[1].numpy().copy()
+        pose[:3, 3] += [0.2, 0.0, -0.3]
+        out = pr.render_to_framebuffer(pose, 64, distance=False, sharp_height=256)
+        own = np.frombuffer(out.color.read(), np.uint8).reshape(256, 512, 4)[..., :3]
+        defines = {"PERSPECTIVE": 0, "DEPTH": 0, "FILL": 0, "ROTATE": 0, "SHARP": 1, "VIEWS": 2}
+        prog = gl.program(
+            vertex_shader=load("fullscreen.vert"),
+            fragment_shader=load("display.frag", defines),
+        )
+        vao = gl.vertex_array(prog, [])
+        tex = gl.texture((512, 256), 4)
+        fbo = gl.framebuffer([tex])
+        pr.bind_sharp(prog, out.sharp, 2)
+        prog["u_origin"].value = (0.0, 0.0)
+        prog["u_size"].value = (512.0, 256.0)
+        fbo.use()
+        fbo.viewport = (0, 0, 512, 256)
+        vao.render(moderngl.TRIANGLES, vertices=3)
+        shown = np.frombuffer(tex.read(), np.uint8).reshape(256, 512, 4)[..., :3]
+        shown = shown[::-1]  # the display's row 0 is the window's bottom
+        for obj in (fbo, tex, vao, prog):
+            obj.release()
+    diff = np.abs(own.astype(int) - shown.astype(int)).max(-1)
+    assert (diff <= 1).mean() > 0.999, np.percentile(diff, [50, 99.9, 100])
+
+
+def test_simplified_meshes_keep_the_preview(gl, demo):
+    """Quadric simplification to a quarter of the triangles: flat walls lose triangles, the
+    preview hardly changes; a triangle across the source's seam reads the texture across it
+    (its vertices' u less than half a turn apart)."""
+    from panogrf.renderer.gl_preview import PreviewRenderer, decimate
+
+    data, images, depth = demo
+    c2w = data.c2w[[0, 2]].numpy()
+    pose = data.c2w[1].numpy()
+    with PreviewRenderer(gl, images[[0, 2]], depth[[0, 2]], c2w) as pr:
+        whole = pr.triangles[0].shape[0]
+        ref, _ = pr.render(pose, 256, geometry_height=128)
+    target = whole // 4
+    with PreviewRenderer(gl, images[[0, 2]], depth[[0, 2]], c2w, mesh_triangles=target) as pr:
+        assert all(len(t) <= target for t in pr.triangles)
+        rgb, _ = pr.render(pose, 256, geometry_height=128)
+        drawn, _ = pr.render(pose, 256)
+    real = data.images[1:2]
+    assert _score(rgb, real) > _score(ref, real) - 0.5
+    assert _score(drawn, real) > _score(ref, real) - 0.5  # the texture coordinates hold too
+
+    from panogrf.renderer.gl_preview import _uv_world_points, sphere_mesh
+
+    uv, grid = sphere_mesh(64)
+    pts, _ = _uv_world_points(uv, depth[0], c2w[0])
+    p2, uv2, t2 = decimate(pts, grid, 2000, c2w[0])
+    assert len(t2) <= 2000 and len(p2) == len(uv2)
+    u = uv2[t2, 0]
+    assert (u.max(1) - u.min(1) < 0.5).mean() > 0.99
+    # Every vertex still where the source saw a surface, in the direction its uv says.
+    lon = 2 * np.pi * (uv2[:, 0] - 0.5)
+    lat = np.pi * (0.5 - uv2[:, 1])
+    dirs = np.stack((np.cos(lat) * np.sin(lon), np.sin(lat), -np.cos(lat) * np.cos(lon)), -1)
+    cam = (p2 - c2w[0, :3, 3]) @ c2w[0, :3, :3]
+    cos = (cam * dirs).sum(-1) / np.linalg.norm(cam, axis=-1)
+    assert cos.min() > 0.9999
+
+
+def test_shader_includes():
+    from panogrf.shaders import load
+
+    text = load("preview_sharp.frag", {"VIEWS": 2})
+    assert "vec3 sharp_preview(vec2 uv)" in text and "#include" not in text
+    assert text.splitlines()[1] == "#define VIEWS 2"
