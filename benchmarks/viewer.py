@@ -6,8 +6,9 @@
   cache) and cached (reading it back), median of ``--repeats``;
 - the real viewer, headless on EGL (no window system; llvmpipe), with its render worker, on a
   scripted session: a walk (W held), then still until refined, ``--repeats`` times;
-- preview frames per second at 512 x 1024 while moving (the preview drawn at
-  `ViewerSetup.moving_height` rows and shown upsampled): the median frame period (start of
+- preview frames per second at 512 x 1024 while moving (the preview's geometry drawn at
+  `ViewerSetup.moving_height` rows, its colours read at 512 rows by the display pass, or
+  shown upsampled when `ViewerSetup.sharp` is off): the median frame period (start of
   one frame to the start of the next, so including the GL work finished at buffer swap)
   over the frames where the camera moved;
 - refinement: time from the last frame that moved to the first refined level on screen (the
@@ -42,6 +43,9 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--walk-frames", type=int, default=45, help="frames per walk")
     parser.add_argument("--skip-paper", action="store_true", help="skip the 64 + 64 baseline")
+    parser.add_argument(
+        "--no-sharp", action="store_true", help="the preview upsampled while moving (not sharp)"
+    )
     args = parser.parse_args()
     from panogrf.app.runtime import keep_freed_memory
 
@@ -49,7 +53,12 @@ def main() -> None:
 
     from panogrf.app.files.images import write_json_atomic
     from panogrf.app.scene.session import prepare_scene
-    from panogrf.app.viewer.window import ViewerSetup, parse_script, run_viewer
+    from panogrf.app.viewer.window import (
+        UPSAMPLED_MOVING_ROWS,
+        ViewerSetup,
+        parse_script,
+        run_viewer,
+    )
     from panogrf.app.viewer.worker import LEVELS, RenderWorker
     from panogrf.assets import path as asset_path
     from panogrf.renderer.render import render_panorama
@@ -82,16 +91,24 @@ def main() -> None:
         script=parse_script(",".join(["wait*5", *cycles, "esc"])),
         fixed_step=1 / 30,
         preview_height=512,
+        sharp=not args.no_sharp,
+        **({"moving_height": UPSAMPLED_MOVING_ROWS} if args.no_sharp else {}),
         log=quiet,
     )
     config = run_viewer(setup, "headless", (1024, 512))
     frame_ms = 1000 * statistics.median(config.moving_frame_times)
-    first = [s for level, s in config.refine_log if level == 0]
-    full = [s for level, s in config.refine_log if level == len(LEVELS) - 1]
-    if len(first) != args.repeats or len(full) != args.repeats:
+    # Each cycle's last level and the first level just before it (the start pose, still for a
+    # few frames while the shaders compile, may get a first level of its own: not a cycle's).
+    log, last = config.refine_log, len(LEVELS) - 1
+    full = [s for level, s in log if level == last]
+    first = [log[i - 1][1] for i, (level, _) in enumerate(log) if level == last and i > 0]
+    if len(full) != args.repeats or any(
+        log[i - 1][0] != 0 for i, e in enumerate(log) if e[0] == last
+    ):
         raise SystemExit(f"expected {args.repeats} refinements, got {config.refine_log}")
     print(
-        f"preview while moving (512x1024, drawn at {setup.moving_height or 512} rows): "
+        f"preview while moving (512x1024, geometry at {setup.moving_height or 512} rows, "
+        f"{'sharp' if setup.sharp else 'upsampled'}): "
         f"{frame_ms:.1f} ms per frame, {1000 / frame_ms:.1f} fps"
     )
     print(
@@ -120,6 +137,8 @@ def main() -> None:
             "p90_ms": 1000 * float(np.percentile(config.moving_frame_times, 90)),
         },
         "preview_moving_rows": setup.moving_height or setup.preview_height,
+        "preview_sharp": setup.sharp,
+        "preview_mesh": {"rows": setup.mesh_height, "triangles": setup.mesh_triangles},
         "refine_first_level_s": {"median": statistics.median(first), "runs": first},
         "refine_full_512x1024_s": {"median": statistics.median(full), "runs": full},
         "paper_64_64_512x1024_s": paper_s,

@@ -83,8 +83,16 @@ def register(subparsers) -> None:
         "--moving-rows",
         type=int,
         default=None,
-        help="rows of the GL preview while the camera moves, shown upsampled (default: the "
-        "viewer's, ViewerSetup.moving_height; 512: full resolution); a still camera's has 512",
+        help="rows the GL preview's geometry is drawn at while the camera moves (default: the "
+        "viewer's, ViewerSetup.moving_height; 512: full resolution); its colours are read at "
+        "512 rows (see --no-sharp)",
+    )
+    parser.add_argument(
+        "--no-sharp",
+        action="store_true",
+        help="show the GL preview upsampled from the rows it is drawn at while moving, and draw "
+        "a still camera's at 512 rows, instead of reading the colours at 512 rows (softer while "
+        "moving, cheaper per frame on a CPU rasteriser)",
     )
     parser.add_argument(
         "--threads", type=thread_count, default=0, help="torch threads (default: all)"
@@ -97,7 +105,12 @@ def run(args: argparse.Namespace) -> int:
     import torch
 
     from panogrf.app.viewer.screen import refine_summary
-    from panogrf.app.viewer.window import ViewerSetup, parse_script, run_viewer
+    from panogrf.app.viewer.window import (
+        UPSAMPLED_MOVING_ROWS,
+        ViewerSetup,
+        parse_script,
+        run_viewer,
+    )
     from panogrf.app.viewer.worker import RenderWorker
 
     if args.window == "pyglet" and not _has_display():
@@ -124,6 +137,7 @@ def run(args: argparse.Namespace) -> int:
     if not args.no_refine:
         cache = views.cache_for("panogrf", models)
         worker = RenderWorker(models.renderer("panogrf"), cache).start()
+    moving = args.moving_rows or (UPSAMPLED_MOVING_ROWS if args.no_sharp else None)
     setup = ViewerSetup.from_views(
         views,
         args.start_frame,
@@ -133,7 +147,8 @@ def run(args: argparse.Namespace) -> int:
         fixed_step=args.fixed_step,
         frames=args.frames,
         script=script,
-        **({"moving_height": args.moving_rows} if args.moving_rows else {}),
+        sharp=not args.no_sharp,
+        **({"moving_height": moving} if moving else {}),
     )
     start = time.perf_counter()
     try:

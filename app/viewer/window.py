@@ -48,6 +48,12 @@ LOOK_SPEED = 1.5  # radians per second for the arrow keys
 DRAG_SPEED = 0.004  # radians per pixel of mouse drag
 
 
+#: Rows of the preview while moving when it is shown upsampled (``ViewerSetup.sharp`` off):
+#: 24.42 dB on the validation scenes at 0.85 times the sharp preview's frame cost
+#: (`benchmarks/preview_quality.py`); fewer rows blur it further.
+UPSAMPLED_MOVING_ROWS = 256
+
+
 @dataclass
 class ViewerSetup:
     """Everything the window needs, prepared before it opens (see `panogrf view`)."""
@@ -64,8 +70,8 @@ class ViewerSetup:
     # drawn at these rows and shown upsampled, and the first still frame draws it at
     # preview_height. The defaults here (sharp, 128 rows, 128-row meshes simplified to 10000
     # triangles) come from `python benchmarks/preview_quality.py` on 12 validation scenes:
-    # see the README's "The GL preview".
-    moving_height: int | None = 128
+    # see the README's "Round 10: the sharp GL preview".
+    moving_height: int | None = 128  # without sharp: UPSAMPLED_MOVING_ROWS
     sharp: bool = True
     path_out: Path = Path("camera_path.json")
     screenshot_dir: Path = Path(".")
