@@ -2,7 +2,7 @@
 // GEO = 0: rgb, and the distance from the target in alpha on a log scale (see
 // preview_mesh.vert): what the blend compares when it needs no exact distance. The exact
 // distance is in the depth buffer.
-// GEO = 1 (the sharp preview's layers, 16-bit floats): the unit direction in which the source
+// GEO = 1 (the sharp preview's layers, 32-bit floats): the unit direction in which the source
 // saw this point, and the log distance. preview_sharp.frag samples them bilinearly at a finer
 // resolution and reads the source in that direction; a direction, unlike the source's ERP
 // coordinates, interpolates across the source's seam and around its poles.

@@ -304,11 +304,10 @@ class PanoViewer(ExportsMixin, OverlayMixin, mglw.WindowConfig):
         else:
             distance = self.mode == "distance"  # exact distances only when shown
             s = self.setup
-            height, sharp = s.preview_height, None
-            if s.moving_height and (moved or s.sharp):
+            sharp = s.preview_height if s.sharp and not distance else None
+            height = s.preview_height
+            if s.moving_height and (moved or sharp):
                 height = min(s.moving_height, s.preview_height)
-            if s.sharp and not distance:
-                sharp = s.preview_height
             key = (pose.tobytes(), height, distance, sharp)
             if key != self.preview_key:  # a still camera's preview is on the GPU already
                 self.preview_out = self.preview.render_to_framebuffer(
