@@ -18,8 +18,8 @@ The sharp preview draws all that at a coarse resolution (the viewer: 128 rows) a
 colours from the sources at the output's (shaders/preview_sharp.glsl, in the viewer's display
 pass): geometry is smooth and cheap to draw coarsely, texture detail is not. On 12 validation
 scenes at 512 rows it scores 25.12 dB WS-PSNR, against 24.98 for drawing everything at 512
-rows and 24.31 for drawing at 256 and upsampling, at 1.08 times the latter's frame cost
-(`benchmarks/preview_quality.py`).
+rows and 24.31 for drawing at 256 and upsampling, at 1.1 to 1.3 times the latter's frame
+cost (`benchmarks/preview_quality.py`).
 
 (A geometry shader could split seam triangles on the GPU, but on Mesa's CPU rasteriser it
 cost about 0.7 us per triangle, six times the whole frame budget; the CPU pass costs about
@@ -392,7 +392,7 @@ class PreviewRenderer:
         to the caller's own pass (``sharp`` has what it needs, `bind_sharp` binds it: the
         viewer computes them as it shows them). Validation (`benchmarks/preview_quality.py`,
         12 scenes at 512 rows): geometry at 128 rows from 128-row meshes simplified to 10k
-        triangles scores 25.12 dB, drawing it all at 512 rows 24.98, for 0.73 times the cost."""
+        triangles scores 25.12 dB, drawing it all at 512 rows 24.98, for 0.74 times the cost."""
         width = 2 * height
         sharp = sharp_height is not None
         if sharp and sharp_height < height:

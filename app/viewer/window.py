@@ -49,7 +49,7 @@ DRAG_SPEED = 0.004  # radians per pixel of mouse drag
 
 
 #: Rows of the preview while moving when it is shown upsampled (``ViewerSetup.sharp`` off):
-#: 24.42 dB on the validation scenes at 0.85 times the sharp preview's frame cost
+#: 24.42 dB on the validation scenes, at 0.85 times the sharp preview's frame cost
 #: (`benchmarks/preview_quality.py`); fewer rows blur it further.
 UPSAMPLED_MOVING_ROWS = 256
 
