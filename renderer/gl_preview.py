@@ -54,6 +54,9 @@ FAR = 100.0
 LOG_NEAR = 0.1
 #: Sources drawn per frame at most (their layers sit side by side in one texture).
 MAX_VIEWS = 16
+#: BLEND_TOLERANCE on the layers' log-distance scale (the blend without exact distances, the
+#: sharp colours).
+LOG_TOLERANCE = float(np.log1p(BLEND_TOLERANCE) / np.log(FAR / LOG_NEAR))
 
 
 class SharpInputs(NamedTuple):
@@ -142,6 +145,9 @@ def decimate(
     the source's seam gets copies of its vertices at u + 1 (the texture repeats in u), as the
     undecimated mesh's last column has."""
     import fast_simplification
+    import torch
+
+    from panogrf.model.erp import world_to_erp
 
     used = np.unique(tris)
     index = np.full(len(points), -1, np.int64)
@@ -152,11 +158,11 @@ def decimate(
         target_count=target,
         preserve_border=True,
     )
-    cam = (pts - c2w[:3, 3]) @ c2w[:3, :3]
-    d = cam / np.maximum(np.linalg.norm(cam, axis=-1, keepdims=True), 1e-9)
-    lon = np.arctan2(d[:, 0], -d[:, 2])
-    lat = np.arcsin(np.clip(d[:, 1], -1.0, 1.0))
-    uv = np.stack((lon / (2 * np.pi) + 0.5, 0.5 - lat / np.pi), -1)
+    # ERP coordinates in [0, 1]: the pixel coordinates in a 1 x 1 image, from its corner.
+    pix, _ = world_to_erp(
+        torch.from_numpy(pts), torch.from_numpy(np.asarray(c2w, np.float64)), 1, 1
+    )
+    uv = pix.numpy() + 0.5
     faces = np.asarray(faces, np.int64)
     u = uv[faces, 0]
     low = ((u.max(1) - u.min(1)) > 0.5)[:, None] & (u < 0.5)
@@ -249,13 +255,22 @@ class PreviewRenderer:
             tris, vuv = np.ascontiguousarray(grid[keep]), uv
             if mesh_triangles and len(tris) > mesh_triangles:
                 pts, vuv, tris = decimate(pts, tris, mesh_triangles, self.c2w[k])
-            data = np.concatenate((pts.astype(np.float32), vuv), -1)
+            # Per vertex: world position, source texture coordinates (the colour layers), the
+            # direction in which the source sees it (the sharp preview's layers), made once.
+            cam = (pts - self.c2w[k, :3, 3]) @ self.c2w[k, :3, :3]
+            dirs = cam / np.maximum(np.linalg.norm(cam, axis=-1, keepdims=True), 1e-9)
+            data = np.concatenate((pts.astype(np.float32), vuv, dirs.astype(np.float32)), -1)
             vbo = ctx.buffer(np.ascontiguousarray(data, np.float32).tobytes())
             main_ibo = ctx.buffer(reserve=max(tris.nbytes, 4), dynamic=True)
             seam_ibo = ctx.buffer(reserve=max(tris.nbytes, 4), dynamic=True)
+            # Each program reads what its fragment shader uses; the rest of a vertex is skipped.
+            layouts = {
+                False: ("3f 2f 12x", "in_pos", "in_uv"),
+                True: ("3f 8x 3f", "in_pos", "in_dir"),
+            }
             vaos = {
                 geo: [
-                    ctx.vertex_array(prog, [(vbo, "3f 2f", "in_pos", "in_uv")], ibo)
+                    ctx.vertex_array(prog, [(vbo, *layouts[geo])], ibo)
                     for ibo in (main_ibo, seam_ibo)
                 ]
                 for geo, prog in self.mesh_progs.items()
@@ -443,9 +458,7 @@ class PreviewRenderer:
             "u_layers": 1,
             "u_depth": 4,
             "u_far": FAR,
-            "u_tolerance": BLEND_TOLERANCE
-            if distance
-            else float(np.log1p(BLEND_TOLERANCE) / np.log(FAR / LOG_NEAR)),
+            "u_tolerance": BLEND_TOLERANCE if distance else LOG_TOLERANCE,
             "u_width": width,
         }
         for name, value in uniforms.items():
@@ -486,7 +499,7 @@ class PreviewRenderer:
             "u_images": first_unit,
             "u_geo": first_unit + 1,
             "u_filled": first_unit + 2,
-            "u_tolerance": float(np.log1p(BLEND_TOLERANCE) / np.log(FAR / LOG_NEAR)),
+            "u_tolerance": LOG_TOLERANCE,
             "u_layer": inputs.layer,
         }
         for name, value in values.items():

@@ -14,6 +14,7 @@ uniform sampler2D u_layers;       // the sources' layers side by side: rgb, log 
 #if GEO
 uniform sampler2DArray u_images;  // the source panoramas, repeating in u
 uniform float u_source[VIEWS];    // each layer's source in u_images
+#include "erp_uv.glsl"
 #endif
 uniform sampler2D u_depth;        // their depth buffer: distance / u_far (1: nothing drawn)
 uniform float u_far;
@@ -25,8 +26,6 @@ layout(location = 0) out vec4 out_color;
 layout(location = 1) out float out_dist;
 #endif
 
-const float PI = 3.14159265358979;
-
 void main() {
     ivec2 px = ivec2(gl_FragCoord.xy);
     float best = 1e30;
@@ -36,9 +35,8 @@ void main() {
         c[j] = texelFetch(u_layers, at, 0);
 #if GEO
         vec3 d = c[j].xyz;
-        vec2 st = vec2(atan(d.x, -d.z) / (2.0 * PI) + 0.5, 0.5 - asin(clamp(d.y, -1.0, 1.0)) / PI);
         c[j] = dot(d, d) > 0.25
-            ? vec4(texture(u_images, vec3(st, u_source[j])).rgb, c[j].w)
+            ? vec4(texture(u_images, vec3(erp_uv(d), u_source[j])).rgb, c[j].w)
             : vec4(0.0);
 #endif
 #if DIST

@@ -6,12 +6,13 @@
 // full turn to the left (u_shift = -2), so each side of the image gets its part.
 in vec3 in_pos;       // world position (metres)
 in vec2 in_uv;        // source texture coordinate; u > 1 on the column that closes the seam
+in vec3 in_dir;       // the unit direction in which the source sees this point (its own frame)
 uniform mat4 u_w2c;   // target world -> camera
 uniform float u_far;  // metres mapped to the far end of the depth buffer (depth = r / u_far)
 uniform int u_unwrap;
 uniform float u_shift;
 out vec2 v_uv;
-out vec3 v_dir;       // the direction in which the source sees this point (its own frame)
+out vec3 v_dir;
 // Log distance, 0 at LOG_NEAR metres (defined at compile time), 1 at u_far; per vertex: cheaper.
 out float v_log_dist;
 
@@ -24,9 +25,7 @@ void main() {
     float lat = asin(clamp(c.y / max(r, 1e-6), -1.0, 1.0)) / (0.5 * PI);
     if (u_unwrap == 1 && lon < 0.0) lon += 2.0;
     v_uv = in_uv;
-    float slon = 2.0 * PI * (in_uv.x - 0.5);
-    float slat = PI * (0.5 - in_uv.y);
-    v_dir = vec3(cos(slat) * sin(slon), sin(slat), -cos(slat) * cos(slon));
+    v_dir = in_dir;
     v_log_dist = log(max(r, LOG_NEAR) / LOG_NEAR) / log(u_far / LOG_NEAR);
     gl_Position = vec4(lon + u_shift, -lat, 2.0 * clamp(r / u_far, 0.0, 1.0) - 1.0, 1.0);
 }

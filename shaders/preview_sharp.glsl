@@ -18,18 +18,7 @@ uniform float u_source[VIEWS];    // each layer's source in u_images
 uniform float u_tolerance;        // on the log-distance scale
 uniform vec2 u_layer;             // one layer's size in texels (width, height)
 
-// atan(y, x) to about 1e-5 rad (a minimax polynomial on [0, 1] and the octant's symmetries):
-// cheaper than the built-in on a CPU rasteriser, and far below a pixel (6e-3 rad at 1024
-// columns).
-float sharp_atan2(float y, float x) {
-    float ax = abs(x), ay = abs(y);
-    float a = min(ax, ay) / max(max(ax, ay), 1e-20);
-    float s = a * a;
-    float r = ((-0.0464964749 * s + 0.15931422) * s - 0.327622764) * s * a + a;
-    r = ay > ax ? 1.57079637 - r : r;
-    r = x < 0.0 ? 3.14159274 - r : r;
-    return y < 0.0 ? -r : r;
-}
+#include "erp_uv.glsl"
 
 vec3 sharp_preview(vec2 uv) {
     // Within a layer's own strip: clamp half a texel from the strip's edges.
@@ -50,10 +39,7 @@ vec3 sharp_preview(vec2 uv) {
     for (int j = 0; j < VIEWS; ++j) {
         bool use = cover[j] > 0.25 && g[j].w <= best + u_tolerance;
         float k = use ? u_weights[j] * cover[j] : 0.0;
-        vec3 d = g[j].xyz;
-        float lat = sharp_atan2(d.y, length(d.xz));
-        vec2 st = vec2(sharp_atan2(d.x, -d.z) * 0.15915494 + 0.5, 0.5 - lat * 0.31830989);
-        acc += k * texture(u_images, vec3(st, u_source[j])).rgb;
+        acc += k * texture(u_images, vec3(erp_uv(g[j].xyz), u_source[j])).rgb;
         wsum += k;
         seen = max(seen, use ? cover[j] : 0.0);
     }
