@@ -26,7 +26,7 @@ import torch.nn.functional as F
 from panogrf.app.scene.folder import load_scene
 from panogrf.app.scene.session import default_models
 from panogrf.app.scoring import image_scores
-from panogrf.renderer.detail import DetailConfig, render_detailed
+from panogrf.renderer.detail import PROJECTIONS, DetailConfig, render_detailed
 from panogrf.renderer.methods import METHODS, SourceViews
 from panogrf.renderer.render import render_panorama
 
@@ -39,13 +39,20 @@ def scenes(root: Path) -> list[Path]:
 
 
 def _extras(extras: list[str]) -> dict:
-    """Ladder suffix ``:bicubic`` or ``:bilinear`` (DetailConfig.sampling)."""
+    """Ladder suffixes ``:bicubic`` or ``:bilinear`` (DetailConfig.sampling), ``:splat`` or
+    ``:network`` (DetailConfig.projection), ``:medianK`` (DetailConfig.median)."""
     kw: dict = {}
     for x in extras:
         if x in ("bilinear", "bicubic"):
             kw["sampling"] = x
+        elif x in PROJECTIONS:
+            kw["projection"] = x
+        elif x.startswith("median") and x[6:].isdigit():
+            kw["median"] = int(x[6:])
         else:
-            raise SystemExit(f"unknown ladder suffix {x!r}: bilinear or bicubic")
+            raise SystemExit(
+                f"unknown ladder suffix {x!r}: bilinear, bicubic, splat, network or medianK"
+            )
     return kw
 
 
@@ -61,7 +68,7 @@ def main() -> None:
         help="only rows QUALITY@NET_ROWS[@CUTOFF] + detail, e.g. draft@128,fast@192,fast@192@96 "
         "(the viewer's refinement levels; the agreement is the first of --agreement; CUTOFF: "
         "DetailConfig.cutoff), each optionally followed by :bicubic or :bilinear "
-        "(DetailConfig.sampling)",
+        "(DetailConfig.sampling), :splat or :network (DetailConfig.projection), :medianK",
     )
     parser.add_argument("--threads", type=int, default=0)
     parser.add_argument("--out", type=Path, default=None)

@@ -14,8 +14,17 @@ height and scored (PSNR, WS-PSNR, SSIM, LPIPS). Depth: the first and last views,
 other's source, estimated by every depth mode (mono, MVS-only, full) and compared with the
 ground truth at the dataset's resolution on 0 < gt <= d_max. ``--picture`` writes the true
 middle view, PanoGRF, MVS-only and meshwarp stacked (into the ignored data folder by default).
-``--gt-depth`` adds a diagnostic row, ``gt_depth``: PanoGRF's renderer with the two sources'
-ground-truth depth in place of the estimate (what the renderer does when the depth is right).
+``--gt-depth`` adds diagnostic rows that use the ground truth:
+- ``gt_depth``: PanoGRF's renderer with the two sources' true depth in place of the estimate
+  (what the renderer does when the depth is right);
+- ``reprojected``: no network, each source's full-resolution pixels read at the points of the
+  middle view's own true depth (bicubic), averaged over the sources that see the point (its
+  distance within 5 % of the source's true depth), else from the nearest source: what
+  resampling the sources can give with perfect geometry and visibility;
+- ``true_via_256``: the true middle view area-averaged to 256 rows and bilinearly upsampled,
+  at heights above 256: what a perfect 256-row render scores at that height. Together they say
+  how far LPIPS at 512 rows can fall below LPIPS at 256 by any method that resamples the
+  sources (issue 12's criterion compares the two).
 """
 
 from __future__ import annotations
@@ -71,6 +80,42 @@ def _with_true_depth(views, data, models):
     out = SourceViews(views.images, views.c2w, gains=views.gains)
     out.depth["full"] = torch.where(gt > 0, gt, est)
     return out
+
+
+def _reprojected(data, height: int) -> torch.Tensor:
+    """The middle view [3, H, 2H] made from the first and last views' full-resolution pixels at
+    the points of its own true depth (see the module docstring, ``reprojected``)."""
+    import torch.nn.functional as F
+
+    from panogrf.model.erp import erp_directions, pad_seam, sample_padded, world_to_erp
+
+    size = (height, 2 * height)
+    gt = data.depths[1:2].float()
+    depth = F.interpolate(gt, size=size, mode="nearest")[0, 0]
+    c2w = data.c2w.float()
+    points = c2w[1, :3, 3] + (erp_directions(*size) @ c2w[1, :3, :3].T) * depth[..., None]
+    hi, wi = data.images.shape[-2:]
+    colours, seen = [], []
+    for v in (0, 2):
+        uv, dist = world_to_erp(points.reshape(-1, 3), c2w[v], hi, wi)
+        colours.append(sample_padded(pad_seam(data.images[v : v + 1], 2), uv[None], "bicubic", 2))
+        own = sample_padded(pad_seam(data.depths[v : v + 1].float()), uv[None], "nearest")[0, 0]
+        seen.append(((dist - own).abs() <= 0.05 * own) & (own > 0))
+    colour = torch.stack(colours)[:, 0]  # [2, 3, N]
+    weight = torch.stack(seen).float()  # [2, N]
+    gap = torch.stack([(c2w[v, :3, 3] - c2w[1, :3, 3]).norm() for v in (0, 2)])
+    nearest = (torch.arange(2) == gap.argmin()).float()[:, None].expand_as(weight)
+    weight = torch.where(weight.sum(0, keepdim=True) > 0, weight, nearest)
+    out = (colour * weight[:, None]).sum(0) / weight.sum(0)[None]
+    return out.reshape(3, *size).clamp(0, 1)
+
+
+def _true_via_256(data, height: int) -> torch.Tensor:
+    """The true middle view through 256 rows, shown at ``height`` rows [3, H, 2H]."""
+    from panogrf.renderer.cache import resize_erp
+    from panogrf.renderer.detail import upsample_erp
+
+    return upsample_erp(resize_erp(data.images[1:2], 256)[0], (height, 2 * height)).clamp(0, 1)
 
 
 def main() -> int:
@@ -137,6 +182,17 @@ def main() -> int:
                     f"LPIPS {scores['lpips']:.3f} ({sec:.1f} s)",
                     flush=True,
                 )
+        if args.gt_depth:
+            references = [("reprojected", h, _reprojected) for h in heights]
+            references += [("true_via_256", h, _true_via_256) for h in heights if h > 256]
+            for name, h, make in references:
+                scores = image_scores(make(data, h), data.images[1:2]) | {"seconds": 0.0}
+                image_rows.setdefault((name, h), []).append(scores)
+                print(
+                    f"{folder.name} {name:>12} {h:4d} rows: WS-PSNR {scores['ws_psnr']:.2f} "
+                    f"LPIPS {scores['lpips']:.3f}",
+                    flush=True,
+                )
         h0 = max(heights)
         from panogrf.renderer.cache import resize_erp
 
@@ -180,12 +236,13 @@ def main() -> int:
     for mode, r in depth_table.items():
         print(f"{mode:>6} " + " ".join(f"{r[k]:8.3f}" for k in DEPTH_KEYS))
     print(
-        f"\n{'method':>9} {'rows':>5} {'PSNR':>7} {'WS-PSNR':>8} {'SSIM':>6} {'LPIPS':>6} {'s':>6}"
+        f"\n{'method':>12} {'rows':>5} {'PSNR':>7} {'WS-PSNR':>8} {'SSIM':>6} {'LPIPS':>6} {'s':>6}"
     )
-    for m, h in sorted(image_rows, key=lambda k: (-k[1], methods.index(k[0]))):
+    order = [*methods, "reprojected", "true_via_256"]
+    for m, h in sorted(image_rows, key=lambda k: (-k[1], order.index(k[0]))):
         r = image_table[f"{m}@{h}"]
         print(
-            f"{m:>9} {h:5d} {r['psnr']:7.2f} {r['ws_psnr']:8.2f} {r['ssim']:6.3f} "
+            f"{m:>12} {h:5d} {r['psnr']:7.2f} {r['ws_psnr']:8.2f} {r['ssim']:6.3f} "
             f"{r['lpips']:6.3f} {r['seconds']:6.1f}"
         )
     return 0

@@ -5,8 +5,11 @@ running them on every pixel of a 512-row output costs four times as much and, on
 blurs: each pixel composites projections from several depths. Here the network renders at
 ``net_height`` rows (colour and depth) and the full-resolution sources give the detail:
 
-1. every output pixel's point, at the network's depth (upsampled in inverse depth), is projected
-   into every source and its full-resolution colour read;
+1. every output pixel's point is projected into every source and its full-resolution colour
+   read. The point lies at the sources' own depth seen from the target (`projection_depth`:
+   their depth maps splatted into the target at the network's rows, the nearest surface
+   kept, through a median; upsampled in inverse depth), not at the network's expected depth,
+   which a volume render smears across depth edges and pulls towards its spread samples;
 2. each source is weighted by how well it agrees with the network's colour at the network's
    resolution (the network has already decided which sources see the point: occluded or
    disoccluded ones disagree with it);
@@ -31,7 +34,9 @@ from torch import Tensor
 
 from panogrf.model.erp import direction_to_pixel, erp_directions, sample_padded
 from panogrf.model.layers import circular_pad
+from panogrf.model.refine import median_filter
 from panogrf.model.render_net import RendererNet
+from panogrf.model.splat import proxy_depth
 from panogrf.renderer.cache import SceneCache, resize_erp
 from panogrf.renderer.render import RenderOutput, Sampling, render_panorama
 
@@ -56,6 +61,11 @@ class DetailConfig:
     512-row sources, fast at 256 + detail above 32: bilinear 27.97 / 0.094, bicubic 27.55 /
     0.096; sources area-averaged to 256 rows first: 27.12 / 0.110 bilinear, 27.57 / 0.098
     bicubic)."""
+    projection: str = "splat"
+    """The depth at which the sources are read (`projection_depth`): "splat" (the sources'
+    own depth maps splatted into the target) or "network" (the render's expected depth)."""
+    median: int = 7
+    """Side of the median over the splatted depth, in pixels of the network's rows."""
 
 
 #: Chosen on 12 validation scenes at 512 rows generated from the train split's generator with
@@ -73,7 +83,34 @@ class DetailConfig:
 #: draft 25.61 / 0.152 -> 25.68 / 0.141, at the same cost. Measured and dropped: a softmax that
 #: picks the best-agreeing source (scale 0.03: 26.36 / 0.120, 0.01: 26.07 / 0.120) and a gain
 #: on the transferred band (1.25: 26.19 / 0.108, 1.5: 25.41 / 0.114).
-DEFAULT_DETAIL = DetailConfig(cutoff=32, sampling="bicubic")
+#: The projection depth (round 11; `--ladder ...:network` / `...:splat`, detail_projection_val.json,
+#: the same 12 scenes, WS-PSNR / LPIPS / median s): fast at 256 26.82 / 0.106 / 1.03 with the
+#: network's depth, 27.21 / 0.095 / 1.13 splatted (median 5: 27.21 / 0.097, 9: 27.19 / 0.094);
+#: the viewer's draft at 128 25.61 / 0.143 -> 26.43 / 0.109, its fast level at 128 26.66 /
+#: 0.103 -> 26.87 / 0.094; at 256 rows out (detail_projection_val256.json) 28.18 / 0.084 ->
+#: 28.46 / 0.074.
+DEFAULT_DETAIL = DetailConfig(cutoff=32, sampling="bicubic", projection="splat", median=7)
+
+
+PROJECTIONS = ("splat", "network")
+
+
+def projection_depth(
+    cache: SceneCache, c2w: Tensor, low: RenderOutput, config: DetailConfig
+) -> Tensor:
+    """The target's depth [1, h, 2h] (metres) at the rows of the network's pass ``low``, at
+    which `add_detail` reads the sources. "network": the render's expected depth. "splat": the
+    sources' depth maps (bilinearly resized to those rows) splatted into the target, the
+    nearest surface kept and holes filled from the farther side (`panogrf.model.splat`), then
+    a median of ``config.median`` pixels that takes out single splatted pixels and cracks."""
+    if config.projection not in PROJECTIONS:
+        raise ValueError(f"projection must be one of {PROJECTIONS}, got {config.projection!r}")
+    if config.projection == "network":
+        return low.depth
+    h, w = low.depth.shape[-2:]
+    src = F.interpolate(cache.depth, size=(h, w), mode="bilinear", align_corners=False)
+    near = proxy_depth(src, cache.c2w, c2w.to(src.dtype), h, w).near
+    return median_filter(near[None, None], config.median)[0]
 
 
 def upsample_erp(x: Tensor, size: tuple[int, int]) -> Tensor:
@@ -126,11 +163,12 @@ def add_detail(
     depth: Tensor | None = None,
 ) -> Tensor:
     """The network's low-resolution render ``low`` brought to ``height`` rows with the sources'
-    detail: [3, H, 2H] in [0, 1]. ``depth``: ``low.depth`` already upsampled to ``height``."""
+    detail: [3, H, 2H] in [0, 1]. ``depth``: the depth the sources are read at, at ``height``
+    rows (by default `projection_depth`, upsampled)."""
     size = (height, 2 * height)
     h = low.rgb.shape[-2]
     if depth is None:
-        depth = _upsample_depth(low.depth, size)
+        depth = _upsample_depth(projection_depth(cache, c2w, low, config), size)
     sampling = config.sampling if height >= cache.images.shape[-2] else "bilinear"
     proj = project_sources(cache, c2w.to(depth.dtype), depth[0], sampling)
     proj_low = resize_erp(proj, h)  # [V, 3, h, 2h]
@@ -175,16 +213,15 @@ def render_detailed(
         # The network's own resolution: the sources replace its soft band above the cutoff
         # (validation, 24 scenes at 256 rows, fast, WS-PSNR / LPIPS: plain 25.41 / 0.155,
         # above 32 rows 25.44 / 0.124, above 64 25.45 / 0.128).
-        return replace(out, rgb=add_detail(cache, c2w, out, height, config, out.depth))
+        return replace(out, rgb=add_detail(cache, c2w, out, height, config))
     low = render_panorama(
         net, cache, c2w, config.net_height, quality, progress=progress, should_stop=should_stop
     )
     if low is None:
         return None
     size = (height, 2 * height)
-    depth = _upsample_depth(low.depth, size)
     return RenderOutput(
-        rgb=add_detail(cache, c2w, low, height, config, depth),
-        depth=depth,
+        rgb=add_detail(cache, c2w, low, height, config),
+        depth=_upsample_depth(low.depth, size),
         opacity=upsample_erp(low.opacity, size).clamp(0, 1),
     )

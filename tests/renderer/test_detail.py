@@ -148,3 +148,35 @@ def test_at_the_networks_own_rows_the_cutoff_still_applies():
     assert torch.equal(cut.depth, plain.depth)
     low = [resize_erp(x.rgb[None], 8)[0] for x in (cut, plain)]
     assert (low[0] - low[1]).abs().mean() < 0.25 * (cut.rgb - plain.rgb).abs().mean()
+
+
+def test_the_sources_are_read_at_their_own_depth_not_the_networks():
+    """A render whose expected depth is off (here 25 % too far, as a volume render's mean of
+    spread samples is) misplaces the detail when the sources are read at it; the default
+    reads them at their own depth maps splatted into the target, which the cache has right."""
+    from panogrf.renderer.detail import projection_depth
+
+    cache, target, truth, truth_depth = _scene()
+    low_h = H // 2
+    low = _low_pass(truth, truth_depth, low_h)
+    low = RenderOutput(rgb=low.rgb, depth=low.depth * 1.25, opacity=low.opacity)
+    splat = projection_depth(cache, target, low, DetailConfig(net_height=low_h))
+    true_low = 1.0 / resize_erp(1.0 / truth_depth[None], low_h)[0]
+    assert splat.shape == low.depth.shape
+    assert float(((splat - true_low).abs() / true_low).median()) < 0.02
+    scores = {
+        p: _psnr(
+            add_detail(cache, target, low, H, DetailConfig(net_height=low_h, projection=p)), truth
+        )
+        for p in ("splat", "network")
+    }
+    assert scores["splat"] > scores["network"] + 3.0, scores
+
+
+def test_an_unknown_projection_is_refused():
+    import pytest
+
+    cache, target, truth, truth_depth = _scene()
+    low = _low_pass(truth, truth_depth, H // 2)
+    with pytest.raises(ValueError, match="projection"):
+        add_detail(cache, target, low, H, DetailConfig(net_height=H // 2, projection="mesh"))
