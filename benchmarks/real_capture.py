@@ -143,6 +143,7 @@ def main() -> int:
     if args.threads:
         torch.set_num_threads(args.threads)
 
+    from panogrf.app.files.atomic import nan_to_null, write_json_atomic
     from panogrf.app.files.images import to_uint8, write_rgb
     from panogrf.app.scene.folder import load_scene
     from panogrf.app.scene.session import default_models
@@ -225,9 +226,7 @@ def main() -> int:
         "commit": commit.stdout.strip(),
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = args.out.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(report, indent=2))
-    tmp.replace(args.out)
+    write_json_atomic(args.out, nan_to_null(report))
     picture = args.picture or args.data / "comparison.png"
     write_rgb(picture, to_uint8(torch.cat(pictures, 1)))
 
