@@ -14,6 +14,8 @@ height and scored (PSNR, WS-PSNR, SSIM, LPIPS). Depth: the first and last views,
 other's source, estimated by every depth mode (mono, MVS-only, full) and compared with the
 ground truth at the dataset's resolution on 0 < gt <= d_max. ``--picture`` writes the true
 middle view, PanoGRF, MVS-only and meshwarp stacked (into the ignored data folder by default).
+``--refine-depth`` refines every multi-view depth per scene first (`SourceViews.refine`, the
+CLI's ``--refine-depth``), for the depth table and every method that reads it.
 ``--gt-depth`` adds diagnostic rows that use the ground truth:
 - ``gt_depth``: PanoGRF's renderer with the two sources' true depth in place of the estimate
   (what the renderer does when the depth is right);
@@ -132,6 +134,11 @@ def main() -> int:
     parser.add_argument(
         "--gt-depth", action="store_true", help="also render with the sources' true depth"
     )
+    parser.add_argument(
+        "--refine-depth",
+        action="store_true",
+        help="refine every multi-view depth per scene first (the CLI's --refine-depth)",
+    )
     args = parser.parse_args()
     if not (args.data / "dataset.json").exists():
         print(
@@ -148,6 +155,7 @@ def main() -> int:
     from panogrf.app.scene.folder import load_scene
     from panogrf.app.scene.session import default_models
     from panogrf.app.scoring import image_scores
+    from panogrf.model.refine import PREPARE_REFINE
     from panogrf.renderer.methods import SourceViews, prepare, render_view
 
     heights = [int(h) for h in args.heights.split(",")]
@@ -162,7 +170,8 @@ def main() -> int:
     for folder in triplets(args.data):
         scene = load_scene(folder, load_images=True)
         data = scene.images
-        views = SourceViews(data.images[[0, 2]], data.c2w[[0, 2]])
+        refine = PREPARE_REFINE if args.refine_depth else None
+        views = SourceViews(data.images[[0, 2]], data.c2w[[0, 2]], refine=refine)
         for mode in DEPTH_MODES:
             depth_rows[mode].append(depth_scores(models, views, data, mode))
         renders = {}
@@ -219,6 +228,7 @@ def main() -> int:
         "data": str(args.data),
         "scenes": [p.name for p in triplets(args.data)],
         "quality": args.quality,
+        "refine_depth": repr(PREPARE_REFINE) if args.refine_depth else None,
         "images": image_table,
         "depth_metres": depth_table,
         "machine": f"{platform.machine()}, {torch.get_num_threads()} torch threads, CPU",

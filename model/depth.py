@@ -28,7 +28,7 @@ from torch import Tensor, nn
 
 from panogrf.model.mono import MonoDepthNet, MonoOutput
 from panogrf.model.mvs import MVSNet
-from panogrf.model.refine import SweepConfig, median_filter, sweep_depth
+from panogrf.model.refine import SweepConfig, median_filter, nearest_sources, sweep_depth
 
 MODES = ("full", "mono", "mvs")
 GUIDES = ("mono", "aligned", "mvs")
@@ -237,13 +237,7 @@ class DepthEstimator(nn.Module):
             depth = self._mvs(mode, small, c2w, guide, sources, depth)
         depth = self._clean(depth)
         if mode != "mono" and self.sweep is not None and any(sources):
-            centres = c2w[:, :3, 3]
-            nearest = [
-                sorted(src, key=lambda j, r=r: float((centres[j] - centres[r]).norm()))[
-                    : self.sweep_sources
-                ]
-                for r, src in enumerate(sources)
-            ]
+            nearest = nearest_sources(c2w, sources, self.sweep_sources)
             pixels = images if detail is None else detail
             clean = tuple(self._clean(o) for o in others)
             depth = sweep_depth(

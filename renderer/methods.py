@@ -31,6 +31,7 @@ from torch import Tensor
 
 from panogrf.model.depth import DepthEstimator
 from panogrf.model.photometric import balance_exposure
+from panogrf.model.refine import RefineConfig, nearest_sources, refine_depth
 from panogrf.model.render_net import RendererNet
 from panogrf.renderer.baselines import render_meshwarp, render_nearest
 from panogrf.renderer.cache import SceneCache, build_cache
@@ -98,6 +99,10 @@ class SourceViews:
     The panoramas are brought to a common exposure on construction (`balance_exposure`: real
     captures change exposure between shots); ``gains`` [V, 3] says what was applied (all 1 for
     a consistent capture). ``balance=False`` keeps them as given.
+
+    ``refine``: the multi-view depth is refined per scene by photometric consistency between
+    the sources (`panogrf.model.refine.refine_depth`, each view against its two nearest
+    sources) after the estimator; a few seconds per view here, paid once at preparation.
     """
 
     images: Tensor  # [V, 3, H, W] in [0, 1]
@@ -108,6 +113,7 @@ class SourceViews:
     seconds: dict[str, float] = field(default_factory=dict)  # preparation time per item
     balance: bool = True
     gains: Tensor | None = None  # [V, 3] exposure gains applied to the given images
+    refine: RefineConfig | None = None  # per-scene depth refinement (None: none)
 
     def __post_init__(self) -> None:
         if self.gains is None:
@@ -123,7 +129,18 @@ class SourceViews:
             small = est.working_height
             with torch.no_grad():
                 out = est(_resize(self.images, small), self.c2w, mode, detail=self.images)
-            self.depth[mode] = out.depth
+            depth = out.depth
+            if self.refine is not None and mode != "mono" and any(out.sources):
+                with torch.enable_grad():
+                    depth = refine_depth(
+                        self.images,
+                        self.c2w.to(depth.dtype),
+                        depth,
+                        nearest_sources(self.c2w, out.sources, est.sweep_sources),
+                        self.refine,
+                        (0.05, est.d_max),
+                    )
+            self.depth[mode] = depth
             self.seconds[f"depth:{mode}"] = time.perf_counter() - start
         return self.depth[mode]
 

@@ -26,7 +26,7 @@ from pathlib import Path
 import torch
 
 from panogrf.app.errors import UserError
-from panogrf.app.runtime import thread_count
+from panogrf.app.runtime import add_refine_depth, refine_setting, thread_count
 from panogrf.renderer.methods import METHODS, Kind
 from panogrf.renderer.render import QUALITY
 
@@ -95,6 +95,7 @@ def register(subparsers) -> None:
     parser.add_argument(
         "--threads", type=thread_count, default=0, help="torch threads (default: all)"
     )
+    add_refine_depth(parser)
     parser.set_defaults(func=run)
 
 
@@ -135,7 +136,7 @@ def run(args: argparse.Namespace) -> int:
         scene = load_scene(folder, load_images=True)
         data = scene.images
         height = args.height or scene.height
-        views = SourceViews(data.images[[0, 2]], data.c2w[[0, 2]])
+        views = SourceViews(data.images[[0, 2]], data.c2w[[0, 2]], refine=refine_setting(args))
         index = seen[b]
         seen[b] += 1
         line = [f"[{n}/{len(scenes)}] {folder.name} ({b} m)"]

@@ -17,7 +17,7 @@ import numpy as np
 import torch
 
 from panogrf.app.errors import UserError
-from panogrf.app.runtime import thread_count
+from panogrf.app.runtime import add_refine_depth, refine_setting, thread_count
 from panogrf.app.scene import session
 from panogrf.app.scene.session import MAX_HEIGHT
 from panogrf.renderer.methods import METHODS
@@ -114,6 +114,7 @@ def register(subparsers) -> None:
     parser.add_argument(
         "--threads", type=thread_count, default=0, help="torch threads (default: all)"
     )
+    add_refine_depth(parser)
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
     parser.set_defaults(func=run)
 
@@ -157,7 +158,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         tgt = torch.from_numpy(parse_c2w(args.c2w)).to(data.c2w.dtype)
     height = args.height or scene.height
-    views = SourceViews(data.images[sources], data.c2w[sources])
+    views = SourceViews(data.images[sources], data.c2w[sources], refine=refine_setting(args))
     models = session.default_models()
     start = time.perf_counter()
     frames = FrameRenderer(views, models, args.quality, args.method)
@@ -254,7 +255,7 @@ def run_path(args: argparse.Namespace) -> int:
     sink = FrameSink(args.out, path.fps, path.render_width, path.render_height, spherical)
     scene = load_scene(args.scene, load_images=True)
     data = scene.images
-    views = SourceViews(data.images, data.c2w)
+    views = SourceViews(data.images, data.c2w, refine=refine_setting(args))
     warning = path_warning(np.asarray(path.poses, dtype=np.float64), scene.c2w)
     if warning:
         print(warning, flush=True)

@@ -8,7 +8,7 @@ import time
 from pathlib import Path
 
 from panogrf.app.errors import UserError
-from panogrf.app.runtime import thread_count
+from panogrf.app.runtime import add_refine_depth, refine_setting, thread_count
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -97,6 +97,7 @@ def register(subparsers) -> None:
     parser.add_argument(
         "--threads", type=thread_count, default=0, help="torch threads (default: all)"
     )
+    add_refine_depth(parser)
     parser.set_defaults(func=run)
 
 
@@ -129,7 +130,7 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--script: {exc}") from None
     from panogrf.app.scene import session
 
-    prepared = session.prepare_scene(args.scene, args.cache_dir)
+    prepared = session.prepare_scene(args.scene, args.cache_dir, refine=refine_setting(args))
     scene, views, models = prepared.scene, prepared.views, prepared.models
     if not 0 <= args.start_frame < scene.num_views:
         raise UserError(f"--start-frame: the scene has frames 0..{scene.num_views - 1}")

@@ -36,9 +36,14 @@ def default_cache_dir() -> Path:
     return Path(base) / "panogrf"
 
 
-def content_key(images: torch.Tensor, c2w: torch.Tensor, weight_files: list[Path]) -> str:
-    """SHA-256 (hex, 32 chars) of the pixels, the poses and the weight files' bytes."""
+def content_key(
+    images: torch.Tensor, c2w: torch.Tensor, weight_files: list[Path], setting: str = ""
+) -> str:
+    """SHA-256 (hex, 32 chars) of the pixels, the poses, the weight files' bytes and
+    ``setting`` (how the depth was made, when not the default: e.g. a per-scene refinement)."""
     h = hashlib.sha256(FORMAT.encode())
+    if setting:
+        h.update(setting.encode())
     h.update(str(tuple(images.shape)).encode())
     h.update((images.clamp(0, 1) * 255).round().to(torch.uint8).numpy().tobytes())
     h.update(c2w.to(torch.float64).numpy().tobytes())
@@ -96,7 +101,8 @@ def prepare_cached(
 
     start = time.perf_counter()
     cache_dir = Path(cache_dir) if cache_dir is not None else default_cache_dir()
-    key = content_key(views.images, views.c2w, weight_files)
+    setting = "" if views.refine is None else f"refine {views.refine!r}"
+    key = content_key(views.images, views.c2w, weight_files, setting)
     path = cache_dir / f"{key}.safetensors"
     why = None
     c = models.renderer(METHOD.renderer).config.feature_channels

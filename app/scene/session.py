@@ -21,6 +21,7 @@ from pathlib import Path
 
 from panogrf.app.errors import UserError
 from panogrf.app.scene.estimate import DepthRun, estimate_scene
+from panogrf.model.refine import RefineConfig
 from panogrf.renderer.methods import METHODS, Models, SourceViews
 
 #: Largest panorama height (rows; width = 2x) of a render, single or along a camera path.
@@ -75,18 +76,22 @@ class PreparedScene:
 
 
 def prepare_scene(
-    scene_dir: Path, cache_dir: Path | None, models: Models | None = None, log=print
+    scene_dir: Path,
+    cache_dir: Path | None,
+    models: Models | None = None,
+    log=print,
+    refine: RefineConfig | None = None,
 ) -> PreparedScene:
     """Load the scene folder and prepare PanoGRF's depth and caches with ``models`` (default:
     the shipped weights), reading or writing the on-disk cache in ``cache_dir`` (default
-    ``~/.cache/panogrf``)."""
+    ``~/.cache/panogrf``); ``refine``: the per-scene depth refinement (`SourceViews.refine`)."""
     import time
 
     from panogrf.app.scene.cache import METHOD, CacheResult, prepare_cached
     from panogrf.app.scene.folder import load_scene
 
     scene = load_scene(scene_dir, load_images=True)
-    views = SourceViews(scene.images.images, scene.images.c2w)
+    views = SourceViews(scene.images.images, scene.images.c2w, refine=refine)
     log(f"preparing {scene_dir} ({scene.num_views} views, {scene.width}x{scene.height})...")
     if models is None:
         models = default_models()

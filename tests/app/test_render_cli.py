@@ -46,6 +46,20 @@ def test_render_any_pose_and_summary(random_nets, tmp_path, capsys):
     assert read_rgb(out).shape == (16, 32, 3)
 
 
+def test_render_refine_depth_refines_the_sources_depth(random_nets, tmp_path, monkeypatch):
+    """``--refine-depth`` reaches the preparation: the same pose renders differently, because
+    the sources' depth was refined (a short refinement here; the shipped one is
+    `panogrf.model.refine.PREPARE_REFINE`)."""
+    from panogrf.model import refine
+
+    monkeypatch.setattr(refine, "PREPARE_REFINE", refine.RefineConfig(iterations=3, height=32))
+    args = ["render", str(DEMO), "--target-frame", "1", "--height", "32", "--sources", "0,2"]
+    plain, refined = tmp_path / "plain.png", tmp_path / "refined.png"
+    assert cli.main([*args, "--out", str(plain)]) == 0
+    assert cli.main([*args, "--out", str(refined), "--refine-depth"]) == 0
+    assert not np.array_equal(read_rgb(plain), read_rgb(refined))
+
+
 @pytest.mark.parametrize(
     ("extra", "message"),
     [

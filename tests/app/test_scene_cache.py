@@ -162,3 +162,25 @@ def test_a_killed_write_is_swept_by_the_next_run(tmp_path):
     stale.write_bytes(b"\0" * 1000)
     r = prepare_cached(_views(), _models(), tmp_path, [weights])
     assert [p.name for p in tmp_path.iterdir() if p.name != "w"] == [r.path.name]
+
+
+def test_a_refined_scene_has_its_own_cache_and_its_own_depth(tmp_path):
+    """``--refine-depth`` (`SourceViews.refine`) changes the depth, so it is keyed apart: the
+    plain scene's cache is neither reused for it nor overwritten by it."""
+    from panogrf.model.refine import RefineConfig
+
+    weights = tmp_path / "w.safetensors"
+    weights.write_bytes(b"weights v1")
+    models = _models()
+    plain = _views()
+    refined = _views()
+    refined.refine = RefineConfig(iterations=3, height=32, lr=0.1)
+    r1 = prepare_cached(plain, models, tmp_path / "cache", [weights])
+    r2 = prepare_cached(refined, models, tmp_path / "cache", [weights])
+    assert r1.status == r2.status == "built" and r1.path != r2.path
+    assert not torch.equal(plain.depth["full"], refined.depth["full"])
+    again = _views()
+    again.refine = RefineConfig(iterations=3, height=32, lr=0.1)
+    r3 = prepare_cached(again, models, tmp_path / "cache", [weights])
+    assert r3.status == "loaded" and r3.path == r2.path
+    assert torch.equal(again.depth["full"], refined.depth["full"])
