@@ -176,6 +176,7 @@ def run(args: argparse.Namespace) -> int:
         "what": "middle view of each test triplet rendered from the first and last views",
         "dataset": str(args.dataset),
         "height": args.height or "dataset's",
+        "refine_depth": bool(args.refine_depth),
         "methods": [label(*m) for m in methods],
         "subset": {"methods": sorted(subset), "scenes_per_baseline": args.subset_size},
         "results": results,
