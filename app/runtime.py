@@ -105,8 +105,8 @@ def metres_list(text: str) -> tuple[float, ...]:
 #: Help of ``--refine-depth`` (view, render, eval).
 REFINE_DEPTH_HELP = (
     "refine the depth per scene at preparation by photometric consistency between the "
-    "sources (about 2.5 s per view on 2 cores; the viewer caches it with the scene; validation "
-    "scenes: +0.3 dB)"
+    "sources, once per scene (2-6 s per view on 2 cores; the viewer caches the result; "
+    "validation scenes: +0.37 dB)"
 )
 
 
