@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import torch
 
-from panogrf.model.depth import DepthEstimator
+from panogrf.model.depth import DEFAULT_SWEEP, DepthEstimator
 from panogrf.model.mono import MonoDepthConfig, MonoDepthNet
 from panogrf.model.mvs import PRESETS as MVS_PRESETS
 from panogrf.model.mvs import MVSNet
@@ -14,10 +16,15 @@ from panogrf.renderer.methods import Models
 
 
 def random_models() -> Models:
-    """`Models` with tiny seeded random networks (depth estimated at 32 rows)."""
+    """`Models` with tiny seeded random networks (depth estimated at 32 rows, its photometric
+    sweep at twice that, as the shipped estimator sweeps at twice its 128 rows)."""
     torch.manual_seed(0)
     mvs = {m: MVSNet(MVS_PRESETS[m]).eval() for m in ("full", "mvs")}
-    est = DepthEstimator(MonoDepthNet(MonoDepthConfig()), mvs, working_height=32).eval()
+    sweep = replace(DEFAULT_SWEEP, height=64)
+    est = DepthEstimator(
+        MonoDepthNet(MonoDepthConfig()), mvs, working_height=32, sweep=sweep
+    ).eval()
+    est.fusion_sweep = sweep
     nets = {k: RendererNet(v).eval() for k, v in PRESETS.items()}
     return Models(estimator=lambda mode: est, renderer=lambda preset: nets[preset])
 
