@@ -54,6 +54,13 @@ def _low_pass(truth: torch.Tensor, truth_depth: torch.Tensor, low_h: int) -> Ren
     )
 
 
+def _detail_psnr(cache, target, low, truth, **config) -> float:
+    """PSNR against ``truth`` of ``low`` brought to H rows by `add_detail` with ``config``."""
+    low_h = low.rgb.shape[-2]
+    out = add_detail(cache, target, low, H, DetailConfig(net_height=low_h, **config))
+    return _psnr(out, truth)
+
+
 def test_projection_at_the_true_depth_reads_the_source_itself():
     cache, _, _, _ = _scene()
     proj = project_sources(cache, cache.c2w[0], cache.depth[0, 0])
@@ -77,9 +84,7 @@ def test_bicubic_reading_keeps_more_of_the_sources_detail_than_bilinear():
     low_h = H // 2
     low = _low_pass(truth, truth_depth, low_h)
     scores = {
-        mode: _psnr(
-            add_detail(cache, target, low, H, DetailConfig(net_height=low_h, sampling=mode)), truth
-        )
+        mode: _detail_psnr(cache, target, low, truth, sampling=mode)
         for mode in ("bilinear", "bicubic")
     }
     assert scores["bicubic"] > scores["bilinear"] + 0.3, scores
@@ -165,10 +170,7 @@ def test_the_sources_are_read_at_their_own_depth_not_the_networks():
     assert splat.shape == low.depth.shape
     assert float(((splat - true_low).abs() / true_low).median()) < 0.02
     scores = {
-        p: _psnr(
-            add_detail(cache, target, low, H, DetailConfig(net_height=low_h, projection=p)), truth
-        )
-        for p in ("splat", "network")
+        p: _detail_psnr(cache, target, low, truth, projection=p) for p in ("splat", "network")
     }
     assert scores["splat"] > scores["network"] + 3.0, scores
 
