@@ -5,7 +5,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-APT_PACKAGES=(libegl1 libgl1 libegl-mesa0 libgl1-mesa-dri xvfb xdotool)
+APT_PACKAGES=(libegl1 libgl1 libegl-mesa0 libgl1-mesa-dri xvfb xdotool libxrender1)
 missing=()
 for pkg in "${APT_PACKAGES[@]}"; do
   dpkg-query -W -f='${Status}' "$pkg" 2>/dev/null | grep -q "install ok installed" || missing+=("$pkg")
@@ -23,7 +23,7 @@ if [ ! -x .venv/bin/python ]; then
   "$PYTHON" -m venv .venv
 fi
 # torch is pinned to 2.13.0 in pyproject.toml: the CPU build (an unpinned torch pulls CUDA).
-if ! .venv/bin/python -c "import panogrf.app.cli, torch, moderngl, pytest" 2>/dev/null \
+if ! .venv/bin/python -c "import panogrf.app.cli, torch, moderngl, pytest, pyrender" 2>/dev/null \
    || [ pyproject.toml -nt .venv/.panogrf-installed ] || [ setup.py -nt .venv/.panogrf-installed ]; then
   echo "setup: installing panogrf and its dependencies into .venv"
   .venv/bin/python -m pip install -q --disable-pip-version-check -e ".[dev]"

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import json
 import time
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -33,6 +33,8 @@ from panogrf.app.synth.textures import texture_bank
 
 SPLITS = ("train", "test")
 WORLDS = ("classic", "home")
+RENDERERS = ("gl", "pyrender")
+NAMES = ["frame_000", "frame_001", "frame_002"]
 
 
 @dataclass(frozen=True)
@@ -58,6 +60,12 @@ class MakeConfig:
     world: str = "classic"
     """"classic" (photographs and patterns on the walls) or "home" (`panogrf.app.synth.home`:
     household materials, bright windows, rugs, sun patches, baselines up to 3.5 m)."""
+    renderer: str = "gl"
+    """"gl" (`panogrf.app.synth.gl_render`: unshadowed Lambertian lights, fast) or "pyrender"
+    (`panogrf.app.synth.pbr_render`: shadow-casting lights, sun through the windows, gloss,
+    auto exposure; about 30x slower, run in ``workers`` processes of its own)."""
+    workers: int = 2
+    """Worker processes of the "pyrender" renderer."""
 
 
 def scene_seed(split: str, base_seed: int, index: int) -> int:
@@ -129,20 +137,89 @@ def transforms_dict(scene: SynthScene, height: int, names: list[str]) -> dict:
     }
 
 
-def make_dataset(cfg: MakeConfig, progress: bool = True) -> dict:
-    """Render ``cfg.count`` scenes into ``cfg.out``; returns a summary with timings."""
-    if cfg.split not in SPLITS:
-        raise ValueError(f"split must be one of {SPLITS}, got {cfg.split!r}")
-    if cfg.world not in WORLDS:
-        raise ValueError(f"world must be one of {WORLDS}, got {cfg.world!r}")
-    if cfg.count < 1 or cfg.height < 8:
-        raise ValueError("count must be >= 1 and height >= 8")
-    out = Path(cfg.out)
-    out.mkdir(parents=True, exist_ok=True)
-    names = ["frame_000", "frame_001", "frame_002"]
-    entries, triangles = [], []
+def _scene_job(cfg: MakeConfig, groups, n_layers: int, i: int):
+    """The layout, folder and seed of scene ``i``."""
+    seed = scene_seed(cfg.split, cfg.seed, i)
+    baseline = cfg.baselines[i % len(cfg.baselines)] if cfg.baselines else None
+    scene = build_scene(cfg.split, seed, baseline, n_layers, groups=groups)
+    folder = Path(cfg.out) / f"{cfg.split}_{i:05d}"
+    (folder / "images").mkdir(parents=True, exist_ok=True)
+    (folder / "depth").mkdir(parents=True, exist_ok=True)
+    return scene, folder
+
+
+def _entry(scene: SynthScene, folder: Path, triangles: int) -> dict:
+    return {
+        "folder": folder.name,
+        "seed": scene.seed,
+        "baseline_m": scene.baseline,
+        "triangles": triangles,
+    }
+
+
+# -- pyrender workers (their own processes: a pyrender EGL context and a moderngl one do not mix)
+_WORKER: dict = {}
+
+
+def _pbr_worker_init(cfg: MakeConfig) -> None:
+    import torch
+
+    from panogrf.app.synth.pbr_render import PyrenderPanoramaRenderer
+
+    torch.set_num_threads(1)
+    textures, groups = build_textures(cfg.split, cfg.seed, cfg.procedural_textures, cfg.world)
+    renderer = PyrenderPanoramaRenderer()
+    renderer.set_textures(textures)
+    _WORKER.update(cfg=cfg, groups=groups, layers=len(textures), renderer=renderer)
+
+
+def _pbr_worker_scene(i: int) -> tuple[dict, dict, float]:
+    """Render and write scene ``i`` (all but its transforms.json): (entry, transforms, s)."""
+    cfg, renderer = _WORKER["cfg"], _WORKER["renderer"]
+    scene, folder = _scene_job(cfg, _WORKER["groups"], _WORKER["layers"], i)
+    t0 = time.perf_counter()
+    renderer.set_scene(scene)
+    for name, c2w in zip(NAMES, scene.cameras, strict=True):
+        rgb, depth = renderer.render(c2w, cfg.height, 2 * cfg.height)
+        write_rgb(folder / "images" / f"{name}.png", rgb)
+        write_depth(folder / "depth" / f"{name}.png", depth)
+    seconds = time.perf_counter() - t0
+    entry = _entry(scene, folder, renderer.triangles)
+    return entry, transforms_dict(scene, cfg.height, NAMES), seconds
+
+
+def _make_pyrender(cfg: MakeConfig, progress: bool) -> tuple[list[dict], float]:
+    """Scenes rendered by pyrender in ``cfg.workers`` spawned processes; (entries, render s)."""
+    import multiprocessing
+
+    entries, render_s = [], 0.0
+    context = multiprocessing.get_context("spawn")
+    with (
+        ProcessPoolExecutor(
+            max_workers=max(1, cfg.workers),
+            mp_context=context,
+            initializer=_pbr_worker_init,
+            initargs=(cfg,),
+        ) as pool,
+        tqdm(total=cfg.count * 3, unit="pano", disable=not progress, desc=cfg.split) as bar,
+    ):
+        futures = [
+            pool.submit(_pbr_worker_scene, i) for i in range(cfg.start, cfg.start + cfg.count)
+        ]
+        for fut in futures:
+            entry, meta, seconds = fut.result()
+            # transforms.json last: a folder is a scene only once all its files are in place.
+            _write_json_atomic(Path(cfg.out) / entry["folder"] / "transforms.json", meta)
+            entries.append(entry)
+            render_s += seconds
+            bar.update(3)
+    return entries, render_s / max(1, cfg.workers)
+
+
+def _make_gl(cfg: MakeConfig, progress: bool) -> tuple[list[dict], float]:
+    """Scenes rendered by the moderngl renderer in this process; (entries, render s)."""
+    entries = []
     render_s = 0.0
-    start = time.perf_counter()
     with (
         PanoramaRenderer() as renderer,
         ThreadPoolExecutor(max_workers=2) as pool,
@@ -160,17 +237,11 @@ def make_dataset(cfg: MakeConfig, progress: bool = True) -> dict:
             _write_json_atomic(folder / "transforms.json", meta)
 
         for i in range(cfg.start, cfg.start + cfg.count):
-            seed = scene_seed(cfg.split, cfg.seed, i)
-            baseline = cfg.baselines[i % len(cfg.baselines)] if cfg.baselines else None
-            scene = build_scene(cfg.split, seed, baseline, len(textures), groups=groups)
-            folder = out / f"{cfg.split}_{i:05d}"
-            (folder / "images").mkdir(parents=True, exist_ok=True)
-            (folder / "depth").mkdir(parents=True, exist_ok=True)
+            scene, folder = _scene_job(cfg, groups, len(textures), i)
             t0 = time.perf_counter()
             renderer.set_scene(scene)
-            triangles.append(renderer.triangles)
             futures = []
-            for name, c2w in zip(names, scene.cameras, strict=True):
+            for name, c2w in zip(NAMES, scene.cameras, strict=True):
                 rgb, depth = renderer.render(c2w, cfg.height, 2 * cfg.height)
                 # PNG encoding runs beside the next renders (OpenCV releases the GIL).
                 futures.append(pool.submit(write_rgb, folder / "images" / f"{name}.png", rgb))
@@ -179,17 +250,29 @@ def make_dataset(cfg: MakeConfig, progress: bool = True) -> dict:
             render_s += time.perf_counter() - t0
             if previous is not None:
                 finish(previous)
-            previous = (folder, transforms_dict(scene, cfg.height, names), futures)
-            entries.append(
-                {
-                    "folder": folder.name,
-                    "seed": seed,
-                    "baseline_m": scene.baseline,
-                    "triangles": triangles[-1],
-                }
-            )
+            previous = (folder, transforms_dict(scene, cfg.height, NAMES), futures)
+            entries.append(_entry(scene, folder, renderer.triangles))
         if previous is not None:
             finish(previous)
+    return entries, render_s
+
+
+def make_dataset(cfg: MakeConfig, progress: bool = True) -> dict:
+    """Render ``cfg.count`` scenes into ``cfg.out``; returns a summary with timings."""
+    if cfg.split not in SPLITS:
+        raise ValueError(f"split must be one of {SPLITS}, got {cfg.split!r}")
+    if cfg.world not in WORLDS:
+        raise ValueError(f"world must be one of {WORLDS}, got {cfg.world!r}")
+    if cfg.renderer not in RENDERERS:
+        raise ValueError(f"renderer must be one of {RENDERERS}, got {cfg.renderer!r}")
+    if cfg.count < 1 or cfg.height < 8:
+        raise ValueError("count must be >= 1 and height >= 8")
+    out = Path(cfg.out)
+    out.mkdir(parents=True, exist_ok=True)
+    start = time.perf_counter()
+    make = _make_pyrender if cfg.renderer == "pyrender" else _make_gl
+    entries, render_s = make(cfg, progress)
+    triangles = [e["triangles"] for e in entries]
     elapsed = time.perf_counter() - start
     index_path = out / "dataset.json"
     index = json.loads(index_path.read_text()) if index_path.exists() else {"scenes": []}
@@ -200,6 +283,7 @@ def make_dataset(cfg: MakeConfig, progress: bool = True) -> dict:
         {
             "generator": "panogrf dataset make",
             "world": cfg.world,
+            "renderer": cfg.renderer,
             "height": cfg.height,
             "width": 2 * cfg.height,
         }
@@ -211,6 +295,7 @@ def make_dataset(cfg: MakeConfig, progress: bool = True) -> dict:
         "panoramas": n,
         "height": cfg.height,
         "width": 2 * cfg.height,
+        "renderer": cfg.renderer,
         "seconds": elapsed,
         "panoramas_per_s": n / elapsed,
         "render_panoramas_per_s": n / render_s if render_s > 0 else float("nan"),
