@@ -107,7 +107,8 @@ def main() -> None:
     parser.add_argument(
         "--settings",
         default="",
-        help="only settings whose name contains one of these |-separated parts (names hold commas)",
+        help="only settings whose name contains one of these |-separated parts (names hold "
+        "commas); a part starting with = must match a name exactly (=mono: only the row 'mono')",
     )
     parser.add_argument(
         "--mono-shape",
@@ -154,7 +155,11 @@ def main() -> None:
         settings.append((f"full, fused, switch {g:g}", "full", {"fuse": True, "switch_gain": g}))
     if args.settings:
         keep = args.settings.split("|")
-        settings = [s for s in settings if any(k in s[0] for k in keep)]
+        settings = [
+            s
+            for s in settings
+            if any(s[0] == k[1:] if k.startswith("=") else k in s[0] for k in keep)
+        ]
     scales = [float(x) for x in args.scales.split(",")]
     results: dict[str, dict] = {}
     columns: list[str] = []

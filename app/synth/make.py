@@ -17,6 +17,7 @@ train and 1 for test, so the splits never share a seed; their textures are disjo
 from __future__ import annotations
 
 import json
+import os
 import time
 from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 from dataclasses import dataclass
@@ -161,11 +162,25 @@ def _entry(scene: SynthScene, folder: Path, triangles: int) -> dict:
 _WORKER: dict = {}
 
 
-def _pbr_worker_init(cfg: MakeConfig) -> None:
+def _exit_with_parent(parent: int) -> None:
+    """End this worker once its parent is gone (killed, not interrupted: an interrupt reaches
+    the whole process group), instead of rendering the rest of its queue into the folder."""
+    import threading
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(1.0)
+        os._exit(1)
+
+    threading.Thread(target=watch, daemon=True).start()
+
+
+def _pbr_worker_init(cfg: MakeConfig, parent: int) -> None:
     import torch
 
     from panogrf.app.synth.pbr_render import PyrenderPanoramaRenderer
 
+    _exit_with_parent(parent)
     torch.set_num_threads(1)
     textures, groups = build_textures(cfg.split, cfg.seed, cfg.procedural_textures, cfg.world)
     renderer = PyrenderPanoramaRenderer()
@@ -199,7 +214,7 @@ def _make_pyrender(cfg: MakeConfig, progress: bool) -> tuple[list[dict], float]:
             max_workers=max(1, cfg.workers),
             mp_context=context,
             initializer=_pbr_worker_init,
-            initargs=(cfg,),
+            initargs=(cfg, os.getpid()),
         ) as pool,
         tqdm(total=cfg.count * 3, unit="pano", disable=not progress, desc=cfg.split) as bar,
     ):

@@ -116,3 +116,33 @@ def test_pyrender_dataset_depth_matches_gl(tmp_path):
 def test_unknown_renderer_refused(tmp_path):
     with pytest.raises(ValueError, match="renderer"):
         make_dataset(MakeConfig(out=tmp_path, renderer="raytracer"), progress=False)
+
+
+def test_workers_end_with_a_killed_parent(tmp_path):
+    """kill -9 of `dataset make` must not leave its pyrender workers rendering on."""
+    import time
+
+    import psutil
+
+    cmd = [sys.executable, "-m", "panogrf.app.cli", "dataset", "make", "--out", str(tmp_path)]
+    cmd += ["--world", "home", "--renderer", "pyrender", "--count", "200", "--height", "32"]
+    parent = subprocess.Popen([*cmd, "--no-progress"], stdout=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 120
+        while not list(tmp_path.glob("*/transforms.json")):
+            assert parent.poll() is None and time.monotonic() < deadline
+            time.sleep(0.2)
+        workers = [
+            p
+            for p in psutil.Process(parent.pid).children(recursive=True)
+            if "spawn_main" in " ".join(p.cmdline())
+        ]
+        assert len(workers) == 2
+    finally:
+        parent.kill()
+        parent.wait()
+    _, alive = psutil.wait_procs(workers, timeout=20)
+    for p in alive:
+        p.kill()
+    assert not alive
+    assert not (tmp_path / "dataset.json").exists()  # the index is written only when done
