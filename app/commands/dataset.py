@@ -68,6 +68,19 @@ def register(subparsers) -> None:
     make.add_argument("--json", action="store_true", help="print the summary as JSON")
     make.add_argument("--no-progress", action="store_true", help="no progress bar")
     make.set_defaults(func=run_make)
+    merge = sub.add_parser(
+        "merge",
+        help="one training folder from several datasets (scene folders linked, not copied)",
+        description=(
+            "List the scenes of several `dataset make` folders in one dataset folder, for "
+            "`panogrf train`: each scene folder is a symbolic link to its source's, and "
+            "dataset.json lists them all. Scene names must be unique (make the datasets with "
+            "different --start)."
+        ),
+    )
+    merge.add_argument("--out", type=Path, required=True, help="the merged dataset folder")
+    merge.add_argument("sources", type=Path, nargs="+", help="dataset folders to merge")
+    merge.set_defaults(func=run_merge)
 
 
 def run_make(args: argparse.Namespace) -> int:
@@ -107,4 +120,12 @@ def run_make(args: argparse.Namespace) -> int:
             f"to {args.out} in {summary['seconds']:.1f} s: {summary['panoramas_per_s']:.1f} "
             f"panoramas/s end to end (render {summary['render_panoramas_per_s']:.1f}/s)"
         )
+    return 0
+
+
+def run_merge(args: argparse.Namespace) -> int:
+    from panogrf.app.synth.make import merge_datasets
+
+    summary = merge_datasets(args.out, args.sources)
+    print(f"{args.out}: {summary['scenes']} scenes from {summary['sources']} datasets")
     return 0

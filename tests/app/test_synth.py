@@ -6,6 +6,7 @@ import json
 
 import numpy as np
 import pytest
+import torch
 import trimesh
 
 from panogrf.app.synth.layout import LayoutConfig, generate_layout
@@ -183,3 +184,27 @@ def test_no_cracks_where_clipped_triangles_meet():
             rgb, depth = renderer.render(c2w, 256, 512)
             assert np.all(depth > 0)
             assert rgb.reshape(-1, 3).max(axis=1).min() > 0  # no black holes in colour either
+
+
+@pytest.mark.gl
+def test_merge_datasets_links_every_scene(tmp_path):
+    from panogrf.app.errors import UserError
+    from panogrf.app.synth.make import merge_datasets
+    from panogrf.app.train.data import load_triplets
+
+    make_dataset(MakeConfig(out=tmp_path / "a", count=2, height=16), progress=False)
+    make_dataset(MakeConfig(out=tmp_path / "b", count=1, height=16, start=5), progress=False)
+    summary = merge_datasets(tmp_path / "ab", [tmp_path / "a", tmp_path / "b"])
+    assert summary == {"scenes": 3, "sources": 2}
+    merged = load_triplets(tmp_path / "ab", 16)
+    assert merged.names == ["train_00000", "train_00001", "train_00005"]
+    alone = load_triplets(tmp_path / "b", 16)
+    assert torch.equal(merged.images[2], alone.images[0])
+    assert (tmp_path / "ab" / "train_00005").resolve() == (tmp_path / "b" / "train_00005").resolve()
+    merge_datasets(tmp_path / "ab", [tmp_path / "a", tmp_path / "b"])  # again: no change
+    # The same scene names in two sources, or a source that is no dataset: refused.
+    with pytest.raises(UserError, match="in both"):
+        merge_datasets(tmp_path / "aa", [tmp_path / "a", tmp_path / "a"])
+    with pytest.raises(UserError, match="no dataset.json"):
+        merge_datasets(tmp_path / "ax", [tmp_path / "a", tmp_path / "missing"])
+    assert not (tmp_path / "ax").exists()  # nothing written on a refusal
