@@ -110,6 +110,9 @@ def run_make(args: argparse.Namespace) -> int:
         summary = make_dataset(cfg, progress=not args.no_progress)
     except PermissionError as exc:
         raise UserError(f"cannot write to {args.out}: {exc.strerror}") from None
+    except OSError as exc:  # a file where a scene folder goes, a full disk, ...
+        where = f" ({exc.filename})" if exc.filename else ""
+        raise UserError(f"cannot write to {args.out}: {exc.strerror or exc}{where}") from None
     if args.json:
         print(json.dumps(summary, indent=2))
     else:

@@ -140,7 +140,7 @@ def transforms_dict(scene: SynthScene, height: int, names: list[str]) -> dict:
 
 
 def _scene_job(cfg: MakeConfig, groups, n_layers: int, i: int):
-    """The layout, folder and seed of scene ``i``."""
+    """Scene ``i``'s layout and its (created) folder."""
     seed = scene_seed(cfg.split, cfg.seed, i)
     baseline = cfg.baselines[i % len(cfg.baselines)] if cfg.baselines else None
     scene = build_scene(cfg.split, seed, baseline, n_layers, groups=groups)
@@ -222,14 +222,21 @@ def _make_pyrender(cfg: MakeConfig, progress: bool) -> tuple[list[dict], float]:
         futures = [
             pool.submit(_pbr_worker_scene, i) for i in range(cfg.start, cfg.start + cfg.count)
         ]
-        for fut in futures:
-            entry, meta, seconds = fut.result()
-            # transforms.json last: a folder is a scene only once all its files are in place.
-            _write_json_atomic(Path(cfg.out) / entry["folder"] / "transforms.json", meta)
-            entries.append(entry)
-            render_s += seconds
-            bar.update(3)
-    return entries, render_s / max(1, cfg.workers)
+        try:
+            for fut in futures:
+                entry, meta, seconds = fut.result()
+                # transforms.json last: a folder is a scene only once all its files are in place.
+                _write_json_atomic(Path(cfg.out) / entry["folder"] / "transforms.json", meta)
+                entries.append(entry)
+                render_s += seconds
+                bar.update(3)
+        except BaseException:
+            # A failed scene (or an interrupt) stops the run: the queued scenes are dropped
+            # instead of rendered before the error surfaces.
+            for fut in futures:
+                fut.cancel()
+            raise
+    return entries, render_s / max(1, cfg.workers)  # the workers' render time, in parallel
 
 
 def _make_gl(cfg: MakeConfig, progress: bool) -> tuple[list[dict], float]:

@@ -12,7 +12,7 @@ through pyrender's metallic-roughness PBR shader:
   real ceiling gets from a lit floor);
 - each bright window gets a "sun": a shadow-casting spot light just inside it, slanting down into
   the room, so the floor gets sun patches that furniture shadows;
-- materials get a roughness by kind (floors and kitchen fronts may be glossy);
+- materials get a roughness by kind (floors and cabinets may be glossy);
 - the exposure is a camera's, fixed per scene: a dim probe render of the first panorama
   (nothing clips) measures the mean, and every light and emitter is scaled so that the
   panorama's linear mean is `EXPOSURE_MEAN`; what is brighter clips, as in a camera.
@@ -23,7 +23,7 @@ face pixel (a face pixel's distance exactly; at depth edges it may be the neighb
 
 pyrender draws through PyOpenGL on EGL, and an EGL context of pyrender and one of moderngl do not
 mix in one process (DESIGN.md section 6): `panogrf.app.synth.make` runs this renderer in its own
-worker processes, and nothing here imports moderngl.
+worker processes, and nothing here creates a moderngl context.
 """
 
 from __future__ import annotations
@@ -64,7 +64,7 @@ class Lighting:
     sun_elevation: float
     """Angle of the sun below the horizontal, radians."""
     gloss: float
-    """Roughness of the glossy floors and kitchen fronts (the others are 0.75-1)."""
+    """Roughness of the glossy floors and cabinets (the others are 0.75-1)."""
 
 
 def lighting_for(scene: SynthScene) -> Lighting:
@@ -166,7 +166,7 @@ class PyrenderPanoramaRenderer:
                 roughnessFactor=1.0,
                 doubleSided=True,
             )
-        glossy = name.endswith("floor") or "counter" in name or "cabinet" in name
+        glossy = name.endswith("floor") or "cabinet" in name
         rough = light.gloss if glossy and rng.random() < 0.4 else float(rng.uniform(0.75, 1.0))
         extra = {}
         if name.startswith("sun_patch"):

@@ -146,3 +146,24 @@ def test_workers_end_with_a_killed_parent(tmp_path):
         p.kill()
     assert not alive
     assert not (tmp_path / "dataset.json").exists()  # the index is written only when done
+
+
+def test_a_failed_scene_stops_the_run(tmp_path):
+    """A scene that cannot be written ends the run with its error; the queue is dropped."""
+    (tmp_path / "train_00001").write_text("in the way")  # a file where a scene folder goes
+    cfg = MakeConfig(out=tmp_path, world="home", renderer="pyrender", count=40, height=32)
+    with pytest.raises(NotADirectoryError):
+        make_dataset(cfg, progress=False)
+    done = list(tmp_path.glob("*/transforms.json"))
+    assert len(done) < 10  # not the other 39 scenes first
+    assert not (tmp_path / "dataset.json").exists()
+
+
+def test_cli_reports_an_unwritable_scene_in_one_line(tmp_path):
+    (tmp_path / "train_00000").write_text("in the way")
+    cmd = [sys.executable, "-m", "panogrf.app.cli", "dataset", "make", "--out", str(tmp_path)]
+    run = subprocess.run(
+        [*cmd, "--count", "1", "--height", "16", "--no-progress"], capture_output=True, text=True
+    )
+    assert run.returncode != 0 and "Traceback" not in run.stderr
+    assert "cannot write to" in run.stderr and "train_00000" in run.stderr
