@@ -160,15 +160,12 @@ def add_detail(
     low: RenderOutput,
     height: int,
     config: DetailConfig,
-    depth: Tensor | None = None,
 ) -> Tensor:
     """The network's low-resolution render ``low`` brought to ``height`` rows with the sources'
-    detail: [3, H, 2H] in [0, 1]. ``depth``: the depth the sources are read at, at ``height``
-    rows (by default `projection_depth`, upsampled)."""
+    detail: [3, H, 2H] in [0, 1]. The sources are read at `projection_depth`, upsampled."""
     size = (height, 2 * height)
     h = low.rgb.shape[-2]
-    if depth is None:
-        depth = _upsample_depth(projection_depth(cache, c2w, low, config), size)
+    depth = _upsample_depth(projection_depth(cache, c2w, low, config), size)
     sampling = config.sampling if height >= cache.images.shape[-2] else "bilinear"
     proj = project_sources(cache, c2w.to(depth.dtype), depth[0], sampling)
     proj_low = resize_erp(proj, h)  # [V, 3, h, 2h]
