@@ -33,8 +33,9 @@ from contextlib import contextmanager, nullcontext
 from pathlib import Path
 
 import torch
+import torch.nn.functional as F
 
-from panogrf.app.train.augment import corrupt_mono
+from panogrf.app.train.augment import corrupt_mono, out_of_domain
 from panogrf.app.train.data import load_triplets
 from panogrf.app.weights.networks import load_depth_estimator
 from panogrf.model.depth import DEFAULT_SWEEP
@@ -47,15 +48,24 @@ MONO = {"mono_hypothesis": True}
 
 
 def _pairs(
-    estimator, data, mode: str, scale: float = 1.0, mono_shape: bool = False
+    estimator, data, mode: str, scale: float = 1.0, mono: str = "clean"
 ) -> tuple[list[float], list[float]]:
+    """L1 of the first and last views and seconds per pair; ``mono``: "clean", "shape" (its
+    depth wrong in shape) or "shift" (the network out of its domain)."""
     errors, seconds = [], []
     for i in range(len(data)):
         images = data.images[i, [0, 2]].float() / 255.0
         c2w = data.c2w[i, [0, 2]].clone()
         c2w[:, :3, 3] *= scale
         t0 = time.perf_counter()
-        with _mono_wrong_in_shape(estimator, seed=i) if mono_shape else nullcontext():
+        if mono == "shape":
+            context = _mono_wrong_in_shape(estimator, seed=i)
+        elif mono == "shift":
+            partner = data.images[(i + 1) % len(data), [0, 2]].float() / 255.0
+            context = _mono_out_of_domain(estimator, partner, seed=i)
+        else:
+            context = nullcontext()
+        with context:
             est = estimator(images, c2w, mode)
         seconds.append(time.perf_counter() - t0)
         for k, v in enumerate((0, 2)):
@@ -78,6 +88,27 @@ def _mono_wrong_in_shape(estimator, seed: int):
         return MonoOutput(corrupt_mono(out.depth, gen, p=1.0), out.features)
 
     net.forward = wrong
+    try:
+        yield
+    finally:
+        del net.forward
+
+
+@contextmanager
+def _mono_out_of_domain(estimator, partner, seed: int):
+    """The monocular network sees every view blended (weight 0.35-0.55) with ``partner``'s
+    panoramas [V, 3, H, W] (another scene), turned by a seeded random yaw, while inside: its
+    depth and features are wrong together (`out_of_domain`, training's ``--mono-shift``)."""
+    net = estimator.mono
+    forward = net.forward
+    gen = torch.Generator().manual_seed(seed)
+
+    def shifted(images):
+        other = F.interpolate(partner, size=images.shape[-2:], mode="area")
+        both = out_of_domain(torch.stack((images, other), 1).flatten(0, 1), gen)
+        return forward(both[0::2])
+
+    net.forward = shifted
     try:
         yield
     finally:
@@ -116,6 +147,13 @@ def main() -> None:
         default="no",
         help="measure every scene (at scale 1) also / only with its monocular depth wrong in "
         "shape, as on real captures (column 'DATA mono-shape')",
+    )
+    parser.add_argument(
+        "--mono-shift",
+        choices=("no", "also", "only"),
+        default="no",
+        help="measure every scene (at scale 1) also / only with the monocular network out of its "
+        "domain, depth and features wrong together (column 'DATA mono-shift')",
     )
     parser.add_argument("--threads", type=int, default=0)
     parser.add_argument("--out", type=Path, default=None)
@@ -163,18 +201,20 @@ def main() -> None:
     scales = [float(x) for x in args.scales.split(",")]
     results: dict[str, dict] = {}
     columns: list[str] = []
-    shapes = {"no": (False,), "also": (False, True), "only": (True,)}[args.mono_shape]
-    runs = [(f, s, m) for f in args.data for s in scales for m in shapes if not (m and s != 1)]
-    for folder, scale, mono_shape in runs:
+    monos = ["clean"] if "only" not in (args.mono_shape, args.mono_shift) else []
+    monos += ["shape"] if args.mono_shape != "no" else []
+    monos += ["shift"] if args.mono_shift != "no" else []
+    runs = [(f, s, m) for f in args.data for s in scales for m in monos if m == "clean" or s == 1]
+    for folder, scale, mono in runs:
         data = load_triplets(folder, 256)
         column = folder.name if scale == 1 else f"{folder.name} x{scale:g}"
-        column += " mono-shape" if mono_shape else ""
+        column += f" mono-{mono}" if mono != "clean" else ""
         columns.append(column)
         for name, mode, attrs in settings:
             _reset(estimator)
             for key, value in attrs.items():
                 setattr(estimator, key, value)
-            errors, seconds = _pairs(estimator, data, mode, scale, mono_shape)
+            errors, seconds = _pairs(estimator, data, mode, scale, mono)
             row = results.setdefault(name, {"l1": {}, "seconds": []})
             row["l1"][column] = statistics.fmean(errors)
             row["seconds"] += seconds

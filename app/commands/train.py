@@ -62,6 +62,13 @@ def register(subparsers) -> None:
         help="stage mvs, full: fraction of pairs with a corrupted mono prior (default 0.5)",
     )
     depth.add_argument(
+        "--mono-shift",
+        type=float,
+        default=0.0,
+        help="stage mvs, full: fraction of pairs whose mono network sees its input out of its "
+        "domain (blended with another panorama), depth and features wrong together (default 0)",
+    )
+    depth.add_argument(
         "--trunk",
         type=int,
         default=0,
@@ -182,6 +189,9 @@ def run_depth(args: argparse.Namespace) -> int:
     top = 3 if args.stage == "mono" else 2
     if not 0 <= args.trunk <= top:
         raise UserError(f"--trunk must be 0-{top} for stage {args.stage}, got {args.trunk}")
+    for flag, value in (("--mono-noise", args.mono_noise), ("--mono-shift", args.mono_shift)):
+        if not 0 <= value <= 1:
+            raise UserError(f"{flag} is a fraction of the pairs (0-1), got {value}")
     if (
         args.stage == "mvs"
         and args.preset == "full"
@@ -206,6 +216,7 @@ def run_depth(args: argparse.Namespace) -> int:
         init=args.init,
         augment=not args.no_augment,
         mono_noise=args.mono_noise,
+        mono_shift=args.mono_shift,
         trunk=args.trunk,
     )
     try:

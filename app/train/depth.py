@@ -18,7 +18,7 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
-from panogrf.app.train.augment import corrupt_mono, photometric
+from panogrf.app.train.augment import corrupt_mono, out_of_domain, photometric
 from panogrf.app.train.data import TripletSet, load_triplets, yaw_roll
 from panogrf.app.train.loop import Steps, held_back, init_from, save_weights
 from panogrf.model.erp import latitude_weights
@@ -63,6 +63,11 @@ class TrainDepthConfig:
     mono_noise: float = 0.5
     """Stage mvs, mono-guided: fraction of pairs whose monocular depth is corrupted
     (`corrupt_mono`), so the fusion learns to check its prior."""
+    mono_shift: float = 0.0
+    """Stage mvs, mono-guided: fraction of pairs whose monocular network sees its reference
+    out of its domain (`out_of_domain`), so that its depth and its features are wrong
+    together, as on real rooms; `corrupt_mono` only makes the depth wrong, and a network can
+    tell that from the features it did not touch."""
     trunk: int = 0
     """Frozen pretrained AlexNet convolutions feeding the network (`MonoDepthConfig.trunk`,
     `MVSConfig.trunk`), filled from the bundled LPIPS weights."""
@@ -253,8 +258,12 @@ def train_mvs(cfg: TrainDepthConfig, log=print) -> dict:
         ref, src, ref_c2w, src_c2w, gt = _mvs_batch(train, gen, cfg.batch, cfg.augment)
         kw = {}
         if mono is not None:
+            mono_in = ref
+            if cfg.mono_shift:
+                hit = torch.rand(len(ref), 1, 1, 1, generator=gen) < cfg.mono_shift
+                mono_in = torch.where(hit, out_of_domain(ref, gen), ref)
             with torch.no_grad():
-                m = mono(ref)
+                m = mono(mono_in)
             mono_depth = corrupt_mono(m.depth, gen, cfg.mono_noise) if cfg.mono_noise else m.depth
             kw = {"mono_depth": mono_depth, "mono_features": m.features}
         out = net(ref, src, ref_c2w, src_c2w, **kw)

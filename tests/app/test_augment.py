@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import torch
 
-from panogrf.app.train.augment import corrupt_mono, photometric
+from panogrf.app.train.augment import corrupt_mono, out_of_domain, photometric
 
 
 def _images(n=4, h=16, w=32):
@@ -43,3 +43,20 @@ def test_corrupt_mono():
     assert 10 < int(changed.sum()) < 54  # about half of the batch
     assert out.max() < 2.0 * 1.4 * 1.5 and out.min() > 2.0 * 0.7 / 1.5
     assert torch.equal(corrupt_mono(depth, gen, p=0.0), depth)
+
+
+def test_out_of_domain_blends_another_panorama():
+    x = torch.zeros(3, 3, 8, 16)
+    x[1] = 1.0  # the second panorama white, the others black
+    out = out_of_domain(x, torch.Generator().manual_seed(5))
+    assert out.shape == x.shape and torch.equal(x[0], torch.zeros(3, 8, 16))  # input untouched
+    # Each is blended with the one before it in the batch, at weight 0.35-0.55.
+    assert 0.35 <= float(out[2].mean()) <= 0.55  # 2 took white from 1
+    assert 0.45 <= float(out[1].mean()) <= 0.65  # 1 took black from 0
+    assert torch.equal(out[0], torch.zeros(3, 8, 16))  # 0 took black from 2
+    # The partner is turned: a single panorama blended with itself is not itself.
+    one = _images(1)
+    turned = out_of_domain(one, torch.Generator().manual_seed(6))
+    assert not torch.allclose(turned, one, atol=1e-3)
+    again = out_of_domain(one, torch.Generator().manual_seed(6))
+    assert torch.equal(turned, again)
