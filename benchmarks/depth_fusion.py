@@ -76,43 +76,47 @@ def _pairs(
 
 
 @contextmanager
-def _mono_wrong_in_shape(estimator, seed: int):
-    """The monocular network's depth made wrong as on real rooms while inside: smooth regions
-    off by up to +-40 % and a global scale of 0.7-1.4x (`corrupt_mono`, every view), seeded."""
+def _mono_forward(estimator, make):
+    """While inside, the monocular network's forward is ``make(forward)`` (its own forward
+    wrapped)."""
     net = estimator.mono
-    forward = net.forward
-    gen = torch.Generator().manual_seed(seed)
-
-    def wrong(images):
-        out = forward(images)
-        return MonoOutput(corrupt_mono(out.depth, gen, p=1.0), out.features)
-
-    net.forward = wrong
+    net.forward = make(net.forward)
     try:
         yield
     finally:
         del net.forward
 
 
-@contextmanager
+def _mono_wrong_in_shape(estimator, seed: int):
+    """The monocular network's depth made wrong as on real rooms while inside: smooth regions
+    off by up to +-40 % and a global scale of 0.7-1.4x (`corrupt_mono`, every view), seeded."""
+    gen = torch.Generator().manual_seed(seed)
+
+    def make(forward):
+        def wrong(images):
+            out = forward(images)
+            return MonoOutput(corrupt_mono(out.depth, gen, p=1.0), out.features)
+
+        return wrong
+
+    return _mono_forward(estimator, make)
+
+
 def _mono_out_of_domain(estimator, partner, seed: int):
     """The monocular network sees every view blended (weight 0.35-0.55) with ``partner``'s
     panoramas [V, 3, H, W] (another scene), turned by a seeded random yaw, while inside: its
     depth and features are wrong together (`out_of_domain`, training's ``--mono-shift``)."""
-    net = estimator.mono
-    forward = net.forward
     gen = torch.Generator().manual_seed(seed)
 
-    def shifted(images):
-        other = F.interpolate(partner, size=images.shape[-2:], mode="area")
-        both = out_of_domain(torch.stack((images, other), 1).flatten(0, 1), gen)
-        return forward(both[0::2])
+    def make(forward):
+        def shifted(images):
+            other = F.interpolate(partner, size=images.shape[-2:], mode="area")
+            both = out_of_domain(torch.stack((images, other), 1).flatten(0, 1), gen)
+            return forward(both[0::2])
 
-    net.forward = shifted
-    try:
-        yield
-    finally:
-        del net.forward
+        return shifted
+
+    return _mono_forward(estimator, make)
 
 
 def _reset(estimator) -> None:
