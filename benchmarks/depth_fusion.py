@@ -17,7 +17,9 @@ at each ``switch_gain`` (how much better the unguided depth must match to replac
 mono-guided one); without any sweep; with mode full's search at +-0, +-0.15 and +-0.25 in log
 depth (``DepthEstimator.fusion_sweep``), each with and without the monocular depth as a third
 hypothesis; round 8's rows: the wide search with a stronger prior (far moves need more
-evidence), and a median after the sweep (``DepthEstimator.median``, in modes full and mvs).
+evidence), and a median after the sweep (``DepthEstimator.median``, in modes full and mvs);
+round 14's: the learned choice of each pixel's hypothesis (``DepthEstimator.selector``, when
+``depth_select.safetensors`` is among the weights).
 ``--mono-shape`` also measures every setting with the monocular depth made wrong in
 shape (`corrupt_mono`), as on real captures.
 Prints a table of mean L1 (m) per dataset and overall, and the seconds per pair.
@@ -29,15 +31,19 @@ import argparse
 import json
 import statistics
 import time
-from contextlib import contextmanager, nullcontext
+from contextlib import nullcontext
 from pathlib import Path
 
 import torch
-import torch.nn.functional as F
 
-from panogrf.app.train.augment import corrupt_mono, out_of_domain
+from panogrf.app.train.augment import corrupt_mono, mono_out_of_domain, patched_mono
 from panogrf.app.train.data import load_triplets
-from panogrf.app.weights.networks import load_depth_estimator
+from panogrf.app.weights.networks import (
+    SELECTOR,
+    load_depth_estimator,
+    load_selector,
+    weights_path,
+)
 from panogrf.model.depth import DEFAULT_SWEEP
 from panogrf.model.metrics import depth_metrics
 from panogrf.model.mono import MonoOutput
@@ -75,18 +81,6 @@ def _pairs(
     return errors, seconds
 
 
-@contextmanager
-def _mono_forward(estimator, make):
-    """While inside, the monocular network's forward is ``make(forward)`` (its own forward
-    wrapped)."""
-    net = estimator.mono
-    net.forward = make(net.forward)
-    try:
-        yield
-    finally:
-        del net.forward
-
-
 def _mono_wrong_in_shape(estimator, seed: int):
     """The monocular network's depth made wrong as on real rooms while inside: smooth regions
     off by up to +-40 % and a global scale of 0.7-1.4x (`corrupt_mono`, every view), seeded."""
@@ -99,24 +93,14 @@ def _mono_wrong_in_shape(estimator, seed: int):
 
         return wrong
 
-    return _mono_forward(estimator, make)
+    return patched_mono(estimator, make)
 
 
 def _mono_out_of_domain(estimator, partner, seed: int):
     """The monocular network sees every view blended (weight 0.35-0.55) with ``partner``'s
     panoramas [V, 3, H, W] (another scene), turned by a seeded random yaw, while inside: its
     depth and features are wrong together (`out_of_domain`, training's ``--mono-shift``)."""
-    gen = torch.Generator().manual_seed(seed)
-
-    def make(forward):
-        def shifted(images):
-            other = F.interpolate(partner, size=images.shape[-2:], mode="area")
-            both = out_of_domain(torch.stack((images, other), 1).flatten(0, 1), gen)
-            return forward(both[0::2])
-
-        return shifted
-
-    return _mono_forward(estimator, make)
+    return mono_out_of_domain(estimator, partner, torch.Generator().manual_seed(seed))
 
 
 def _reset(estimator) -> None:
@@ -124,6 +108,7 @@ def _reset(estimator) -> None:
     estimator.fuse, estimator.switch_gain, estimator.guide = True, 0.0, "mono"
     estimator.canonical = False
     estimator.mono_hypothesis = False
+    estimator.selector = None
     estimator.sweep, estimator.fusion_sweep = DEFAULT_SWEEP, DEFAULT_SWEEP
     estimator.median = 1
 
@@ -193,6 +178,13 @@ def main() -> None:
         name = f"full, fused, canonical world, median {k}"
         settings.append((name, "full", wide | canonical | {"median": k}))
         settings.append((f"mvs, median {k}", "mvs", {"median": k}))
+    # Round 14: the learned choice between the two hypotheses (`panogrf.model.select`), when
+    # its weights are there.
+    if weights_path(SELECTOR).exists():
+        selector = load_selector(weights_path(SELECTOR))
+        for k in (1, 5, 7, 9):
+            name = f"full, fused, canonical world, median {k}, selector"
+            settings.append((name, "full", wide | canonical | {"median": k, "selector": selector}))
     for g in (float(x) for x in args.gains.split(",")):
         settings.append((f"full, fused, switch {g:g}", "full", {"fuse": True, "switch_gain": g}))
     if args.settings:

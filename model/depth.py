@@ -28,7 +28,14 @@ from torch import Tensor, nn
 
 from panogrf.model.mono import MonoDepthNet, MonoOutput
 from panogrf.model.mvs import MVSNet
-from panogrf.model.refine import SweepConfig, median_filter, nearest_sources, sweep_depth
+from panogrf.model.refine import (
+    SweepConfig,
+    median_filter,
+    nearest_sources,
+    photometric_choice,
+    sweep_depth,
+)
+from panogrf.model.select import HypothesisSelector, selection_features
 
 MODES = ("full", "mono", "mvs")
 GUIDES = ("mono", "aligned", "mvs")
@@ -103,6 +110,12 @@ class DepthEstimator(nn.Module):
         """Mode "full" fused: the monocular depth enters the sweep as a third hypothesis, kept
         where the sources agree with it better than with both MVS depths. Off: it pays on the
         validation scenes with the short search (see ``fusion_sweep``), not with this one."""
+        self.selector: HypothesisSelector | None = None
+        """Mode "full" fused (two hypotheses): a learned choice of each pixel's hypothesis
+        instead of the sweep's photometric rule (`panogrf.model.select`); None: the rule."""
+        self.record: list[dict] | None = None
+        """When a list, mode "full" fused appends, per reference view, the selector's input
+        and where the search from each hypothesis ends (the selector's training data)."""
         self.canonical = True
         """Mode "full" with the unguided network loaded: the MVS networks and the sweep work in
         the world scaled by k = median(mono / unguided MVS depth) (`_world_scale`), the room
@@ -133,7 +146,13 @@ class DepthEstimator(nn.Module):
 
     def _mvs(self, mode, small, c2w, mono, sources, depth: Tensor) -> Tensor:
         """``depth`` with every view that has sources replaced by network ``mode``'s estimate."""
+        return self._mvs_confidence(mode, small, c2w, mono, sources, depth)[0]
+
+    def _mvs_confidence(self, mode, small, c2w, mono, sources, depth: Tensor):
+        """(`_mvs`'s depth, the network's confidence [V, 1, h, w]: the peak of its
+        cost-volume softmax, 1 for views without sources)."""
         net = self.mvs[mode]
+        confidence = torch.ones_like(depth)
         cfg = net.config
         for ref, src in enumerate(sources):
             if not src:
@@ -152,7 +171,11 @@ class DepthEstimator(nn.Module):
                 **mono_kw,
             )
             depth[ref] = out.depth[0]
-        return depth
+            peak = out.probability.amax(1, keepdim=True)
+            confidence[ref] = F.interpolate(
+                peak, size=depth.shape[-2:], mode="bilinear", align_corners=False
+            )[0]
+        return depth, confidence
 
     def _aligned(self, mono: Tensor, mvs: Tensor, sources: list[list[int]]) -> Tensor:
         """``mono`` [V, 1, h, w] scaled per view with sources by median(mvs / mono) over the
@@ -176,6 +199,41 @@ class DepthEstimator(nn.Module):
         if int(ok.sum()) == 0:
             return 1.0
         return float((mono[ok] / mvs[ok]).median().clamp(0.25, 4.0))
+
+    def _chooser(self, pixels: Tensor, mono: Tensor, confidence: Tensor):
+        """`sweep_depth`'s ``chooser`` for the two fused hypotheses: the selector's choice
+        (or, without one, the photometric rule), the selector's input appended to ``record``
+        when recording. mono, confidence: [V, 1 | 2, h, w] at the working resolution."""
+        rows = self.selector.config.rows if self.selector is not None else 128
+        images: dict[int, Tensor] = {}
+
+        def choose(r: int, cost: Tensor, log_hyp: Tensor, ends: Tensor, offsets: Tensor):
+            hh, ww = cost.shape[-2:]
+            if hh not in images:
+                mode = "area" if pixels.shape[-2] > hh else "bilinear"
+                images[hh] = F.interpolate(pixels, size=(hh, ww), mode=mode)
+            up = dict(size=(hh, ww), mode="bilinear", align_corners=False)
+            log_mono = F.interpolate(torch.log(self._clean(mono[r : r + 1])), **up)[0, 0]
+            conf = F.interpolate(confidence[r : r + 1], **up)[0]
+            feats = selection_features(
+                images[hh][r], cost, log_hyp, ends, log_mono, conf, offsets, rows
+            )
+            rule = photometric_choice(cost, offsets, self.switch_gain)
+            if self.record is not None:
+                pool = dict(size=feats.shape[-2:], mode="area")
+                self.record.append(
+                    {
+                        "view": r,
+                        "features": feats,
+                        "ends": F.interpolate(ends[None], **pool)[0],
+                        "rule": F.interpolate(rule[None, None].to(feats), **pool)[0, 0],
+                    }
+                )
+            if self.selector is None:
+                return rule
+            return self.selector.choose(feats, (hh, ww))
+
+        return choose
 
     @torch.no_grad()
     def forward(
@@ -222,24 +280,33 @@ class DepthEstimator(nn.Module):
                 sources[ref] = src
             guide = mono
             if self._fuses(mode) or self._canonical(mode):
-                unguided = self._mvs("mvs", small, c2w, mono, sources, mono.depth.clone())
+                unguided, conf_u = self._mvs_confidence(
+                    "mvs", small, c2w, mono, sources, mono.depth.clone()
+                )
                 if self._canonical(mode):
                     scale = self._world_scale(mono.depth, self._clean(unguided), sources)
                     c2w = c2w.clone()
                     c2w[:, :3, 3] *= scale
-                    unguided = self._mvs("mvs", small, c2w, mono, sources, mono.depth.clone())
+                    unguided, conf_u = self._mvs_confidence(
+                        "mvs", small, c2w, mono, sources, mono.depth.clone()
+                    )
                 if self._fuses(mode):
                     others = (unguided, mono.depth) if self.mono_hypothesis else (unguided,)
                 if self.guide == "aligned":
                     guide = MonoOutput(self._aligned(mono.depth, unguided, sources), mono.features)
                 elif self.guide == "mvs":
                     guide = MonoOutput(self._clean(unguided), mono.features)
-            depth = self._mvs(mode, small, c2w, guide, sources, depth)
+            depth, conf = self._mvs_confidence(mode, small, c2w, guide, sources, depth)
+            if len(others) == 1:
+                conf = torch.cat((conf, conf_u), 1)  # [V, 2, h, w]
         depth = self._clean(depth)
         if mode != "mono" and self.sweep is not None and any(sources):
             nearest = nearest_sources(c2w, sources, self.sweep_sources)
             pixels = images if detail is None else detail
             clean = tuple(self._clean(o) for o in others)
+            chooser = None
+            if len(clean) == 1 and (self.selector is not None or self.record is not None):
+                chooser = self._chooser(pixels, mono.depth, conf)
             depth = sweep_depth(
                 pixels,
                 c2w,
@@ -249,8 +316,12 @@ class DepthEstimator(nn.Module):
                 (0.05, self.d_max),
                 others=clean,
                 switch_gain=self.switch_gain,
+                chooser=chooser,
             )
             depth = median_filter(depth, self.median)
+            if chooser is not None and self.record is not None:
+                for entry in self.record:
+                    entry.setdefault("scale", scale)
         canonical_far = None
         if scale != 1.0:
             # Clamped at the top of the range in the canonical world: flagged in the metric one.

@@ -18,6 +18,7 @@ resolution, h w the depth's resolution.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
@@ -174,6 +175,12 @@ class SweepConfig:
     """A pixel moves only if its best cost is this much below the cost at the network's depth."""
 
 
+#: Picks each pixel's hypothesis in `sweep_depth`: (view r, cost curves [K, D, H, W], the
+#: hypotheses' log depth [K, H, W], where the search from each ends [K, H, W], the offsets [D])
+#: -> index [H, W] (long) of the hypothesis each pixel keeps.
+Chooser = Callable[[int, Tensor, Tensor, Tensor, Tensor], Tensor]
+
+
 def median_filter(depth: Tensor, window: int) -> Tensor:
     """Depth [V, 1, h, w] through a window x window median (ERP: wrapping at the seam, rows
     repeated at the poles). The sweep picks each pixel's depth on its own; where the sources'
@@ -203,6 +210,7 @@ def sweep_depth(
     d_range: tuple[float, float] = (0.1, 10.0),
     others: tuple[Tensor, ...] = (),
     switch_gain: float = 0.0,
+    chooser: Chooser | None = None,
 ) -> Tensor:
     """Depth [V, 1, h, w] moved, pixel by pixel, to the candidate around it whose warp from the
     sources matches best (window-summed SSIM + L1, minimum over sources), where that match is
@@ -213,6 +221,10 @@ def sweep_depth(
     another one matches better by more than ``switch_gain``; the search then runs around the
     hypothesis it started from. This is how mono-guided and unguided MVS are fused: where the
     monocular prior misplaced the candidates, the sources themselves say so.
+
+    ``chooser``: picks each pixel's hypothesis instead of the photometric rule (see `Chooser`;
+    `panogrf.model.select`). It is given every hypothesis' cost curve and where the search
+    from each would end, and returns the index of the hypothesis each pixel keeps.
     """
     v, _, h, w = depth.shape
     hh, ww = config.height, 2 * config.height
@@ -239,28 +251,45 @@ def sweep_depth(
                 for k in range(len(hyps))
             ]
         )  # [K, D, H, W]
-        # The hypothesis each pixel starts from; the first keeps it within switch_gain.
-        at_centre = cost[:, centre].clone()
-        at_centre[1:] += switch_gain + 1e-4  # exact ties (no texture) keep the first
-        start = at_centre.argmin(0)  # [H, W]
-        cost = cost.gather(0, start[None, None].expand(1, *cost.shape[1:]))[0]  # [D, H, W]
-        base = log_hyp[:, r].gather(0, start[None])[0]
-        best = cost.argmin(0)
-        gain = cost[centre] - cost.gather(0, best[None])[0]
-        # Sub-candidate position from a parabola through the best and its neighbours.
-        lo, hi = (best - 1).clamp(min=0), (best + 1).clamp(max=len(offsets) - 1)
-        c0, c1, c2 = (cost.gather(0, i[None])[0] for i in (lo, best, hi))
-        denom = c0 - 2 * c1 + c2
-        frac = torch.where(denom > 1e-6, 0.5 * (c0 - c2) / denom, torch.zeros_like(denom))
-        frac = torch.where((best > 0) & (best < len(offsets) - 1), frac.clamp(-0.5, 0.5), 0 * frac)
-        off = offsets[best] + frac * step
-        moved = torch.where(gain > config.min_gain, off, torch.zeros_like(off))
+        # Where the search from each hypothesis ends (log depth), [K, H, W].
+        ends = log_hyp[:, r] + torch.stack(
+            [_search(c, offsets, centre, step, config) for c in cost]
+        )
+        if chooser is None:
+            start = photometric_choice(cost, offsets, switch_gain)
+        else:
+            start = chooser(r, cost, log_hyp[:, r], ends, offsets)
+        end = ends.gather(0, start[None])[0]
         # The change against ``depth``, averaged down to the depth's grid: pixels that keep
         # the first hypothesis and do not move stay exactly as given.
-        change = base + moved - log_hyp[0, r]
+        change = end - log_hyp[0, r]
         small = F.interpolate(change[None, None], size=(h, w), mode="area")[0]
         out[r] = (depth[r] * torch.exp(small)).clamp(*d_range)
     return out
+
+
+def photometric_choice(cost: Tensor, offsets: Tensor, switch_gain: float = 0.0) -> Tensor:
+    """The hypothesis [H, W] each pixel starts from by the sweep's own rule: the one whose cost
+    at its own depth is lowest (cost curves [K, D, H, W]), the first keeping it within
+    ``switch_gain`` and on exact ties (no texture)."""
+    at_centre = cost[:, int(torch.argmin(offsets.abs()))].clone()
+    at_centre[1:] += switch_gain + 1e-4
+    return at_centre.argmin(0)
+
+
+def _search(cost: Tensor, offsets: Tensor, centre: int, step: float, config: SweepConfig) -> Tensor:
+    """The log-depth move [H, W] the search makes on one hypothesis' cost curve [D, H, W]: to the
+    best candidate (refined by a parabola through it and its neighbours) where that is better
+    than the hypothesis itself by more than ``config.min_gain``, else none."""
+    best = cost.argmin(0)
+    gain = cost[centre] - cost.gather(0, best[None])[0]
+    lo, hi = (best - 1).clamp(min=0), (best + 1).clamp(max=len(offsets) - 1)
+    c0, c1, c2 = (cost.gather(0, i[None])[0] for i in (lo, best, hi))
+    denom = c0 - 2 * c1 + c2
+    frac = torch.where(denom > 1e-6, 0.5 * (c0 - c2) / denom, torch.zeros_like(denom))
+    frac = torch.where((best > 0) & (best < len(offsets) - 1), frac.clamp(-0.5, 0.5), 0 * frac)
+    off = offsets[best] + frac * step
+    return torch.where(gain > config.min_gain, off, torch.zeros_like(off))
 
 
 def _sweep_costs(img, c2w, r, sources, log_d0, offsets, dirs, config, d_range) -> Tensor:

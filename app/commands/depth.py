@@ -77,6 +77,8 @@ def run(args: argparse.Namespace) -> int:
     modes = depth_weights.NETWORKS[args.mode]
     estimator = depth_weights.load_depth_estimator(modes, str(device))
     weights = {name: depth_weights.WEIGHTS[name] for name in ("mono", *modes)}
+    if args.mode == "full":
+        weights["select"] = depth_weights.SELECTOR
     result = estimate_scene(scene, args.out, estimator, args.mode, weights=weights)
     for warning in result.warnings:
         print(f"warning: {warning}", file=sys.stderr)

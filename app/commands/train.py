@@ -121,6 +121,51 @@ def register(subparsers) -> None:
     )
     renderer.set_defaults(func=run_renderer)
 
+    select = sub.add_parser(
+        "select",
+        help="train the fusion's hypothesis selector (depth networks frozen)",
+        description=(
+            "Train the learned choice between the mono-guided and the unguided MVS depth in "
+            "the depth fusion (`panogrf.model.select`). Mode full runs on a seeded sample of "
+            "the training scenes as at preparation, some with the monocular network out of "
+            "its domain, and what the fusion sees is recorded once (cached beside the data); "
+            "the selector then learns which hypothesis ends nearer the truth. Logs the loss "
+            "and writes safetensors weights with the command and final figures."
+        ),
+        epilog=(
+            "example: panogrf train select --data data/train_lit "
+            "--out assets/depth_select.safetensors --log docs/training/depth_select.log"
+        ),
+    )
+    select.add_argument("--data", type=Path, required=True, help="train-split dataset folder")
+    select.add_argument("--out", type=Path, required=True, help="output weights (.safetensors)")
+    select.add_argument(
+        "--scenes", type=int, default=240, help="training scenes recorded (default 240)"
+    )
+    select.add_argument("--steps", type=int, default=1500, help="optimiser steps (default 1500)")
+    select.add_argument("--batch", type=int, default=8, help="views per step (default 8)")
+    select.add_argument("--lr", type=float, default=2e-3, help="initial learning rate")
+    select.add_argument(
+        "--mono-shift",
+        type=float,
+        default=0.3,
+        help="fraction of the scenes whose monocular network sees its input out of its "
+        "domain (default 0.3)",
+    )
+    select.add_argument(
+        "--height",
+        type=int,
+        default=256,
+        help="rows the panoramas are loaded at (default 256: the fusion's own)",
+    )
+    select.add_argument("--seed", type=int, default=0, help="seed (default 0)")
+    select.add_argument(
+        "--threads", type=thread_count, default=0, help="torch threads (default: all)"
+    )
+    select.add_argument("--log", type=Path, default=None, help="also append log lines here")
+    select.add_argument("--limit-scenes", type=int, default=None, help="load only N scenes")
+    select.set_defaults(func=run_select)
+
 
 def _logger(path: Path | None):
     """A function that prints a line and appends it to ``path``, and a closer."""
@@ -221,6 +266,42 @@ def run_depth(args: argparse.Namespace) -> int:
     )
     try:
         (train_mono if args.stage == "mono" else train_mvs)(cfg, log=log)
+    finally:
+        close()
+    return 0
+
+
+def run_select(args: argparse.Namespace) -> int:
+    import torch
+
+    from panogrf.app.train.select import TrainSelectConfig, train_selector
+    from panogrf.app.weights.networks import load_depth_estimator
+
+    if args.out.suffix != ".safetensors":
+        raise UserError(f"--out must end in .safetensors, got {args.out}")
+    if args.steps < 1 or args.batch < 1 or args.scenes < 1:
+        raise UserError("--steps, --batch and --scenes must be at least 1")
+    if not 0 <= args.mono_shift <= 1:
+        raise UserError(f"--mono-shift is a fraction of the scenes (0-1), got {args.mono_shift}")
+    if args.height < 32 or args.height % 32:
+        raise UserError(f"--height must be a multiple of 32, got {args.height}")
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    log, close = _logger(args.log)
+    cfg = TrainSelectConfig(
+        data=args.data,
+        out=args.out,
+        scenes=args.scenes,
+        steps=args.steps,
+        batch=args.batch,
+        lr=args.lr,
+        shift=args.mono_shift,
+        height=args.height,
+        seed=args.seed,
+        limit_scenes=args.limit_scenes,
+    )
+    try:
+        train_selector(cfg, load_depth_estimator(("full", "mvs")), log=log)
     finally:
         close()
     return 0

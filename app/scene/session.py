@@ -50,15 +50,14 @@ def default_models() -> Models:
 
 def weight_files(method: str = "panogrf") -> list[Path]:
     """The weights files ``method``'s preparation reads: the monocular network, every MVS
-    network its depth mode loads (mode full also runs the unguided network for the fusion)
-    and its renderer."""
+    network its depth mode loads (mode full also runs the unguided network and the selector
+    for the fusion) and its renderer."""
     from panogrf.app.weights import networks as dw
 
     spec = METHODS[method]
     names = []
     if spec.depth_mode is not None:
-        names.append(dw.WEIGHTS["mono"])
-        names += [dw.WEIGHTS[net] for net in dw.NETWORKS[spec.depth_mode]]
+        names += dw.depth_weight_names(spec.depth_mode)
     if spec.renderer is not None:
         names.append(dw.RENDERER_WEIGHTS[spec.renderer])
     return [dw.weights_path(name) for name in names]

@@ -18,6 +18,8 @@ All functions draw from a torch.Generator and work on batches [B, C, H, W].
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 import torch
 import torch.nn.functional as F
@@ -96,3 +98,31 @@ def out_of_domain(images: Tensor, gen: torch.Generator) -> Tensor:
     other = torch.stack([o.roll(s, -1) for o, s in zip(other, shifts, strict=True)])
     alpha = _u(gen, b, 0.35, 0.55, 1, 1, 1)
     return (1 - alpha) * images + alpha * other
+
+
+@contextmanager
+def patched_mono(estimator, make) -> Iterator[None]:
+    """While inside, ``estimator``'s monocular network's forward is ``make(forward)`` (its own
+    forward wrapped)."""
+    net = estimator.mono
+    net.forward = make(net.forward)
+    try:
+        yield
+    finally:
+        del net.forward
+
+
+def mono_out_of_domain(estimator, partner: Tensor, gen: torch.Generator):
+    """While inside, ``estimator``'s monocular network sees every view blended with
+    ``partner``'s panoramas [V', 3, H, W] (another scene; the first V of them are used, resized
+    to the input) by `out_of_domain`: its depth and features wrong together."""
+
+    def make(forward):
+        def shifted(images: Tensor):
+            other = F.interpolate(partner[: len(images)], size=images.shape[-2:], mode="area")
+            both = out_of_domain(torch.stack((images, other), 1).flatten(0, 1), gen)
+            return forward(both[0::2])
+
+        return shifted
+
+    return patched_mono(estimator, make)

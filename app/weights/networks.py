@@ -23,12 +23,16 @@ from panogrf.model.mono import MonoDepthConfig, MonoDepthNet
 from panogrf.model.mvs import PRESETS, MVSConfig, MVSNet
 from panogrf.model.render_net import PRESETS as RENDERER_PRESETS
 from panogrf.model.render_net import RendererNet
+from panogrf.model.select import HypothesisSelector, SelectorConfig
 
 WEIGHTS = {
     "mono": "depth_mono.safetensors",
     "full": "depth_mvs_full.safetensors",
     "mvs": "depth_mvs_only.safetensors",
 }
+
+#: The fusion's learned choice between the mono-guided and the unguided depth (mode "full").
+SELECTOR = "depth_select.safetensors"
 
 
 #: The MVS networks each depth mode runs: "full" fuses the mono-guided network's depth with the
@@ -99,11 +103,25 @@ def _stored_mvs_config(path: Path, mode: str) -> MVSConfig:
     return replace(PRESETS[mode], trunk=trunk)
 
 
+def load_selector(path: Path) -> HypothesisSelector:
+    """The fusion's hypothesis selector in ``path``, frozen, in eval mode."""
+    from dataclasses import asdict
+
+    stored = json.loads(_metadata(path).get("config", "{}")) if path.exists() else {}
+    try:
+        selector = HypothesisSelector(SelectorConfig(**stored))
+    except TypeError as exc:
+        raise UserError(f"{path}: unknown selector config {stored}: {exc}") from None
+    _load(selector, path, asdict(selector.config))
+    return selector
+
+
 @lru_cache(maxsize=4)
 def load_depth_estimator(
     modes: tuple[str, ...] = ("full", "mvs"), device: str = "cpu"
 ) -> DepthEstimator:
-    """The depth estimator with the monocular network and the MVS networks of ``modes``."""
+    """The depth estimator with the monocular network and the MVS networks of ``modes`` (with
+    both "full" and "mvs", also the fusion's hypothesis selector)."""
     from dataclasses import asdict
 
     mono = load_mono_weights(weights_path(WEIGHTS["mono"]))
@@ -114,7 +132,17 @@ def load_depth_estimator(
         net = MVSNet(config)
         _load(net, path, asdict(net.config))
         mvs[mode] = net
-    return DepthEstimator(mono, mvs).to(device).eval()
+    estimator = DepthEstimator(mono, mvs)
+    if "full" in mvs and "mvs" in mvs:
+        estimator.selector = load_selector(weights_path(SELECTOR))
+    return estimator.to(device).eval()
+
+
+def depth_weight_names(mode: str) -> list[str]:
+    """The weights files depth mode ``mode`` reads: the monocular network, every MVS network
+    it runs and, for mode "full" (which fuses two of them), the selector."""
+    names = [WEIGHTS["mono"], *(WEIGHTS[net] for net in NETWORKS[mode])]
+    return names + ([SELECTOR] if mode == "full" else [])
 
 
 @lru_cache(maxsize=4)

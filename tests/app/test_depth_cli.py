@@ -26,7 +26,7 @@ from panogrf.model.mono import MonoDepthConfig, MonoDepthNet
 from panogrf.model.mvs import PRESETS, MVSNet
 
 DEMO = asset_path("demo")
-SHIPPED = [asset_path(depth_weights.WEIGHTS[name]) for name in ("mono", "full", "mvs")]
+SHIPPED = [asset_path(name) for name in depth_weights.depth_weight_names("full")]
 MISSING = [p.name for p in SHIPPED if not p.exists()]
 
 
@@ -115,6 +115,7 @@ def test_cli_prints_metrics_time_and_writes_the_scene(tmp_path, capsys, random_w
         "mono": "depth_mono.safetensors",
         "full": "depth_mvs_full.safetensors",
         "mvs": "depth_mvs_only.safetensors",  # fused with the mono-guided depth
+        "select": "depth_select.safetensors",  # which of the two each pixel keeps
     }
     # Running again into its own output folder is allowed (it is ours to overwrite).
     assert cli.main(["depth", str(DEMO), "--out", str(out), "--mode", "mono"]) == 0
@@ -194,6 +195,29 @@ def test_missing_weights_is_a_one_line_error(tmp_path, capsys, monkeypatch):
     err = one_line_error(capsys)
     assert "missing weights" in err and "depth_mono.safetensors" in err
     assert not (tmp_path / "out" / "transforms.json").exists()
+
+
+@pytest.mark.skipif(bool(MISSING), reason=f"shipped weights missing ({', '.join(MISSING)})")
+def test_mode_full_chooses_with_the_shipped_selector_and_needs_it(tmp_path, monkeypatch):
+    """Mode full's estimator carries the fusion's selector (`depth_select.safetensors`),
+    mode mvs's none; a weights folder without the selector is refused by name."""
+    from panogrf.app.errors import UserError
+    from panogrf.model.select import HypothesisSelector
+
+    assert isinstance(
+        depth_weights.load_depth_estimator(("full", "mvs")).selector, HypothesisSelector
+    )
+    assert depth_weights.load_depth_estimator(("mvs",)).selector is None
+    for path in SHIPPED:
+        if path.name != depth_weights.SELECTOR:
+            (tmp_path / path.name).symlink_to(path)
+    monkeypatch.setenv("PANOGRF_WEIGHTS", str(tmp_path))
+    depth_weights.load_depth_estimator.cache_clear()
+    try:
+        with pytest.raises(UserError, match="missing weights .*depth_select.safetensors"):
+            depth_weights.load_depth_estimator(("full", "mvs"))
+    finally:
+        depth_weights.load_depth_estimator.cache_clear()
 
 
 def test_help_has_an_example_and_depth_follows_scene(capsys):

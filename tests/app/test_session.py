@@ -17,6 +17,7 @@ def test_weight_files_cover_every_network_a_method_prepares_with():
         dw.WEIGHTS["mono"],
         dw.WEIGHTS["full"],
         dw.WEIGHTS["mvs"],
+        dw.SELECTOR,
         dw.RENDERER_WEIGHTS["panogrf"],
     ]
     assert names("no_mono") == [
@@ -24,7 +25,12 @@ def test_weight_files_cover_every_network_a_method_prepares_with():
         dw.WEIGHTS["mvs"],
         dw.RENDERER_WEIGHTS["panogrf"],
     ]
-    assert names("meshwarp") == [dw.WEIGHTS["mono"], dw.WEIGHTS["full"], dw.WEIGHTS["mvs"]]
+    assert names("meshwarp") == [
+        dw.WEIGHTS["mono"],
+        dw.WEIGHTS["full"],
+        dw.WEIGHTS["mvs"],
+        dw.SELECTOR,
+    ]
     assert names("nearest") == []
 
 

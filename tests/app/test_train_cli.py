@@ -107,3 +107,42 @@ def test_train_renderer_errors(tmp_path, capsys):
     assert "safetensors" in capsys.readouterr().err
     assert main([*base, "--out", str(tmp_path / "r.safetensors"), "--height", "100"]) == 2
     assert "multiple of 64" in capsys.readouterr().err
+
+
+@pytest.mark.gl
+def test_train_select_smoke(tiny_train, tmp_path, capsys):
+    """The selector records the shipped networks' fusion on a few scenes (cached beside the
+    data, the second run reading the cache), trains a few steps and writes weights that
+    `load_selector` reads back."""
+    from panogrf.app.weights.networks import load_selector
+
+    out = tmp_path / "select.safetensors"
+    args = ["train", "select", "--data", str(tiny_train), "--out", str(out), "--height", "64"]
+    assert main([*args, "--scenes", "1", "--steps", "2", "--batch", "2"]) == 0
+    with safe_open(str(out), framework="pt") as f:
+        meta = f.metadata()
+        assert meta["network"] == "HypothesisSelector"
+        assert all(torch.isfinite(f.get_tensor(k)).all() for k in f.keys())
+    final = json.loads(meta["final"])
+    assert {"l1_rule", "l1_selector", "l1_truth"} <= set(final)
+    # The truth's choice is never worse than either hypothesis alone, nor than the rule.
+    assert final["l1_truth"] <= min(final["l1_rule"], final["l1_guided"], final["l1_unguided"])
+    caches = list(tiny_train.glob(".select_*.safetensors"))
+    assert len(caches) == 2  # the training scenes and the held-back ones
+    assert "final" in capsys.readouterr().out
+    load_selector(out)
+    stamp = [c.stat().st_mtime_ns for c in caches]
+    assert main([*args, "--scenes", "1", "--steps", "1", "--batch", "2"]) == 0
+    assert [c.stat().st_mtime_ns for c in caches] == stamp
+
+
+def test_train_select_errors(tmp_path, capsys):
+    base = ["train", "select", "--data", str(tmp_path)]
+    assert main([*base, "--out", "x.pt"]) == 2
+    assert "safetensors" in capsys.readouterr().err
+    assert main([*base, "--out", str(tmp_path / "s.safetensors"), "--mono-shift", "2"]) == 2
+    assert "0-1" in capsys.readouterr().err
+    assert main([*base, "--out", str(tmp_path / "s.safetensors"), "--scenes", "0"]) == 2
+    assert "at least 1" in capsys.readouterr().err
+    assert main([*base, "--out", str(tmp_path / "s.safetensors"), "--height", "100"]) == 2
+    assert "multiple of 32" in capsys.readouterr().err

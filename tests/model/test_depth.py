@@ -263,3 +263,39 @@ def test_the_median_follows_the_sweep(estimator, mode):
     assert saved == 7
     torch.testing.assert_close(filtered, median_filter(raw, 7))
     assert not torch.equal(filtered, raw)
+
+
+def test_the_selector_chooses_and_the_record_holds_its_input(estimator):
+    """Mode full fused: with ``record`` a list, every reference view's selector input and search
+    ends are appended (with the world's scale); without a selector the photometric rule still
+    chooses (the depth is unchanged); a selector that always says "unguided" changes it."""
+    from panogrf.model.select import FEATURES, HypothesisSelector, SelectorConfig
+
+    images = _images(2, WORKING, seed=7)
+    c2w = _poses((0, 0, 0), (1.0, 0, 0))
+    plain = estimator(images, c2w, "full").depth
+    estimator.record = []
+    try:
+        recorded = estimator(images, c2w, "full").depth
+        record = estimator.record
+    finally:
+        estimator.record = None
+    torch.testing.assert_close(recorded, plain)
+    assert [e["view"] for e in record] == [0, 1]
+    rows = SelectorConfig().rows
+    for e in record:
+        assert e["features"].shape == (FEATURES, rows, 2 * rows)
+        assert e["ends"].shape == (2, rows, 2 * rows) and e["rule"].shape == (rows, 2 * rows)
+        assert e["scale"] > 0
+    unguided = HypothesisSelector().eval()
+    torch.nn.init.zeros_(unguided.net[-1].weight)
+    torch.nn.init.constant_(unguided.net[-1].bias, 5.0)
+    estimator.selector = unguided
+    try:
+        chosen = estimator(images, c2w, "full").depth
+        mvs_alone = estimator(images, c2w, "mvs").depth
+    finally:
+        estimator.selector = None
+    assert torch.isfinite(chosen).all()
+    assert not torch.allclose(chosen, plain)
+    del mvs_alone

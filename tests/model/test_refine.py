@@ -155,3 +155,42 @@ def test_the_median_takes_out_speckle_and_keeps_steps():
     x = torch.rand(2, 1, 16, 32, generator=torch.Generator().manual_seed(0))
     turned = median_filter(torch.roll(x, 5, -1), 5)
     assert torch.equal(turned, torch.roll(median_filter(x, 5), 5, -1))
+
+
+def test_a_chooser_overrides_the_photometric_choice(scene):
+    """``chooser`` decides each pixel's hypothesis: always the second gives the search from the
+    second alone; it is handed the cost curves [K, D, H, W], the hypotheses and the search ends
+    [K, H, W] and the offsets; `photometric_choice` is the rule it replaces."""
+    from panogrf.model.refine import photometric_choice
+
+    images, c2w, depth = scene
+    small = torch.nn.functional.interpolate(depth, size=(32, 64), mode="area")
+    cfg = SweepConfig(height=64, window=5)
+    seen = []
+
+    def second(r, cost, log_hyp, ends, offsets):
+        seen.append((cost.shape, log_hyp.shape, ends.shape, offsets.shape))
+        return torch.ones(cost.shape[-2:], dtype=torch.long)
+
+    fused = sweep_depth(images, c2w, small, [[1], [0]], cfg, others=(small * 2.0,), chooser=second)
+    alone = sweep_depth(images, c2w, small * 2.0, [[1], [0]], cfg)  # within the depth range
+    torch.testing.assert_close(fused, alone)
+    assert seen[0] == ((2, 24, 64, 128), (2, 64, 128), (2, 64, 128), (24,))
+
+    def rule(r, cost, log_hyp, ends, offsets):
+        return photometric_choice(cost, offsets)
+
+    ruled = sweep_depth(images, c2w, small, [[1], [0]], cfg, others=(small * 3.0,), chooser=rule)
+    plain = sweep_depth(images, c2w, small, [[1], [0]], cfg, others=(small * 3.0,))
+    torch.testing.assert_close(ruled, plain)
+
+
+def test_photometric_choice_keeps_the_first_on_ties_and_within_the_gain():
+    from panogrf.model.refine import photometric_choice
+
+    offsets = torch.linspace(-0.5, 0.5, 5)
+    cost = torch.zeros(2, 5, 1, 3)
+    cost[1, 2, 0, 1] = -0.05  # the second clearly better at its own depth
+    cost[1, 2, 0, 2] = -0.01  # better, but within a gain of 0.02
+    assert photometric_choice(cost, offsets).tolist() == [[0, 1, 1]]
+    assert photometric_choice(cost, offsets, switch_gain=0.02).tolist() == [[0, 1, 0]]

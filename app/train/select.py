@@ -1,0 +1,216 @@
+"""Training of the fusion's hypothesis selector (`panogrf train select`).
+
+The depth networks are frozen and shipped. For a seeded sample of the training scenes, mode
+"full" runs on the first and last views (each the other's source) exactly as at preparation
+(canonical world, both MVS networks, the photometric sweep), and records per view what the
+selector sees (`panogrf.model.select.selection_features`) and where the sweep's search from
+each hypothesis ends. On a fraction of the scenes (``shift``) the monocular network sees its
+input out of its domain (`out_of_domain`: blended with another scene's panoramas), so that its
+prior, and the mono-guided depth with it, is wrong as on a real capture; on some the views are
+put through `photometric` (then balanced as at preparation). The records are cached beside the
+data, keyed by the depth weights, the scenes and these settings.
+
+The label of a pixel is which search end is nearer the truth (in the canonical world), its
+weight how much nearer (metres, capped): the loss is the weighted binary cross-entropy, so the
+pixels where the choice matters most count most. The log reports, on held-back scenes, the L1
+of the chosen end (at the selector's 128 rows, before the median) by the photometric rule, by
+the selector and by the truth.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import sys
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import torch
+import torch.nn.functional as F
+from safetensors.torch import load_file
+from torch import Tensor
+from tqdm import tqdm
+
+from panogrf.app.files.atomic import save_tensors_atomic
+from panogrf.app.train.augment import mono_out_of_domain, photometric
+from panogrf.app.train.data import load_triplets
+from panogrf.app.train.loop import Steps, held_back, save_weights
+from panogrf.app.train.renderer import _weights_key
+from panogrf.model.depth import DepthEstimator
+from panogrf.model.photometric import balance_exposure
+from panogrf.model.select import HypothesisSelector, SelectorConfig
+
+
+@dataclass
+class TrainSelectConfig:
+    """One training run of the selector."""
+
+    data: Path
+    """Train-split dataset folder."""
+    out: Path
+    """Where the weights go (safetensors)."""
+    scenes: int = 240
+    """Training scenes sampled (seeded) from the data, besides the held-back ones."""
+    val_scenes: int = 24
+    """The data's last scenes, held back for the log's validation figures."""
+    shift: float = 0.3
+    """Fraction of the scenes whose monocular network sees its input out of its domain."""
+    photometric: float = 0.5
+    """Fraction of the scenes whose views are put through the camera corruptions."""
+    height: int = 256
+    """Rows the panoramas are loaded at (the sweep's resolution)."""
+    steps: int = 1500
+    """Optimiser steps."""
+    batch: int = 8
+    """Views per step."""
+    lr: float = 2e-3
+    """Adam learning rate at the start (cosine decay)."""
+    cap: float = 0.5
+    """Largest weight of a pixel (metres by which one search end is nearer the truth)."""
+    seed: int = 0
+    log_every: int = 100
+    limit_scenes: int | None = None
+    """Load only this many scenes (smoke tests)."""
+
+
+def _key(estimator: DepthEstimator, names: list[str], cfg: TrainSelectConfig) -> str:
+    h = hashlib.sha256(_weights_key(estimator).encode())
+    h.update("\n".join(names).encode())
+    h.update(json.dumps([cfg.shift, cfg.photometric, cfg.height, cfg.seed]).encode())
+    return h.hexdigest()[:16]
+
+
+@torch.no_grad()
+def record_scenes(
+    estimator: DepthEstimator, data, indices: list[int], cfg: TrainSelectConfig, log=print
+) -> dict[str, Tensor]:
+    """Selector inputs and labels for the first and last views of the scenes ``indices``:
+    {"features": [N, C, h, w] float16, "ends": [N, 2, h, w], "truth": [N, h, w] log metres in
+    the canonical world (nan: unknown), "rule": [N, h, w] the share of each pooled pixel the
+    photometric rule gives the unguided depth}. Cached in the data folder."""
+    path = Path(cfg.data) / f".select_{_key(estimator, [data.names[i] for i in indices], cfg)}"
+    path = path.with_suffix(".safetensors")
+    if path.exists():
+        try:
+            return load_file(str(path))
+        except Exception as exc:  # a broken cache is rebuilt, never trusted
+            log(f"selector cache {path.name} unreadable ({exc}): rebuilding")
+    gen = torch.Generator().manual_seed(cfg.seed)
+    feats, ends, truth, rules = [], [], [], []
+    for n, i in enumerate(tqdm(indices, desc="recording the fusion", unit="scene")):
+        images = data.images[i, [0, 2]].float() / 255.0
+        if float(torch.rand(1, generator=gen)) < cfg.photometric:
+            images = balance_exposure(photometric(images, gen))[0]
+        c2w = data.c2w[i, [0, 2]]
+        shifted = float(torch.rand(1, generator=gen)) < cfg.shift
+        partner = data.images[indices[(n + 1) % len(indices)], [0, 2]].float() / 255.0
+        estimator.record = []
+        try:
+            if shifted:
+                with mono_out_of_domain(estimator, partner, gen):
+                    estimator(images, c2w, "full")
+            else:
+                estimator(images, c2w, "full")
+            records = estimator.record
+        finally:
+            estimator.record = None
+        for entry in records:
+            v = (0, 2)[entry["view"]]
+            f = entry["features"]
+            gt = F.interpolate(data.depths[i, v][None, None], size=f.shape[-2:], mode="nearest")
+            gt = gt[0, 0] * entry["scale"]
+            ok = (gt > 0) & (gt <= estimator.d_max * entry["scale"])
+            feats.append(f.half())
+            ends.append(entry["ends"])
+            rules.append(entry["rule"])
+            truth.append(torch.where(ok, torch.log(gt.clamp(min=1e-3)), float("nan")))
+    out = {
+        "features": torch.stack(feats),
+        "ends": torch.stack(ends),
+        "truth": torch.stack(truth),
+        "rule": torch.stack(rules),
+    }
+    save_tensors_atomic(path, out)
+    return out
+
+
+def _labels(ends: Tensor, truth: Tensor, cap: float) -> tuple[Tensor, Tensor]:
+    """(label [N, h, w]: 1 where the unguided search ends nearer the truth, weight)."""
+    gt = torch.exp(truth)
+    err = (torch.exp(ends) - gt[:, None]).abs()  # [N, 2, h, w]
+    label = (err[:, 1] < err[:, 0]).float()
+    weight = (err[:, 0] - err[:, 1]).abs().clamp(max=cap)
+    weight = torch.where(torch.isnan(truth), torch.zeros_like(weight), weight)
+    return label, weight
+
+
+def choice_l1(ends: Tensor, truth: Tensor, choice: Tensor) -> float:
+    """Mean L1 (metres, canonical world) of the search end ``choice`` [N, h, w] picks."""
+    end = torch.exp(ends.gather(1, choice[:, None].long())[:, 0])
+    ok = ~torch.isnan(truth)
+    return float((end - torch.exp(truth))[ok].abs().mean())
+
+
+def _figures(net: HypothesisSelector, rec: dict[str, Tensor]) -> dict:
+    feats, ends, truth = rec["features"].float(), rec["ends"], rec["truth"]
+    with torch.no_grad():
+        chosen = (net(feats)[:, 0] > 0).long()
+    rule = (rec["rule"] > 0.5).long()  # the sweep's own rule, pooled to the selector's rows
+    gt = torch.exp(truth)
+    err = (torch.exp(ends) - gt[:, None]).abs()
+    oracle = (err[:, 1] < err[:, 0]).long()
+    return {
+        "l1_rule": round(choice_l1(ends, truth, rule), 4),
+        "l1_selector": round(choice_l1(ends, truth, chosen), 4),
+        "l1_truth": round(choice_l1(ends, truth, oracle), 4),
+        "l1_guided": round(choice_l1(ends, truth, torch.zeros_like(oracle)), 4),
+        "l1_unguided": round(choice_l1(ends, truth, torch.ones_like(oracle)), 4),
+    }
+
+
+def train_selector(cfg: TrainSelectConfig, estimator: DepthEstimator, log=print) -> dict:
+    """Record the fusion on the sampled scenes, then train the selector on it."""
+    torch.manual_seed(cfg.seed)
+    data = load_triplets(cfg.data, cfg.height, cfg.limit_scenes)
+    train_idx, val_idx = held_back(len(data), cfg.val_scenes)
+    gen = torch.Generator().manual_seed(cfg.seed)
+    pick = train_idx[torch.randperm(len(train_idx), generator=gen)[: cfg.scenes]]
+    estimator.selector = None
+    train = record_scenes(estimator, data, sorted(pick.tolist()), cfg, log)
+    val = record_scenes(estimator, data, val_idx.tolist(), cfg, log)
+    net = HypothesisSelector(SelectorConfig(rows=train["features"].shape[-2]))
+    log(
+        f"selector ({sum(p.numel() for p in net.parameters())} parameters): "
+        f"{train['features'].shape[0]} training views, {val['features'].shape[0]} held back"
+    )
+    label, weight = _labels(train["ends"], train["truth"], cfg.cap)
+    opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
+    steps = Steps(opt, cfg.steps, cfg.lr, cfg.log_every, log, lambda m: f"loss {float(m):.4f}")
+    n = train["features"].shape[0]
+    for _ in steps:
+        idx = torch.randint(n, (min(cfg.batch, n),), generator=gen)
+        feats = train["features"][idx].float()
+        # Each view turned by its own random yaw (the features wrap in width).
+        shift = int(torch.randint(feats.shape[-1], (1,), generator=gen))
+        feats = feats.roll(shift, -1)
+        y, w = label[idx].roll(shift, -1), weight[idx].roll(shift, -1)
+        logit = net(feats)[:, 0]
+        bce = F.binary_cross_entropy_with_logits(logit, y, reduction="none")
+        loss = (bce * w).sum() / w.sum().clamp(min=1e-6)
+        steps.update(loss)
+    net.eval()
+    figures = _figures(net, val)
+    figures.update({"steps": cfg.steps, "seconds": steps.seconds})
+    log(f"final (held-back scenes, chosen search end, canonical world): {json.dumps(figures)}")
+    save_weights(
+        net,
+        cfg.out,
+        {
+            "network": "HypothesisSelector",
+            "config": asdict(net.config),
+            "train": {k: str(v) for k, v in asdict(cfg).items()},
+            "command": " ".join(["panogrf"] + sys.argv[1:]),
+            "final": figures,
+        },
+    )
+    return figures

@@ -1,0 +1,63 @@
+"""The fusion's learned hypothesis choice (`panogrf.model.select`): its input and its output.
+
+Seeded random weights: these tests check shapes, the seam and plumbing, never accuracy."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from panogrf.model.select import FEATURES, HypothesisSelector, SelectorConfig, selection_features
+
+
+def _inputs(h: int = 64, d: int = 24, seed: int = 0):
+    g = torch.Generator().manual_seed(seed)
+    image = torch.rand(3, h, 2 * h, generator=g)
+    cost = torch.rand(2, d, h, 2 * h, generator=g)
+    log_hyp = torch.rand(2, h, 2 * h, generator=g)
+    ends = log_hyp + 0.1 * torch.randn(2, h, 2 * h, generator=g)
+    log_mono = torch.rand(h, 2 * h, generator=g)
+    conf = torch.rand(2, h, 2 * h, generator=g)
+    return image, cost, log_hyp, ends, log_mono, conf, torch.linspace(-0.5, 0.5, d)
+
+
+def test_features_are_pooled_to_the_selectors_rows():
+    feats = selection_features(*_inputs(64), rows=32)
+    assert feats.shape == (FEATURES, 32, 64)
+    assert torch.isfinite(feats).all()
+    # At its own resolution nothing is pooled: the first channels are the costs at the
+    # hypotheses' own depth (offset 0) and the best costs.
+    image, cost, *rest, offsets = _inputs(32)
+    own = selection_features(image, cost, *rest, offsets, rows=32)
+    torch.testing.assert_close(own[:2], cost[:, int(torch.argmin(offsets.abs()))])
+    torch.testing.assert_close(own[2:4], cost.amin(1))
+
+
+def test_the_features_turn_with_the_panorama():
+    """A turn by whole columns turns every feature with it (the texture channel wraps)."""
+    image, cost, log_hyp, ends, log_mono, conf, offsets = _inputs(32)
+    turn = lambda x: x.roll(8, -1)  # noqa: E731
+    a = selection_features(image, cost, log_hyp, ends, log_mono, conf, offsets, rows=32)
+    b = selection_features(
+        turn(image), turn(cost), turn(log_hyp), turn(ends), turn(log_mono), turn(conf), offsets, 32
+    )
+    torch.testing.assert_close(turn(a), b)
+
+
+@pytest.mark.parametrize("size", [(32, 64), (64, 128)])
+def test_the_choice_is_an_index_per_pixel_at_the_sweeps_size(size):
+    torch.manual_seed(0)
+    net = HypothesisSelector(SelectorConfig(rows=32)).eval()
+    feats = selection_features(*_inputs(64), rows=32)
+    with torch.no_grad():
+        logit = net(feats[None])
+        choice = net.choose(feats, size)
+    assert logit.shape == (1, 1, 32, 64)
+    assert choice.shape == size and choice.dtype == torch.long
+    assert set(choice.unique().tolist()) <= {0, 1}
+    if size == (32, 64):
+        assert torch.equal(choice, (logit[0, 0] > 0).long())
+    # Wraps at the seam: a turned input gives the turned logit.
+    with torch.no_grad():
+        turned = net(feats.roll(16, -1)[None])
+    torch.testing.assert_close(turned, logit.roll(16, -1), atol=1e-5, rtol=1e-4)
