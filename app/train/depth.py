@@ -11,8 +11,7 @@ from __future__ import annotations
 
 import json
 import math
-import sys
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import torch
@@ -20,7 +19,7 @@ from torch import Tensor
 
 from panogrf.app.train.augment import corrupt_mono, out_of_domain, photometric
 from panogrf.app.train.data import TripletSet, load_triplets, yaw_roll
-from panogrf.app.train.loop import Steps, held_back, init_from, save_weights
+from panogrf.app.train.loop import Steps, held_back, init_from, save_trained
 from panogrf.model.erp import latitude_weights
 from panogrf.model.mono import MonoDepthConfig, MonoDepthNet
 
@@ -149,17 +148,7 @@ def train_mono(cfg: TrainDepthConfig, log=print) -> dict:
     figures = _validate_mono(net, val)
     figures.update({"steps": cfg.steps, "seconds": steps.seconds})
     log(f"final (validation scenes of the train split): {json.dumps(figures)}")
-    save_weights(
-        net,
-        cfg.out,
-        {
-            "network": "MonoDepthNet",
-            "config": asdict(net.config),
-            "train": {k: str(v) for k, v in asdict(cfg).items()},
-            "command": " ".join(["panogrf"] + sys.argv[1:]),
-            "final": figures,
-        },
-    )
+    save_trained(net, cfg, figures)
     return figures
 
 
@@ -272,16 +261,5 @@ def train_mvs(cfg: TrainDepthConfig, log=print) -> dict:
     figures = _validate_mvs(net, mono, val)
     figures.update({"steps": cfg.steps, "seconds": steps.seconds})
     log(f"final (validation scenes of the train split): {json.dumps(figures)}")
-    save_weights(
-        net,
-        cfg.out,
-        {
-            "network": "MVSNet",
-            "preset": cfg.mvs_preset,
-            "config": asdict(mvs_cfg),
-            "train": {k: str(v) for k, v in asdict(cfg).items()},
-            "command": " ".join(["panogrf"] + sys.argv[1:]),
-            "final": figures,
-        },
-    )
+    save_trained(net, cfg, figures, preset=cfg.mvs_preset)
     return figures

@@ -12,8 +12,10 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 import time
 from collections.abc import Callable, Iterator
+from dataclasses import asdict
 from pathlib import Path
 
 import torch
@@ -115,3 +117,21 @@ def save_weights(module: torch.nn.Module, path: Path, metadata: dict) -> None:
     state = {k: v.detach().contiguous().cpu() for k, v in module.state_dict().items()}
     meta = {k: v if isinstance(v, str) else json.dumps(v) for k, v in metadata.items()}
     save_tensors_atomic(path, state, meta)
+
+
+def save_trained(net: torch.nn.Module, cfg, figures: dict, **extra: str) -> None:
+    """Write a trained network to ``cfg.out`` (`save_weights`) with what reproduces it: its
+    class and config, the training config ``cfg`` (a dataclass), the command line, the final
+    figures, and ``extra`` (e.g. the preset)."""
+    save_weights(
+        net,
+        cfg.out,
+        {
+            "network": type(net).__name__,
+            **extra,
+            "config": asdict(net.config),
+            "train": {k: str(v) for k, v in asdict(cfg).items()},
+            "command": " ".join(["panogrf"] + sys.argv[1:]),
+            "final": figures,
+        },
+    )

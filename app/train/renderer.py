@@ -17,8 +17,7 @@ import dataclasses
 import hashlib
 import json
 import math
-import sys
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import torch
@@ -28,7 +27,7 @@ from tqdm import tqdm
 
 from panogrf.app.files.atomic import save_tensors_atomic
 from panogrf.app.train.data import TripletSet, load_triplets, yaw_roll
-from panogrf.app.train.loop import Steps, held_back, init_from, save_weights
+from panogrf.app.train.loop import Steps, held_back, init_from, save_trained
 from panogrf.model.depth import DepthEstimator
 from panogrf.model.erp import latitude_weights
 from panogrf.model.metrics import ws_psnr
@@ -246,18 +245,7 @@ def train_renderer(cfg: TrainRendererConfig, estimator: DepthEstimator, log=prin
     figures.update({"steps": cfg.steps, "seconds": steps.seconds})
     rows = cfg.depth_height
     log(f"final (validation scenes of the train split, {rows} rows): {json.dumps(figures)}")
-    save_weights(
-        net,
-        cfg.out,
-        {
-            "network": "RendererNet",
-            "preset": cfg.preset,
-            "config": asdict(net.config),
-            "train": {k: str(v) for k, v in asdict(cfg).items()},
-            "command": " ".join(["panogrf"] + sys.argv[1:]),
-            "final": figures,
-        },
-    )
+    save_trained(net, cfg, figures, preset=cfg.preset)
     return figures
 
 

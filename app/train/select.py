@@ -21,8 +21,7 @@ from __future__ import annotations
 
 import hashlib
 import json
-import sys
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
@@ -34,7 +33,7 @@ from tqdm import tqdm
 from panogrf.app.files.atomic import save_tensors_atomic
 from panogrf.app.train.augment import mono_out_of_domain, photometric
 from panogrf.app.train.data import load_triplets
-from panogrf.app.train.loop import Steps, held_back, save_weights
+from panogrf.app.train.loop import Steps, held_back, save_trained
 from panogrf.app.train.renderer import _weights_key
 from panogrf.model.depth import DepthEstimator
 from panogrf.model.photometric import balance_exposure
@@ -202,15 +201,5 @@ def train_selector(cfg: TrainSelectConfig, estimator: DepthEstimator, log=print)
     figures = _figures(net, val)
     figures.update({"steps": cfg.steps, "seconds": steps.seconds})
     log(f"final (held-back scenes, chosen search end, canonical world): {json.dumps(figures)}")
-    save_weights(
-        net,
-        cfg.out,
-        {
-            "network": "HypothesisSelector",
-            "config": asdict(net.config),
-            "train": {k: str(v) for k, v in asdict(cfg).items()},
-            "command": " ".join(["panogrf"] + sys.argv[1:]),
-            "final": figures,
-        },
-    )
+    save_trained(net, cfg, figures)
     return figures
