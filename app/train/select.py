@@ -30,6 +30,7 @@ from safetensors.torch import load_file
 from torch import Tensor
 from tqdm import tqdm
 
+from panogrf.app.errors import UserError
 from panogrf.app.files.atomic import save_tensors_atomic
 from panogrf.app.train.augment import mono_out_of_domain, photometric
 from panogrf.app.train.data import load_triplets
@@ -72,6 +73,10 @@ class TrainSelectConfig:
     """Load only this many scenes (smoke tests)."""
 
 
+#: What `record_scenes` returns (and caches).
+RECORD_KEYS = ("features", "ends", "truth", "rule")
+
+
 def _key(estimator: DepthEstimator, names: list[str], cfg: TrainSelectConfig) -> str:
     h = hashlib.sha256(_weights_key(estimator).encode())
     h.update("\n".join(names).encode())
@@ -91,7 +96,10 @@ def record_scenes(
     path = path.with_suffix(".safetensors")
     if path.exists():
         try:
-            return load_file(str(path))
+            cached = load_file(str(path))
+            if set(cached) == set(RECORD_KEYS):
+                return cached
+            log(f"selector cache {path.name} holds {sorted(cached)}: rebuilding")
         except Exception as exc:  # a broken cache is rebuilt, never trusted
             log(f"selector cache {path.name} unreadable ({exc}): rebuilding")
     gen = torch.Generator().manual_seed(cfg.seed)
@@ -123,6 +131,8 @@ def record_scenes(
             ends.append(entry["ends"])
             rules.append(entry["rule"])
             truth.append(torch.where(ok, torch.log(gt.clamp(min=1e-3)), float("nan")))
+    if not feats:
+        raise UserError(f"{cfg.data}: no scene has two views far enough apart to fuse")
     out = {
         "features": torch.stack(feats),
         "ends": torch.stack(ends),

@@ -134,6 +134,11 @@ def test_train_select_smoke(tiny_train, tmp_path, capsys):
     stamp = [c.stat().st_mtime_ns for c in caches]
     assert main([*args, "--scenes", "1", "--steps", "1", "--batch", "2"]) == 0
     assert [c.stat().st_mtime_ns for c in caches] == stamp
+    # A cache that is not a record (broken, or of another format) is rebuilt, never trusted.
+    caches[0].write_bytes(b"not safetensors")
+    assert main([*args, "--scenes", "1", "--steps", "1", "--batch", "2"]) == 0
+    assert "unreadable" in capsys.readouterr().out
+    load_selector(out)
 
 
 def test_train_select_errors(tmp_path, capsys):
