@@ -196,7 +196,9 @@ def median_filter(depth: Tensor, window: int) -> Tensor:
     return torch.stack(out)
 
 
-def _box(x: Tensor, k: int) -> Tensor:
+def box_mean(x: Tensor, k: int) -> Tensor:
+    """Mean of [B, C, H, W] over a k x k window (ERP: wrapping at the seam, rows repeated at
+    the poles)."""
     p = k // 2
     return F.avg_pool2d(_pad_w(x, p), k, 1)
 
@@ -302,5 +304,5 @@ def _sweep_costs(img, c2w, r, sources, log_d0, offsets, dirs, config, d_range) -
             for s in sources
         ]
         err = torch.stack(errs).amin(0)  # [1, H, W]
-        costs.append(_box(err[None], config.window)[0, 0] + config.prior * abs(off))
+        costs.append(box_mean(err[None], config.window)[0, 0] + config.prior * abs(off))
     return torch.stack(costs)

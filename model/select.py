@@ -29,6 +29,7 @@ from torch import Tensor, nn
 
 from panogrf.model.erp import latitude_weights
 from panogrf.model.layers import CircularConv2d
+from panogrf.model.refine import box_mean
 
 #: Channels of `selection_features`.
 FEATURES = 18
@@ -46,11 +47,8 @@ class SelectorConfig:
 
 def _local_std(gray: Tensor, k: int = 7) -> Tensor:
     """Standard deviation of [1, 1, H, W] over a k x k window (wrapping in width)."""
-    p = k // 2
-    pad = F.pad(F.pad(gray, (p, p, 0, 0), mode="circular"), (0, 0, p, p), mode="replicate")
-    mean = F.avg_pool2d(pad, k, 1)
-    sq = F.avg_pool2d(pad * pad, k, 1)
-    return (sq - mean * mean).clamp(min=0).sqrt()
+    mean = box_mean(gray, k)
+    return (box_mean(gray * gray, k) - mean * mean).clamp(min=0).sqrt()
 
 
 def selection_features(

@@ -76,9 +76,7 @@ def run(args: argparse.Namespace) -> int:
     scene = load_scene(args.scene, load_images=True)
     modes = depth_weights.NETWORKS[args.mode]
     estimator = depth_weights.load_depth_estimator(modes, str(device))
-    weights = {name: depth_weights.WEIGHTS[name] for name in ("mono", *modes)}
-    if args.mode == "full":
-        weights["select"] = depth_weights.SELECTOR
+    weights = depth_weights.depth_weight_files(args.mode)
     result = estimate_scene(scene, args.out, estimator, args.mode, weights=weights)
     for warning in result.warnings:
         print(f"warning: {warning}", file=sys.stderr)

@@ -57,7 +57,7 @@ def weight_files(method: str = "panogrf") -> list[Path]:
     spec = METHODS[method]
     names = []
     if spec.depth_mode is not None:
-        names += dw.depth_weight_names(spec.depth_mode)
+        names += dw.depth_weight_files(spec.depth_mode).values()
     if spec.renderer is not None:
         names.append(dw.RENDERER_WEIGHTS[spec.renderer])
     return [dw.weights_path(name) for name in names]

@@ -165,9 +165,7 @@ def _figures(net: HypothesisSelector, rec: dict[str, Tensor]) -> dict:
     with torch.no_grad():
         chosen = (net(feats)[:, 0] > 0).long()
     rule = (rec["rule"] > 0.5).long()  # the sweep's own rule, pooled to the selector's rows
-    gt = torch.exp(truth)
-    err = (torch.exp(ends) - gt[:, None]).abs()
-    oracle = (err[:, 1] < err[:, 0]).long()
+    oracle = _labels(ends, truth, 1.0)[0].long()  # the search end nearer the truth
     return {
         "l1_rule": round(choice_l1(ends, truth, rule), 4),
         "l1_selector": round(choice_l1(ends, truth, chosen), 4),

@@ -133,16 +133,25 @@ def load_depth_estimator(
         _load(net, path, asdict(net.config))
         mvs[mode] = net
     estimator = DepthEstimator(mono, mvs)
-    if "full" in mvs and "mvs" in mvs:
+    if _fuses(modes):
         estimator.selector = load_selector(weights_path(SELECTOR))
     return estimator.to(device).eval()
 
 
-def depth_weight_names(mode: str) -> list[str]:
-    """The weights files depth mode ``mode`` reads: the monocular network, every MVS network
-    it runs and, for mode "full" (which fuses two of them), the selector."""
-    names = [WEIGHTS["mono"], *(WEIGHTS[net] for net in NETWORKS[mode])]
-    return names + ([SELECTOR] if mode == "full" else [])
+def _fuses(networks) -> bool:
+    """The mono-guided and the unguided MVS networks are both loaded: mode full fuses their
+    depth, with the selector choosing."""
+    return "full" in networks and "mvs" in networks
+
+
+def depth_weight_files(mode: str) -> dict[str, str]:
+    """The weights files depth mode ``mode`` reads, by role: the monocular network, every MVS
+    network it runs and, where two are fused (mode "full"), the selector ("select")."""
+    networks = NETWORKS[mode]
+    files = {"mono": WEIGHTS["mono"], **{net: WEIGHTS[net] for net in networks}}
+    if _fuses(networks):
+        files["select"] = SELECTOR
+    return files
 
 
 @lru_cache(maxsize=4)

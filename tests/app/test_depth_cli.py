@@ -26,7 +26,7 @@ from panogrf.model.mono import MonoDepthConfig, MonoDepthNet
 from panogrf.model.mvs import PRESETS, MVSNet
 
 DEMO = asset_path("demo")
-SHIPPED = [asset_path(name) for name in depth_weights.depth_weight_names("full")]
+SHIPPED = [asset_path(name) for name in depth_weights.depth_weight_files("full").values()]
 MISSING = [p.name for p in SHIPPED if not p.exists()]
 
 
