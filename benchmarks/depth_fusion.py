@@ -108,7 +108,7 @@ def _reset(estimator) -> None:
     estimator.fuse, estimator.switch_gain, estimator.guide = True, 0.0, "mono"
     estimator.canonical = False
     estimator.mono_hypothesis = False
-    estimator.selector = None
+    estimator.selector, estimator.select_margin = None, 0.0
     estimator.sweep, estimator.fusion_sweep = DEFAULT_SWEEP, DEFAULT_SWEEP
     estimator.median = 1
 
@@ -185,6 +185,12 @@ def main() -> None:
         for k in (1, 5, 7, 9):
             name = f"full, fused, canonical world, median {k}, selector"
             settings.append((name, "full", wide | canonical | {"median": k, "selector": selector}))
+        # Round 15: where the selector is unsure, the rule's per-pixel choice (for the median
+        # to vote on).
+        for margin in (0.1, 0.2):
+            name = f"full, fused, canonical world, median 7, selector, margin {margin:g}"
+            attrs = {"median": 7, "selector": selector, "select_margin": margin}
+            settings.append((name, "full", wide | canonical | attrs))
     for g in (float(x) for x in args.gains.split(",")):
         settings.append((f"full, fused, switch {g:g}", "full", {"fuse": True, "switch_gain": g}))
     if args.settings:

@@ -113,6 +113,9 @@ class DepthEstimator(nn.Module):
         self.selector: HypothesisSelector | None = None
         """Mode "full" fused (two hypotheses): a learned choice of each pixel's hypothesis
         instead of the sweep's photometric rule (`panogrf.model.select`); None: the rule."""
+        self.select_margin = 0.0
+        """Pixels whose selector probability is within this of one half keep the photometric
+        rule's choice (0: the selector's everywhere)."""
         self.record: list[dict] | None = None
         """When a list, mode "full" fused appends, per reference view, the selector's input
         and where the search from each hypothesis ends (the selector's training data)."""
@@ -231,7 +234,7 @@ class DepthEstimator(nn.Module):
                 )
             if self.selector is None:
                 return rule
-            return self.selector.choose(feats, (hh, ww))
+            return self.selector.choose(feats, (hh, ww), rule, self.select_margin)
 
         return choose
 

@@ -43,6 +43,10 @@ class SelectorConfig:
     """Width of the hidden layers."""
     rows: int = 128
     """Rows at which the features are pooled and the choice is made."""
+    context: bool = False
+    """A scene-wide summary (the latitude-weighted mean of the hidden features, through a
+    linear layer) added to every pixel's hidden features: whether the monocular prior holds is
+    a property of the whole capture, which a pixel's neighbourhood cannot see."""
 
 
 def _local_std(gray: Tensor, k: int = 7) -> Tensor:
@@ -107,13 +111,32 @@ class HypothesisSelector(nn.Module):
             nn.ReLU(inplace=True),
             nn.Conv2d(c, 1, 1),
         )
+        self.context = nn.Linear(c, c) if config.context else None
 
     def forward(self, features: Tensor) -> Tensor:
-        return self.net(features)
+        hidden = self.net[:4](features)
+        if self.context is not None:
+            h, w = hidden.shape[-2:]
+            lat = latitude_weights(h, w, dtype=hidden.dtype)
+            scene = (hidden * lat).sum((-2, -1)) / lat.sum()  # [B, c]
+            hidden = hidden + self.context(scene)[..., None, None]
+        return self.net[4:](hidden)
 
-    def choose(self, features: Tensor, size: tuple[int, int]) -> Tensor:
-        """Index [H, W] (0 mono-guided, 1 unguided) at ``size`` from features [C, h, w]."""
+    def choose(
+        self,
+        features: Tensor,
+        size: tuple[int, int],
+        fallback: Tensor | None = None,
+        margin: float = 0.0,
+    ) -> Tensor:
+        """Index [H, W] (0 mono-guided, 1 unguided) at ``size`` from features [C, h, w].
+        With ``fallback`` (an index [H, W]), pixels whose probability is within ``margin`` of
+        one half take the fallback's choice instead."""
         logit = self(features[None])
         if logit.shape[-2:] != size:
             logit = F.interpolate(logit, size=size, mode="bilinear", align_corners=False)
-        return (logit[0, 0] > 0).long()
+        choice = (logit[0, 0] > 0).long()
+        if fallback is not None and margin > 0:
+            unsure = (torch.sigmoid(logit[0, 0]) - 0.5).abs() < margin
+            choice = torch.where(unsure, fallback, choice)
+        return choice

@@ -67,6 +67,8 @@ class TrainSelectConfig:
     """Adam learning rate at the start (cosine decay)."""
     cap: float = 0.5
     """Largest weight of a pixel (metres by which one search end is nearer the truth)."""
+    context: bool = True
+    """The selector sees a scene-wide summary of its features (`SelectorConfig.context`)."""
     seed: int = 0
     log_every: int = 100
     limit_scenes: int | None = None
@@ -185,7 +187,7 @@ def train_selector(cfg: TrainSelectConfig, estimator: DepthEstimator, log=print)
     estimator.selector = None
     train = record_scenes(estimator, data, sorted(pick.tolist()), cfg, log)
     val = record_scenes(estimator, data, val_idx.tolist(), cfg, log)
-    net = HypothesisSelector(SelectorConfig(rows=train["features"].shape[-2]))
+    net = HypothesisSelector(SelectorConfig(rows=train["features"].shape[-2], context=cfg.context))
     log(
         f"selector ({sum(p.numel() for p in net.parameters())} parameters): "
         f"{train['features'].shape[0]} training views, {val['features'].shape[0]} held back"

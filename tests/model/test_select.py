@@ -61,3 +61,21 @@ def test_the_choice_is_an_index_per_pixel_at_the_sweeps_size(size):
     with torch.no_grad():
         turned = net(feats.roll(16, -1)[None])
     torch.testing.assert_close(turned, logit.roll(16, -1), atol=1e-5, rtol=1e-4)
+
+
+def test_the_scene_context_reaches_every_pixel_and_turns_with_the_panorama():
+    """With the scene-wide summary, a change in one corner of the panorama moves the logit on
+    the far side (a local selector's receptive field ends 15 pixels away); a turn still gives
+    the turned logit."""
+    feats = selection_features(*_inputs(32), rows=32)[None]
+    changed = feats.clone()
+    changed[..., :4, :4] += 3.0
+    for context in (False, True):
+        torch.manual_seed(0)
+        net = HypothesisSelector(SelectorConfig(rows=32, context=context)).eval()
+        with torch.no_grad():
+            a, b = net(feats), net(changed)
+            turned = net(feats.roll(16, -1))
+        far = (a - b)[..., 16:, 32:].abs().max()
+        assert (far > 1e-4) if context else (far == 0)
+        torch.testing.assert_close(turned, a.roll(16, -1), atol=1e-5, rtol=1e-4)
