@@ -113,9 +113,12 @@ class DepthEstimator(nn.Module):
         self.selector: HypothesisSelector | None = None
         """Mode "full" fused (two hypotheses): a learned choice of each pixel's hypothesis
         instead of the sweep's photometric rule (`panogrf.model.select`); None: the rule."""
-        self.select_margin = 0.0
+        self.select_margin = 0.1
         """Pixels whose selector probability is within this of one half keep the photometric
-        rule's choice (0: the selector's everywhere)."""
+        rule's choice (0: the selector's everywhere). The rule's doubtful choices are single
+        pixels, which the median outvotes; the selector's come in patches, which it keeps.
+        Measured on the validation scenes (`depth_select_context_val.json`, mean L1 of the
+        eight columns): 0 0.1609, 0.1 0.1593, 0.2 0.1595."""
         self.record: list[dict] | None = None
         """When a list, mode "full" fused appends, per reference view, the selector's input
         and where the search from each hypothesis ends (the selector's training data)."""

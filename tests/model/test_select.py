@@ -79,3 +79,22 @@ def test_the_scene_context_reaches_every_pixel_and_turns_with_the_panorama():
         far = (a - b)[..., 16:, 32:].abs().max()
         assert (far > 1e-4) if context else (far == 0)
         torch.testing.assert_close(turned, a.roll(16, -1), atol=1e-5, rtol=1e-4)
+
+
+@pytest.mark.parametrize("bias", [0.0, 0.3, 5.0, -5.0])
+def test_unsure_pixels_keep_the_fallbacks_choice(bias):
+    """With a constant logit, every pixel is unsure (probability within the margin of one half:
+    the fallback's choice) or none is (the selector's)."""
+    net = HypothesisSelector(SelectorConfig(rows=32)).eval()
+    last = net.net[-1]
+    with torch.no_grad():
+        last.weight.zero_()
+        last.bias.fill_(bias)
+    feats = selection_features(*_inputs(32), rows=32)
+    fallback = torch.randint(2, (32, 64), generator=torch.Generator().manual_seed(1))
+    with torch.no_grad():
+        choice = net.choose(feats, (32, 64), fallback, margin=0.1)
+        plain = net.choose(feats, (32, 64))
+    unsure = abs(torch.sigmoid(torch.tensor(bias)) - 0.5) < 0.1
+    assert torch.equal(choice, fallback if unsure else plain)
+    assert torch.equal(plain, torch.full((32, 64), int(bias > 0)))
