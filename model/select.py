@@ -5,7 +5,8 @@ mono-guided network's and the unguided one's. The sweep's own rule keeps, per pi
 its nearest sources match best at its own depth. Where the match says little (blank walls,
 bright windows, repeated texture) that rule keeps the mono-guided depth, and on a real capture
 the monocular prior is often wrong exactly there. On the training run's held-back scenes the
-rule's choice scores 0.203 m and the truth's 0.151 (`docs/training/depth_select.log`).
+rule's choice scores 0.203 m, the selector's 0.184 and the truth's 0.151
+(`docs/training/depth_select.log`).
 
 `HypothesisSelector` makes the choice from what is known at that point, per pixel: each
 hypothesis' photometric cost curve (its cost, its best cost, how far the search would move it,
@@ -16,7 +17,11 @@ reference image's brightness and texture. It is trained on the training scenes
 network put out of its domain on some scenes (`panogrf.app.train.augment.out_of_domain`) so
 that a wrong prior is among what it sees.
 
-24k parameters at 128 x 256: about 0.02 s per pair of views (`depth_select_val.json`).
+It also sees a summary of the whole panorama (``SelectorConfig.context``): whether the prior
+holds is a property of the capture. Where its probability is within a margin of one half, the
+caller keeps the photometric rule's choice (`choose`'s ``fallback``; `DepthEstimator.select_margin`).
+
+25k parameters at 128 x 256: about 0.02 s per pair of views (`depth_select_val.json`).
 """
 
 from __future__ import annotations
