@@ -19,7 +19,8 @@ that a wrong prior is among what it sees.
 
 It also sees a summary of the whole panorama (``SelectorConfig.context``): whether the prior
 holds is a property of the capture. Where its probability is within a margin of one half, the
-caller keeps the photometric rule's choice (`choose`'s ``fallback``; `DepthEstimator.select_margin`).
+caller keeps the photometric rule's choice (`choose`'s ``fallback``;
+`DepthEstimator.select_margin`).
 
 25k parameters at 128 x 256: about 0.02 s per pair of views (`depth_select_val.json`).
 """
