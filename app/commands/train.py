@@ -158,6 +158,11 @@ def register(subparsers) -> None:
         default=256,
         help="rows the panoramas are loaded at (default 256: the fusion's own)",
     )
+    select.add_argument(
+        "--no-context",
+        action="store_true",
+        help="no scene-wide summary in the selector (round 14's: local only)",
+    )
     select.add_argument("--seed", type=int, default=0, help="seed (default 0)")
     select.add_argument(
         "--threads", type=thread_count, default=0, help="torch threads (default: all)"
@@ -297,6 +302,7 @@ def run_select(args: argparse.Namespace) -> int:
         lr=args.lr,
         shift=args.mono_shift,
         height=args.height,
+        context=not args.no_context,
         seed=args.seed,
         limit_scenes=args.limit_scenes,
     )

@@ -184,9 +184,13 @@ def train_selector(cfg: TrainSelectConfig, estimator: DepthEstimator, log=print)
     train_idx, val_idx = held_back(len(data), cfg.val_scenes)
     gen = torch.Generator().manual_seed(cfg.seed)
     pick = train_idx[torch.randperm(len(train_idx), generator=gen)[: cfg.scenes]]
-    estimator.selector = None
-    train = record_scenes(estimator, data, sorted(pick.tolist()), cfg, log)
-    val = record_scenes(estimator, data, val_idx.tolist(), cfg, log)
+    # The rule's fusion is recorded; the estimator (shared, cached) gets its selector back.
+    selector, estimator.selector = estimator.selector, None
+    try:
+        train = record_scenes(estimator, data, sorted(pick.tolist()), cfg, log)
+        val = record_scenes(estimator, data, val_idx.tolist(), cfg, log)
+    finally:
+        estimator.selector = selector
     net = HypothesisSelector(SelectorConfig(rows=train["features"].shape[-2], context=cfg.context))
     log(
         f"selector ({sum(p.numel() for p in net.parameters())} parameters): "

@@ -220,6 +220,24 @@ def test_mode_full_chooses_with_the_shipped_selector_and_needs_it(tmp_path, monk
         depth_weights.load_depth_estimator.cache_clear()
 
 
+def test_a_selector_saved_before_the_scene_summary_loads_as_a_local_one(tmp_path):
+    """Round 14's selector file has no "context" in its config: it loads without the summary;
+    the shipped one (round 15) has it."""
+    import json
+
+    from safetensors.torch import save_file
+
+    from panogrf.model.select import HypothesisSelector, SelectorConfig
+
+    old = HypothesisSelector(SelectorConfig())
+    path = tmp_path / "depth_select.safetensors"
+    config = {"channels": 32, "rows": 128}
+    save_file(old.state_dict(), str(path), metadata={"config": json.dumps(config)})
+    assert depth_weights.load_selector(path).context is None
+    shipped = depth_weights.load_selector(depth_weights.weights_path(depth_weights.SELECTOR))
+    assert shipped.config.context and shipped.context is not None
+
+
 def test_help_has_an_example_and_depth_follows_scene(capsys):
     assert cli._COMMANDS.index("depth") == cli._COMMANDS.index("scene") + 1
     with pytest.raises(SystemExit) as exc:

@@ -123,6 +123,7 @@ def test_train_select_smoke(tiny_train, tmp_path, capsys):
         meta = f.metadata()
         assert meta["network"] == "HypothesisSelector"
         assert all(torch.isfinite(f.get_tensor(k)).all() for k in f.keys())
+    assert json.loads(meta["config"])["context"] is True  # the scene summary by default
     final = json.loads(meta["final"])
     assert {"l1_rule", "l1_selector", "l1_truth"} <= set(final)
     # The truth's choice is never worse than either hypothesis alone, nor than the rule.
@@ -136,9 +137,13 @@ def test_train_select_smoke(tiny_train, tmp_path, capsys):
     assert [c.stat().st_mtime_ns for c in caches] == stamp
     # A cache that is not a record (broken, or of another format) is rebuilt, never trusted.
     caches[0].write_bytes(b"not safetensors")
-    assert main([*args, "--scenes", "1", "--steps", "1", "--batch", "2"]) == 0
+    assert main([*args, "--scenes", "1", "--steps", "1", "--batch", "2", "--no-context"]) == 0
     assert "unreadable" in capsys.readouterr().out
-    load_selector(out)
+    assert load_selector(out).context is None  # round 14's local selector
+    # Recording ran the rule on the shared, cached estimator; it keeps its shipped selector.
+    from panogrf.app.weights.networks import load_depth_estimator
+
+    assert load_depth_estimator(("full", "mvs")).selector is not None
 
 
 def test_train_select_errors(tmp_path, capsys):
