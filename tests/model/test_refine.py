@@ -12,6 +12,7 @@ from panogrf.model.erp import erp_directions
 from panogrf.model.refine import (
     RefineConfig,
     SweepConfig,
+    box_mean,
     median_filter,
     photometric_error,
     refine_depth,
@@ -137,6 +138,61 @@ def test_gradient_refinement_reduces_the_error(scene):
     out = refine_depth(images, c2w, wrong, [[1], [0]], RefineConfig(iterations=40, height=64))
     assert (out - small).abs().mean() < (wrong - small).abs().mean()
     assert math.isfinite(float(out.sum()))
+
+
+def test_a_coarse_stage_alone_also_reduces_the_error(scene):
+    images, c2w, depth = scene
+    small = torch.nn.functional.interpolate(depth, size=(32, 64), mode="area")
+    wrong = small * 1.1
+    config = RefineConfig(iterations=0, coarse=40, height=128)  # compared at 64 rows
+    out = refine_depth(images, c2w, wrong, [[1], [0]], config)
+    assert (out - small).abs().mean() < 0.5 * (wrong - small).abs().mean()
+
+
+def test_fast_window_means_match_average_pooling():
+    """The separable slice sums of `photometric_error` and `box_mean` against
+    ``F.avg_pool2d`` on the same seam-wrapped, pole-repeated padding."""
+    F = torch.nn.functional
+    gen = torch.Generator().manual_seed(0)
+    a = torch.rand(2, 3, 24, 48, generator=gen)
+    b = (a + 0.2 * torch.rand(1, 3, 24, 48, generator=gen)).clamp(0, 1)
+
+    def pool(x, k=3):
+        p = k // 2
+        x = torch.cat((x[..., -p:], x, x[..., :p]), -1)
+        return F.avg_pool2d(F.pad(x, (0, 0, p, p), mode="replicate"), k, 1)
+
+    bb = b.expand_as(a)
+    mu_a, mu_b = pool(a), pool(bb)
+    var_a, var_b = pool(a * a) - mu_a**2, pool(bb * bb) - mu_b**2
+    cov = pool(a * bb) - mu_a * mu_b
+    c1, c2 = 0.01**2, 0.03**2
+    ssim = ((2 * mu_a * mu_b + c1) * (2 * cov + c2)) / (
+        (mu_a**2 + mu_b**2 + c1) * (var_a + var_b + c2)
+    )
+    want = (0.85 * ((1 - ssim) / 2).clamp(0, 1) + 0.15 * (a - bb).abs()).mean(1)
+    torch.testing.assert_close(photometric_error(a, b), want, atol=1e-5, rtol=0)
+    torch.testing.assert_close(box_mean(a, 7), pool(a, 7), atol=1e-6, rtol=0)
+
+
+def test_warp_matches_the_world_round_trip(scene):
+    """The combined rotation of `warp_from` against going through world coordinates, with
+    turned cameras."""
+    images, c2w, depth = scene
+    turned = c2w.clone()
+    for i, angle in enumerate((0.4, -1.1)):
+        c, s = math.cos(angle), math.sin(angle)
+        turned[i, :3, :3] = torch.tensor([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+    dirs = erp_directions(64, 128)
+    pts = depth[0, 0][..., None] * dirs
+    world = pts @ turned[0, :3, :3].T + turned[0, :3, 3]
+    cam = (world - turned[1, :3, 3]) @ turned[1, :3, :3]
+    from panogrf.model.erp import direction_to_pixel, sample_erp
+
+    uv = direction_to_pixel(cam.reshape(1, -1, 3), 64, 128)
+    want = sample_erp(images[1:2], uv).reshape(1, 3, 64, 128)
+    got = warp_from(images[1:2], depth[0, 0], turned[0], turned[1], dirs)
+    torch.testing.assert_close(got, want, atol=1e-4, rtol=0)
 
 
 def test_the_median_takes_out_speckle_and_keeps_steps():
