@@ -14,8 +14,9 @@ height and scored (PSNR, WS-PSNR, SSIM, LPIPS). Depth: the first and last views,
 other's source, estimated by every depth mode (mono, MVS-only, full) and compared with the
 ground truth at the dataset's resolution on 0 < gt <= d_max. ``--picture`` writes the true
 middle view, PanoGRF, MVS-only and meshwarp stacked (into the ignored data folder by default).
-``--refine-depth`` refines every multi-view depth per scene first (`SourceViews.refine`, the
-CLI's ``--refine-depth``), for the depth table and every method that reads it.
+Every multi-view depth is refined per scene first (`SourceViews.refine`, as the CLI does by
+default since round 16), for the depth table and every method that reads it;
+``--no-refine-depth`` uses the networks' depth as it is.
 ``--gt-depth`` adds diagnostic rows that use the ground truth:
 - ``gt_depth``: PanoGRF's renderer with the two sources' true depth in place of the estimate
   (what the renderer does when the depth is right);
@@ -136,8 +137,10 @@ def main() -> int:
     )
     parser.add_argument(
         "--refine-depth",
-        action="store_true",
-        help="refine every multi-view depth per scene first (the CLI's --refine-depth)",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="refine every multi-view depth per scene first, as the CLI does by default "
+        "(--no-refine-depth: the networks' depth)",
     )
     args = parser.parse_args()
     if not (args.data / "dataset.json").exists():

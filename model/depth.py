@@ -150,6 +150,29 @@ class DepthEstimator(nn.Module):
     def _clean(self, depth: Tensor) -> Tensor:
         return torch.nan_to_num(depth, nan=self.d_max, posinf=self.d_max).clamp(0.05, self.d_max)
 
+    def view_sources(self, c2w: Tensor) -> tuple[list[list[int]], list[str]]:
+        """Each view's sources (every other view at least `min_baseline` away: closer ones
+        give no parallax) and warnings about the views left without."""
+        v = c2w.shape[0]
+        sources: list[list[int]] = [[] for _ in range(v)]
+        warnings: list[str] = []
+        centres = c2w[:, :3, 3]
+        for ref in range(v):
+            dist = torch.linalg.vector_norm(centres - centres[ref], dim=-1)
+            src = [j for j in range(v) if j != ref and float(dist[j]) >= self.min_baseline]
+            close = [j for j in range(v) if j != ref and float(dist[j]) < self.min_baseline]
+            if close:
+                warnings.append(
+                    f"view {ref}: views {close} are within {self.min_baseline} m of it "
+                    "(no parallax): not used as sources"
+                )
+            if not src:
+                if v > 1:
+                    warnings.append(f"view {ref}: no usable source, monocular depth")
+                continue
+            sources[ref] = src
+        return sources, warnings
+
     def _mvs(self, mode, small, c2w, mono, sources, depth: Tensor) -> Tensor:
         """``depth`` with every view that has sources replaced by network ``mode``'s estimate."""
         return self._mvs_confidence(mode, small, c2w, mono, sources, depth)[0]
@@ -269,21 +292,8 @@ class DepthEstimator(nn.Module):
         if mode != "mono":
             if v == 1:
                 warnings.append("one view only: monocular depth (no multi-view stereo)")
-            centres = c2w[:, :3, 3]
-            for ref in range(v):
-                dist = torch.linalg.vector_norm(centres - centres[ref], dim=-1)
-                src = [j for j in range(v) if j != ref and float(dist[j]) >= self.min_baseline]
-                close = [j for j in range(v) if j != ref and float(dist[j]) < self.min_baseline]
-                if close:
-                    warnings.append(
-                        f"view {ref}: views {close} are within {self.min_baseline} m of it "
-                        "(no parallax): not used as sources"
-                    )
-                if not src:
-                    if v > 1:
-                        warnings.append(f"view {ref}: no usable source, monocular depth")
-                    continue
-                sources[ref] = src
+            sources, notes = self.view_sources(c2w)
+            warnings += notes
             guide = mono
             if self._fuses(mode) or self._canonical(mode):
                 unguided, conf_u = self._mvs_confidence(

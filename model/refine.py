@@ -50,14 +50,20 @@ class RefineConfig:
     see the detail)."""
 
 
-#: The refinement of a scene's cached depth at preparation (`SourceViews.refine`, the CLI's
-#: ``--refine-depth``), after the networks, the sweep and the median. Chosen on the 12
-#: validation scenes at 512 rows (`data/val_detail_classic`, `data/val_detail_home`; PanoGRF
-#: fast, middle view from the outer two; WS-PSNR / LPIPS / full-depth L1 m, about 4.7 s per
-#: scene of two views on 2 cores): without 27.21 / 0.095 / 0.126; smoothness 0.2 27.47 /
-#: 0.089 / 0.111; 0.5 27.53 / 0.088 / 0.109; 1.0 27.58 / 0.088 / 0.110; 2.0 27.52 / 0.088 /
-#: 0.111; 4.0 27.47 / 0.088 / 0.113.
-PREPARE_REFINE = RefineConfig(smooth=1.0)
+#: The refinement of a scene's cached depth at preparation (`SourceViews.refine`; on by
+#: default in view, render and eval, ``--no-refine-depth`` to skip it), after the networks, the
+#: sweep and the median. Round 11 chose the smoothness on 12 validation scenes at 512 rows
+#: (PanoGRF fast, middle view from the outer two; WS-PSNR / LPIPS / full-depth L1 m): without
+#: 27.21 / 0.095 / 0.126; smoothness 0.2 27.47 / 0.089 / 0.111; 0.5 27.53 / 0.088 / 0.109; 1.0
+#: 27.58 / 0.088 / 0.110; 2.0 27.52; 4.0 27.47. Round 16 chose the schedule on 12 new
+#: validation scenes (`python benchmarks/refine_depth.py --data data/val_refine_classic
+#: data/val_refine_home`, refine_depth_val.json; median refinement s per scene of two views
+#: on 2 cores): none 27.41 / 0.0918 / 0.116; 60 steps at 256 rows 27.83 / 0.0847 / 0.104, 3.50
+#: s; **30 at 128 rows then 30 at 256 27.84 / 0.0847 / 0.105, 2.47 s**; 45 + 15 27.82 / 0.0848
+#: / 0.107, 2.03 s; 60 at 128 27.65 / 0.0876 / 0.115, 1.37 s; 30 at 256 27.80 / 0.0847 /
+#: 0.104, 1.71 s (the cheapest within 0.03 dB, 0.002 LPIPS and 0.003 m of 60 steps wins:
+#: 30 at 256 missed by 0.003 dB).
+PREPARE_REFINE = RefineConfig(smooth=1.0, coarse=30, iterations=30)
 
 
 def nearest_sources(c2w: Tensor, sources: list[list[int]], k: int) -> list[list[int]]:
@@ -129,8 +135,10 @@ def refine_depth(
     sources: list[list[int]],
     config: RefineConfig = RefineConfig(),
     d_range: tuple[float, float] = (0.1, 10.0),
-) -> Tensor:
-    """Refined depth [V, 1, h, w]; views without sources are returned unchanged."""
+    should_stop: Callable[[], bool] | None = None,
+) -> Tensor | None:
+    """Refined depth [V, 1, h, w]; views without sources are returned unchanged. None when
+    ``should_stop`` (asked before every step) says so: a viewer closed before the end."""
     v, _, h, w = depth.shape
     log_d0 = torch.log(depth.clamp(*d_range)).detach()
     delta = torch.zeros_like(log_d0, requires_grad=True)
@@ -151,6 +159,8 @@ def refine_depth(
         dirs = erp_directions(hh, 2 * hh, device=depth.device, dtype=depth.dtype)
         wlat = latitude_weights(hh, 2 * hh, device=depth.device, dtype=depth.dtype)
         for _ in range(steps):
+            if should_stop is not None and should_stop():
+                return None
             log_d = log_d0 + delta
             full = torch.exp(
                 F.interpolate(log_d, size=(hh, 2 * hh), mode="bilinear", align_corners=False)

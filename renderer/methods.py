@@ -130,19 +130,50 @@ class SourceViews:
             with torch.no_grad():
                 out = est(_resize(self.images, small), self.c2w, mode, detail=self.images)
             depth = out.depth
-            if self.refine is not None and mode != "mono" and any(out.sources):
-                with torch.enable_grad():
-                    depth = refine_depth(
-                        self.images,
-                        self.c2w.to(depth.dtype),
-                        depth,
-                        nearest_sources(self.c2w, out.sources, est.sweep_sources),
-                        self.refine,
-                        (0.05, est.d_max),
-                    )
+            if self.refine is not None and mode != "mono":
+                depth = self.refined_depth(depth, mode, models)
             self.depth[mode] = depth
             self.seconds[f"depth:{mode}"] = time.perf_counter() - start
         return self.depth[mode]
+
+    def refined_depth(
+        self,
+        depth: Tensor,
+        mode: str,
+        models: Models,
+        should_stop: Callable[[], bool] | None = None,
+    ) -> Tensor | None:
+        """``depth`` [V, 1, h, w] of ``mode`` refined by `refine` (each view against its
+        nearest sources among those the estimator uses); unchanged without sources. None when
+        ``should_stop`` said so between steps."""
+        est = models.estimator(mode)
+        sources, _ = est.view_sources(self.c2w)
+        if self.refine is None or not any(sources):
+            return depth
+        with torch.enable_grad():
+            return refine_depth(
+                self.images,
+                self.c2w.to(depth.dtype),
+                depth,
+                nearest_sources(self.c2w, sources, est.sweep_sources),
+                self.refine,
+                (0.05, est.d_max),
+                should_stop,
+            )
+
+    def refined(self, refine: RefineConfig, models: Models, should_stop=None) -> SourceViews | None:
+        """A copy with mode full's depth (estimated here, or already) refined by ``refine``:
+        the refinement's input is this depth, so a viewer can show the plain scene first. None
+        when ``should_stop`` said so."""
+        mode = METHODS["panogrf"].depth_mode
+        out = SourceViews(self.images, self.c2w, gains=self.gains, refine=refine)
+        start = time.perf_counter()
+        depth = out.refined_depth(self.depth_for(mode, models), mode, models, should_stop)
+        if depth is None:
+            return None
+        out.depth[mode] = depth
+        out.seconds[f"refine:{mode}"] = time.perf_counter() - start
+        return out
 
     def cache_for(self, method: MethodSpec | str, models: Models) -> SceneCache:
         """The renderer's cache of a neural ``method`` (a `MethodSpec` or its name)."""

@@ -81,15 +81,19 @@ def _novel_view(data, out: Path) -> None:
     from panogrf.app.scene import session
     from panogrf.app.scoring import image_scores
     from panogrf.app.visualize import stack_rows
+    from panogrf.model import refine
     from panogrf.renderer.methods import SourceViews, prepare, render_view
 
     models = session.default_models()
     v = data.images.shape[0]
     target = v // 2
     sources = [i for i in range(v) if i != target]
-    views = SourceViews(data.images[sources], data.c2w[sources])
+    # As `panogrf render` and `view` by default: the sources' depth refined for the scene.
+    views = SourceViews(data.images[sources], data.c2w[sources], refine=refine.PREPARE_REFINE)
     height = data.images.shape[-2]
     print(f"novel view: frame {target} rendered from frames {sources} ({height}x{2 * height}):")
+    views.depth_for("full", models)
+    print(f"  depth of the sources, refined for the scene: {views.seconds['depth:full']:.2f} s")
     rows = [to_uint8(data.images[target])]
     for method in ("panogrf", "meshwarp", "nearest"):
         prepare(method, views, models)

@@ -130,10 +130,20 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--script: {exc}") from None
     from panogrf.app.scene import session
 
-    prepared = session.prepare_scene(args.scene, args.cache_dir, refine=refine_setting(args))
+    # The refined scene when it is cached; else the plain one now and the refinement in the
+    # background, swapped in when done (SceneRefiner).
+    prepared = session.prepare_scene(
+        args.scene, args.cache_dir, refine=refine_setting(args), defer_refine=True
+    )
     scene, views, models = prepared.scene, prepared.views, prepared.models
     if not 0 <= args.start_frame < scene.num_views:
         raise UserError(f"--start-frame: the scene has frames 0..{scene.num_views - 1}")
+    refiner = None
+    if prepared.pending_refine is not None:
+        from panogrf.app.viewer.scene_refiner import SceneRefiner
+
+        print("refining the depth in the background; the view switches to it when done")
+        refiner = SceneRefiner(prepared).start()
     worker = None
     if not args.no_refine:
         cache = views.cache_for("panogrf", models)
@@ -149,6 +159,7 @@ def run(args: argparse.Namespace) -> int:
         frames=args.frames,
         script=script,
         sharp=not args.no_sharp,
+        scene_refiner=refiner,
         **({"moving_height": moving} if moving else {}),
     )
     start = time.perf_counter()
@@ -157,6 +168,8 @@ def run(args: argparse.Namespace) -> int:
     finally:
         if worker is not None:
             worker.stop()
+        if refiner is not None:
+            refiner.stop()
     times = config.frame_times
     if times:
         moving = config.moving_frame_times

@@ -92,32 +92,53 @@ def _problem(tensors: dict, key: str, views: SourceViews, channels: int) -> str 
     return None
 
 
+def _cache_path(views: SourceViews, cache_dir: Path | None, weight_files: list[Path]):
+    """(key, file) of ``views``' cache: keyed by the pixels, poses, weights and refinement."""
+    cache_dir = Path(cache_dir) if cache_dir is not None else default_cache_dir()
+    setting = "" if views.refine is None else f"refine {views.refine!r}"
+    key = content_key(views.images, views.c2w, weight_files, setting)
+    return key, cache_dir / f"{key}.safetensors"
+
+
+def load_cached(
+    views: SourceViews, models: Models, cache_dir: Path | None, weight_files: list[Path]
+) -> tuple[CacheResult | None, str | None]:
+    """(the loaded cache's result, None) when a valid cache of ``views`` is on disk (``views``
+    filled with its depth and renderer maps), else (None, why not: None if there is none)."""
+    import time
+
+    start = time.perf_counter()
+    key, path = _cache_path(views, cache_dir, weight_files)
+    if not path.exists():
+        return None, None
+    c = models.renderer(METHOD.renderer).config.feature_channels
+    try:
+        tensors = load_file(str(path))
+        why = _problem(tensors, key, views, c)
+    except (SafetensorError, OSError, ValueError, RuntimeError) as exc:
+        why = f"unreadable ({type(exc).__name__})"
+    if why is not None:
+        return None, why
+    views.depth[METHOD.depth_mode] = tensors["depth"]
+    views.caches[METHOD.cache_key] = SceneCache(
+        views.images, views.c2w, tensors["depth"], tensors["maps"], c
+    )
+    return CacheResult(path, "loaded", time.perf_counter() - start), None
+
+
 def prepare_cached(
     views: SourceViews, models: Models, cache_dir: Path | None, weight_files: list[Path]
 ) -> CacheResult:
     """Fill ``views`` with the depth and renderer cache of the method, from disk when a valid
-    cache exists, else by computing them (and writing the cache, atomically)."""
+    cache exists, else by computing them (depth already in ``views`` is used as it is) and
+    writing the cache, atomically."""
     import time
 
     start = time.perf_counter()
-    cache_dir = Path(cache_dir) if cache_dir is not None else default_cache_dir()
-    setting = "" if views.refine is None else f"refine {views.refine!r}"
-    key = content_key(views.images, views.c2w, weight_files, setting)
-    path = cache_dir / f"{key}.safetensors"
-    why = None
-    c = models.renderer(METHOD.renderer).config.feature_channels
-    if path.exists():
-        try:
-            tensors = load_file(str(path))
-            why = _problem(tensors, key, views, c)
-        except (SafetensorError, OSError, ValueError, RuntimeError) as exc:
-            why = f"unreadable ({type(exc).__name__})"
-        if why is None:
-            views.depth[METHOD.depth_mode] = tensors["depth"]
-            views.caches[METHOD.cache_key] = SceneCache(
-                views.images, views.c2w, tensors["depth"], tensors["maps"], c
-            )
-            return CacheResult(path, "loaded", time.perf_counter() - start)
+    loaded, why = load_cached(views, models, cache_dir, weight_files)
+    if loaded is not None:
+        return loaded
+    key, path = _cache_path(views, cache_dir, weight_files)
     cache = views.cache_for(METHOD, models)
     tensors = {
         "depth": cache.depth.contiguous(),
@@ -126,7 +147,7 @@ def prepare_cached(
     }
     status = "built" if why is None else f"rebuilt: {why}"
     try:
-        cache_dir.mkdir(parents=True, exist_ok=True)
+        path.parent.mkdir(parents=True, exist_ok=True)
         with atomic_output(path) as tmp:
             save_file(tensors, str(tmp), metadata={"format": FORMAT})
     # A read-only or full disk (safetensors reports it as its own error) costs the cache only.

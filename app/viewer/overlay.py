@@ -76,6 +76,7 @@ class OverlayMixin:
             f"pos {p[0]:+.2f} {p[1]:+.2f} {p[2]:+.2f} m  speed {self.camera.speed:.2f} m/s",
             f"{shown}  {view}",
             f"{fps:.0f} fps  {status}",
+            *([refiner.status_text()] if (refiner := self.setup.scene_refiner) else []),
             self.path.status(),
             *self._coverage_lines(pose),
             *self.messages,

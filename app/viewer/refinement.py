@@ -79,6 +79,13 @@ class Refinement:
             self.requested = True
         return self.moved
 
+    def restart(self) -> None:
+        """The scene changed under a still camera (refined depth arrived): request the same
+        pose again at once; until its first level is done the preview is shown."""
+        self.requested = False
+        self.shown = (-1, -1)
+        self.still_since = self.clock() - self.still_delay
+
     @property
     def state(self) -> str:
         if self.worker is None:

@@ -83,6 +83,9 @@ class ViewerSetup:
     mesh_height: int | None = 128  # rows of the preview's depth meshes (None: the depth's own)
     mesh_triangles: int | None = 10000  # each mesh simplified to this many (None: all kept)
     max_views: int | None = 2  # sources drawn per frame, the nearest (None: all)
+    # The per-scene depth refinement running in the background (`SceneRefiner`; None: none):
+    # its refined scene replaces the plain one at the first frame after it is ready.
+    scene_refiner: object | None = None
 
     @classmethod
     def from_views(cls, views, start_frame: int = 0, **kw) -> ViewerSetup:
@@ -110,20 +113,11 @@ class PanoViewer(ExportsMixin, OverlayMixin, mglw.WindowConfig):
 
     def __init__(self, **kwargs) -> None:
         super().__init__(**kwargs)
-        from panogrf.renderer.gl_preview import PreviewRenderer
 
         s = self.setup
         # The two nearest sources and simplified meshes: a CPU rasteriser's vertex stage and the
         # per-frame seam split scale with the triangles (see benchmarks/viewer.py).
-        self.preview = PreviewRenderer(
-            self.ctx,
-            s.images,
-            s.depth,
-            s.c2w,
-            mesh_height=s.mesh_height,
-            max_views=s.max_views,
-            mesh_triangles=s.mesh_triangles,
-        )
+        self.preview = self._make_preview(s.depth)
         # One display program per (perspective, distance, fill, rotate, sharp) mode, made when
         # first needed.
         self.displays: dict[tuple[int, ...], tuple] = {}
@@ -161,6 +155,39 @@ class PanoViewer(ExportsMixin, OverlayMixin, mglw.WindowConfig):
         self._keymap = self._make_keymap()
 
     # -- helpers -------------------------------------------------------------------------------
+    def _make_preview(self, depth: np.ndarray):
+        from panogrf.renderer.gl_preview import PreviewRenderer
+
+        s = self.setup
+        return PreviewRenderer(
+            self.ctx,
+            s.images,
+            depth,
+            s.c2w,
+            mesh_height=s.mesh_height,
+            max_views=s.max_views,
+            mesh_triangles=s.mesh_triangles,
+        )
+
+    def _swap_refined_scene(self) -> None:
+        """The background depth refinement finished: the GL preview's meshes and the render
+        worker's cache come from the refined depth from this frame on, and the still view is
+        refined again from it."""
+        refiner = self.setup.scene_refiner
+        prepared = refiner.take() if refiner is not None else None
+        if prepared is None:
+            return
+        views = prepared.views
+        depth = views.depth["full"][:, 0].numpy()
+        old, self.preview = self.preview, self._make_preview(depth)
+        old.release()
+        self.setup.depth = depth
+        self.preview_key = self.preview_out = None
+        if self.setup.worker is not None:
+            self.setup.worker.replace_cache(views.cache_for("panogrf", prepared.models))
+            self.refinement.restart()
+        self.say(refiner.status_text())
+
     def _texture(self, rgb: np.ndarray) -> moderngl.Texture:
         tex = self.ctx.texture((rgb.shape[1], rgb.shape[0]), 3, np.ascontiguousarray(rgb))
         tex.repeat_x = True
@@ -278,6 +305,7 @@ class PanoViewer(ExportsMixin, OverlayMixin, mglw.WindowConfig):
                 self.moving_frame_times.append(start - self.last_start)
         self.last_start = start
         dt = self.setup.fixed_step or min(frame_time, 0.1)
+        self._swap_refined_scene()
         self.script.step(self.press, self.held, self.refinement.done)
         if self.path.playback is not None:  # real time: the wall clock's whole frame time
             pose, self.camera.fov, finished = self.path.advance(self.setup.fixed_step or frame_time)

@@ -109,6 +109,17 @@ class RenderWorker:
             self._wake.notify_all()
             return self._generation
 
+    def replace_cache(self, cache: SceneCache) -> None:
+        """Render from ``cache`` from now on (the scene's refined depth arrived); whatever was
+        being refined from the old one is dropped."""
+        with self._wake:
+            self.cache = cache
+            self._subsets = {}
+            self._generation += 1
+            self._pose = None
+            self._progress, self._level = 0.0, -1
+            self._latest = None
+
     def cancel(self) -> None:
         """The camera moves: drop whatever is being refined."""
         with self._wake:
@@ -135,14 +146,16 @@ class RenderWorker:
 
     def _nearest(self, pose: np.ndarray, count: int | None) -> SceneCache:
         """The cache of the ``count`` sources nearest to ``pose`` (all: None), memoised."""
-        if count is None or count >= self.cache.num_views:
-            return self.cache
-        centres = self.cache.c2w[:, :3, 3].double().numpy()
+        with self._lock:  # `replace_cache` may swap both at any time
+            cache, subsets = self.cache, self._subsets
+        if count is None or count >= cache.num_views:
+            return cache
+        centres = cache.c2w[:, :3, 3].double().numpy()
         dist = np.linalg.norm(centres - pose[:3, 3], axis=-1)
         key = tuple(sorted(np.argsort(dist, kind="stable")[:count].tolist()))
-        if key not in self._subsets:
-            self._subsets[key] = self.cache.select(list(key))
-        return self._subsets[key]
+        if key not in subsets:
+            subsets[key] = cache.select(list(key))
+        return subsets[key]
 
     def _warm_up(self) -> None:
         """A small render of the first level before the first request: the first real one

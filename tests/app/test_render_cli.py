@@ -46,18 +46,17 @@ def test_render_any_pose_and_summary(random_nets, tmp_path, capsys):
     assert read_rgb(out).shape == (16, 32, 3)
 
 
-def test_render_refine_depth_refines_the_sources_depth(random_nets, tmp_path, monkeypatch):
-    """``--refine-depth`` reaches the preparation: the same pose renders differently, because
-    the sources' depth was refined (a short refinement here; the shipped one is
-    `panogrf.model.refine.PREPARE_REFINE`)."""
-    from panogrf.model import refine
-
-    monkeypatch.setattr(refine, "PREPARE_REFINE", refine.RefineConfig(iterations=3, height=32))
+def test_render_refines_the_sources_depth_by_default(random_nets, tmp_path):
+    """The per-scene refinement reaches the preparation by default (``--refine-depth``) and
+    ``--no-refine-depth`` skips it: the same pose renders differently, because the sources'
+    depth was refined (a short refinement in tests: conftest's ``quick_scene_refinement``)."""
     args = ["render", str(DEMO), "--target-frame", "1", "--height", "32", "--sources", "0,2"]
-    plain, refined = tmp_path / "plain.png", tmp_path / "refined.png"
-    assert cli.main([*args, "--out", str(plain)]) == 0
-    assert cli.main([*args, "--out", str(refined), "--refine-depth"]) == 0
+    plain, refined, again = (tmp_path / f"{n}.png" for n in ("plain", "refined", "again"))
+    assert cli.main([*args, "--out", str(plain), "--no-refine-depth"]) == 0
+    assert cli.main([*args, "--out", str(refined)]) == 0
+    assert cli.main([*args, "--out", str(again), "--refine-depth"]) == 0
     assert not np.array_equal(read_rgb(plain), read_rgb(refined))
+    assert np.array_equal(read_rgb(refined), read_rgb(again))
 
 
 @pytest.mark.parametrize(

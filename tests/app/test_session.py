@@ -49,3 +49,51 @@ def test_prepare_scene_with_given_networks_leaves_the_disk_cache_alone(tmp_path)
     assert prepared.scene.num_views == prepared.views.images.shape[0]
     assert not (tmp_path / "cache").exists()
     assert "not cached" in prepared.cache.status and logged
+
+
+def test_a_deferred_refinement_opens_plain_then_caches_the_refined_scene(tmp_path):
+    """The viewer's path: without a refined scene on disk, the plain one is prepared and the
+    refinement left pending; `refine_prepared` refines that depth and writes the refined
+    scene, which the next deferred preparation loads at once, with nothing pending."""
+    import torch
+
+    from panogrf.model import refine
+
+    cache = tmp_path / "cache"
+    config = refine.PREPARE_REFINE  # conftest's quick one
+    first = session.prepare_scene(
+        asset_path("demo"), cache, log=lambda *a: None, refine=config, defer_refine=True
+    )
+    assert first.pending_refine == config and first.views.refine is None
+    plain = first.views.depth["full"]
+    done = session.refine_prepared(first, log=lambda *a: None)
+    assert done.pending_refine is None and done.views.refine == config
+    assert done.cache.status == "built"
+    refined = done.views.depth["full"]
+    assert refined.shape == plain.shape and not torch.equal(refined, plain)
+    assert len(list(cache.glob("*.safetensors"))) == 2  # the plain and the refined scene
+    again = session.prepare_scene(
+        asset_path("demo"), cache, log=lambda *a: None, refine=config, defer_refine=True
+    )
+    assert again.pending_refine is None and again.cache.status == "loaded"
+    assert torch.equal(again.views.depth["full"], refined)
+
+
+def test_a_stopped_background_refinement_writes_nothing(tmp_path):
+    from panogrf.app.viewer.scene_refiner import SceneRefiner
+    from panogrf.model import refine
+
+    cache = tmp_path / "cache"
+    prepared = session.prepare_scene(
+        asset_path("demo"),
+        cache,
+        log=lambda *a: None,
+        refine=refine.PREPARE_REFINE,
+        defer_refine=True,
+    )
+    refiner = SceneRefiner(prepared, log=lambda *a: None)
+    refiner.stop()  # before its first step
+    refiner.start().join(60)
+    assert refiner.take() is None and refiner.error is None
+    assert refiner.status_text() == "depth refinement stopped"
+    assert len(list(cache.glob("*.safetensors"))) == 1  # the plain scene only

@@ -74,6 +74,7 @@ def test_window_moves_on_key_presses(xvfb, tmp_path):
         "--size",
         "512x256",
         "--no-refine",
+        "--no-refine-depth",
         "--screenshot-dir",
         str(tmp_path),
         "--cache-dir",
@@ -133,6 +134,7 @@ def test_headless_session_writes_screenshots_and_a_camera_path(tmp_path):
         "--size",
         "256x128",
         "--no-refine",
+        "--no-refine-depth",
         "--screenshot-dir",
         str(tmp_path),
         "--cache-dir",
@@ -188,6 +190,7 @@ def test_headless_session_survives_a_failed_save_and_plays_in_real_time(tmp_path
         "--size",
         "300x100",
         "--no-refine",
+        "--no-refine-depth",
         "--screenshot-dir",
         str(tmp_path),
         "--cache-dir",
@@ -284,3 +287,42 @@ def test_the_preview_has_fewer_rows_while_moving(tmp_path, script, frames, sharp
     config = run_viewer(setup, "headless", (256, 128))
     assert (config.preview_out.sharp is not None) == sharp
     assert config.preview_out.blend.size == (2 * rows, rows)
+
+
+def test_the_refined_depth_replaces_the_plain_one_in_a_running_session(tmp_path):
+    """`panogrf view` opens on the plain scene while the refinement runs in the background:
+    when it is done, the next frame rebuilds the GL preview from the refined depth, hands the
+    refined cache to the render worker and refines the still view again from it."""
+    from panogrf.app.scene.session import prepare_scene
+    from panogrf.app.viewer.scene_refiner import SceneRefiner
+    from panogrf.app.viewer.window import ViewerSetup, parse_script, run_viewer
+    from panogrf.app.viewer.worker import RenderWorker
+    from panogrf.model import refine
+
+    quiet = lambda *a: None  # noqa: E731
+    prepared = prepare_scene(
+        DEMO, tmp_path / "c", log=quiet, refine=refine.PREPARE_REFINE, defer_refine=True
+    )
+    plain = prepared.views.depth["full"][:, 0].numpy().copy()
+    refiner = SceneRefiner(prepared, log=quiet).start()
+    refiner.join(120)  # done before the window opens: the swap happens at the first frame
+    cache = prepared.views.cache_for("panogrf", prepared.models)
+    worker = RenderWorker(prepared.models.renderer("panogrf"), cache, threads=1).start()
+    messages = []
+    setup = ViewerSetup.from_views(
+        prepared.views,
+        worker=worker,
+        script=parse_script("refined,escape"),
+        frames=3000,
+        fixed_step=0.05,
+        scene_refiner=refiner,
+        log=messages.append,
+    )
+    try:
+        config = run_viewer(setup, "headless", (128, 64))
+    finally:
+        worker.stop()
+    assert not np.array_equal(setup.depth, plain)
+    assert worker.cache is not cache and worker.cache.depth.shape[0] == plain.shape[0]
+    assert any(m.startswith("depth refined") for m in messages), messages
+    assert config.refinement.done() and config.shown_level is not None

@@ -1,0 +1,85 @@
+"""The per-scene depth refinement in the background, while the viewer already shows the scene.
+
+`panogrf view` refines the sources' depth per scene by default (`panogrf.model.refine`, a few
+seconds per view on 2 cores). Unless the refined scene is in the disk cache, the window opens
+on the plain scene at once and this thread refines it (`session.refine_prepared`, which also
+writes the refined scene to the disk cache); the window takes the result at its next frame
+(`take`) and swaps it in: the GL preview's meshes and the render worker's cache.
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+
+
+class SceneRefiner:
+    """One background refinement of a `PreparedScene` with a pending refinement."""
+
+    def __init__(self, prepared, log=print) -> None:
+        self.prepared = prepared
+        self.log = log
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._result = None  # the refined PreparedScene until taken
+        self._taken = False
+        self._error: str | None = None
+        self._started = 0.0
+        self._seconds: float | None = None
+        self._thread = threading.Thread(target=self._run, name="panogrf-refine", daemon=True)
+
+    def start(self) -> SceneRefiner:
+        self._started = time.perf_counter()
+        self._thread.start()
+        return self
+
+    def stop(self, timeout: float = 30.0) -> None:
+        """Ask the refinement to stop at its next step (nothing is written) and wait for it."""
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout)
+
+    def join(self, timeout: float | None = None) -> None:
+        self._thread.join(timeout)
+
+    def take(self):
+        """The refined `PreparedScene` once it is ready, a single time; else None."""
+        with self._lock:
+            if self._result is None or self._taken:
+                return None
+            self._taken = True
+            return self._result
+
+    @property
+    def error(self) -> str | None:
+        with self._lock:
+            return self._error
+
+    def status_text(self) -> str:
+        """For the overlay: what the depth refinement is doing."""
+        with self._lock:
+            if self._error is not None:
+                return f"depth refinement failed: {self._error}"
+            if self._seconds is not None:
+                return f"depth refined ({self._seconds:.1f} s)"
+        if self._stop.is_set():
+            return "depth refinement stopped"
+        return f"refining depth ({time.perf_counter() - self._started:.0f} s)"
+
+    def _run(self) -> None:
+        from panogrf.app.scene import session
+
+        try:
+            out = session.refine_prepared(self.prepared, self._stop.is_set, self.log)
+        except Exception as exc:  # shown on screen and in the terminal; the plain scene stays
+            message = f"{type(exc).__name__}: {exc}"
+            with self._lock:
+                self._error = message
+            print(f"panogrf view: depth refinement failed: {message}", file=sys.stderr)
+            return
+        if out is None:  # stopped
+            return
+        with self._lock:
+            self._result = out
+            self._seconds = time.perf_counter() - self._started
