@@ -35,6 +35,7 @@ from panogrf.app.bench.settings import (
     release_scene,
     render_setting,
 )
+from panogrf.model.refine import RefineConfig
 from panogrf.renderer.methods import Models, SourceViews
 
 METRICS = ("ws_psnr", "lpips", "psnr", "ssim")
@@ -66,6 +67,8 @@ class BenchConfig:
     """Baselines (m) of the stability sweep (empty: no sweep)."""
     cases: tuple[str, ...] = CASES
     """Hard cases for the gallery (empty: none)."""
+    refine: RefineConfig | None = None
+    """The per-scene depth refinement of every depth-reading setting (the CLI's default)."""
 
 
 @dataclass
@@ -132,11 +135,12 @@ def _timing(setting, views, c2w, cfg, models, gl, seconds_at_height) -> dict:
     return {"seconds": sec, "time_scaled": False, "peak_mib": mem.mib}
 
 
-def _triplet_views(folder: Path) -> tuple[SourceViews, Tensor, Tensor]:
+def _triplet_views(folder: Path, refine=None) -> tuple[SourceViews, Tensor, Tensor]:
     from panogrf.app.scene.folder import load_scene
 
     d = load_scene(folder, load_images=True).images
-    return SourceViews(d.images[[0, 2]], d.c2w[[0, 2]]), d.c2w[1], d.images[1:2]
+    views = SourceViews(d.images[[0, 2]], d.c2w[[0, 2]], refine=refine)
+    return views, d.c2w[1], d.images[1:2]
 
 
 def run_bench(cfg: BenchConfig, models: Models, log: Callable[[str], None] = print) -> dict:
@@ -153,7 +157,7 @@ def run_bench(cfg: BenchConfig, models: Models, log: Callable[[str], None] = pri
     }
     try:
         for n, (b, folder) in enumerate(triplets + real):
-            views, c2w, truth = _triplet_views(folder)
+            views, c2w, truth = _triplet_views(folder, cfg.refine)
             line = [f"[{n + 1}/{len(triplets) + len(real)}] {folder.name} ({b or 'real'} m)"]
             for s in cfg.settings:
                 t0 = time.perf_counter()
@@ -174,7 +178,7 @@ def run_bench(cfg: BenchConfig, models: Models, log: Callable[[str], None] = pri
         cases = make_cases(cfg.case_height, cfg.cases, cfg.sweep) if cfg.cases or cfg.sweep else []
         case_out: dict[str, dict[str, Rendered]] = {}
         for case in cases:
-            views = SourceViews(case.images, case.c2w)
+            views = SourceViews(case.images, case.c2w, refine=cfg.refine)
             case_out[case.name] = {}
             for s in cfg.settings:
                 rgb, sec = _render(s, views, case.target_c2w, cfg.case_height, models, gl)
@@ -251,6 +255,7 @@ def _report(cfg, baselines, per, cases, case_out, models) -> dict:
             "case_height": cfg.case_height,
             "sweep": list(cfg.sweep),
             "cases": list(cfg.cases),
+            "refine_depth": None if cfg.refine is None else repr(cfg.refine),
         },
         "results": results,
         "frontier": fronts,

@@ -22,7 +22,7 @@ from pathlib import Path
 import torch
 
 from panogrf.app.errors import UserError
-from panogrf.app.runtime import metres_list, thread_count
+from panogrf.app.runtime import add_refine_depth, metres_list, refine_setting, thread_count
 
 
 def register(subparsers) -> None:
@@ -92,6 +92,7 @@ def register(subparsers) -> None:
     parser.add_argument(
         "--threads", type=thread_count, default=0, help="torch threads (default: all)"
     )
+    add_refine_depth(parser)
     parser.set_defaults(func=run)
 
 
@@ -138,6 +139,7 @@ def run(args: argparse.Namespace) -> int:
         time_height=args.time_height,
         time_budget=args.time_budget,
         real=real,
+        refine=refine_setting(args),
         case_height=args.case_height,
         sweep=args.sweep,
         cases=cases,

@@ -133,6 +133,10 @@ def test_bench_command_on_a_tiny_dataset(tmp_path, capsys):
     assert set(r["sweep"]) == {"0.5"} and set(r["cases"]) == {"at_source"}
     assert report["frontier"]["ws_psnr"][0] == "nearest"  # the cheapest is always on it
     assert report["problems"] == {}
+    from panogrf.model import refine
+
+    # The per-scene refinement, as the CLI's default (conftest's quick one in tests).
+    assert report["config"]["refine_depth"] == repr(refine.PREPARE_REFINE)
     table = (out / "table.md").read_text()
     assert "`panogrf:draft`" in table and "at_source" in table
     assert "panogrf:draft" in capsys.readouterr().out
