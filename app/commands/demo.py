@@ -93,7 +93,8 @@ def _novel_view(data, out: Path) -> None:
     height = data.images.shape[-2]
     print(f"novel view: frame {target} rendered from frames {sources} ({height}x{2 * height}):")
     views.depth_for("full", models)
-    print(f"  depth of the sources, refined for the scene: {views.seconds['depth:full']:.2f} s")
+    seconds = views.seconds["depth:full"]
+    print(f"  depth of the sources, estimated and refined for the scene: {seconds:.2f} s")
     rows = [to_uint8(data.images[target])]
     for method in ("panogrf", "meshwarp", "nearest"):
         prepare(method, views, models)
