@@ -86,39 +86,30 @@ def main() -> int:
     from panogrf.app.scene.folder import load_scene
     from panogrf.app.scene.session import default_models
     from panogrf.app.scoring import image_scores
-    from panogrf.model.refine import nearest_sources, refine_depth
     from panogrf.renderer.methods import SourceViews, prepare, render_view
 
     names = [s.strip() for s in args.settings.split("|") if s.strip()]
     settings = {name: parse_setting(name) for name in names}
     models = default_models()
-    est = models.estimator("full")
+    d_max = models.estimator("full").d_max
     rows: dict[str, list[dict]] = {name: [] for name in names}
     start = time.perf_counter()
     folders = [f for root in args.data for f in scenes(root)]
     for folder in folders:
         data = load_scene(folder, load_images=True).images
         plain = SourceViews(data.images[[0, 2]], data.c2w[[0, 2]])
-        base = plain.depth_for("full", models)
-        c2w = plain.c2w.to(base.dtype)
-        sources = nearest_sources(plain.c2w, [[1], [0]], est.sweep_sources)
+        plain.depth_for("full", models)
         for name, config in settings.items():
+            # The library's own path (`SourceViews.refined`, as `panogrf view` takes it).
             t0 = time.perf_counter()
-            if config is None:
-                depth = base
-            else:
-                with torch.enable_grad():
-                    depth = refine_depth(
-                        plain.images, c2w, base, sources, config, (0.05, est.d_max)
-                    )
+            views = plain if config is None else plain.refined(config, models)
             seconds = time.perf_counter() - t0
-            views = SourceViews(plain.images, plain.c2w, gains=plain.gains)
-            views.depth["full"] = depth
+            depth = views.depth["full"]
             prepare("panogrf", views, models)
             rgb = render_view("panogrf", views, data.c2w[1], args.height, models, "fast")
             scores = image_scores(rgb, data.images[1:2])
             row = {k: scores[k] for k in KEYS[:3]}
-            row |= {"depth_l1": depth_l1(depth, data, est.d_max), "seconds": seconds}
+            row |= {"depth_l1": depth_l1(depth, data, d_max), "seconds": seconds}
             rows[name].append(row)
             print(
                 f"{folder.parent.name}/{folder.name} {name:>28}: WS-PSNR {row['ws_psnr']:.2f} "

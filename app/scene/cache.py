@@ -108,7 +108,17 @@ def load_cached(
     import time
 
     start = time.perf_counter()
-    key, path = _cache_path(views, cache_dir, weight_files)
+    loaded, why = _load(views, models, *_cache_path(views, cache_dir, weight_files))
+    if loaded is not None:
+        loaded.seconds = time.perf_counter() - start
+    return loaded, why
+
+
+def _load(
+    views: SourceViews, models: Models, key: str, path: Path
+) -> tuple[CacheResult | None, str | None]:
+    """`load_cached` with the cache's key and file already computed (the key hashes the
+    weight files' bytes: done once per preparation)."""
     if not path.exists():
         return None, None
     c = models.renderer(METHOD.renderer).config.feature_channels
@@ -123,7 +133,7 @@ def load_cached(
     views.caches[METHOD.cache_key] = SceneCache(
         views.images, views.c2w, tensors["depth"], tensors["maps"], c
     )
-    return CacheResult(path, "loaded", time.perf_counter() - start), None
+    return CacheResult(path, "loaded", 0.0), None
 
 
 def prepare_cached(
@@ -135,10 +145,11 @@ def prepare_cached(
     import time
 
     start = time.perf_counter()
-    loaded, why = load_cached(views, models, cache_dir, weight_files)
-    if loaded is not None:
-        return loaded
     key, path = _cache_path(views, cache_dir, weight_files)
+    loaded, why = _load(views, models, key, path)
+    if loaded is not None:
+        loaded.seconds = time.perf_counter() - start
+        return loaded
     cache = views.cache_for(METHOD, models)
     tensors = {
         "depth": cache.depth.contiguous(),

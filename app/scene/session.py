@@ -102,28 +102,26 @@ def prepare_scene(
     scene = load_scene(scene_dir, load_images=True)
     views = SourceViews(scene.images.images, scene.images.c2w, refine=refine)
     log(f"preparing {scene_dir} ({scene.num_views} views, {scene.width}x{scene.height})...")
-    pending = None
+    deferring = defer_refine and refine is not None
     on_disk = models is None
-    if models is None:
+    result = files = None
+    if on_disk:
         models = default_models()
         files = weight_files("panogrf")
         missing = [p.name for p in files if not p.exists()]
         if missing:
             raise UserError(f"missing weights {missing}: reproduce them with `panogrf train`")
-        result = None
-        if defer_refine and refine is not None:
+        if deferring:
             result, _ = load_cached(views, models, cache_dir, files)
-            if result is None:  # the plain scene now, the refined one later
-                views = SourceViews(views.images, views.c2w, gains=views.gains)
-                pending = refine
-        if result is None:
-            result = prepare_cached(views, models, cache_dir, files)
-    else:
+    pending = None
+    if deferring and result is None:  # the plain scene now, the refined one later
+        views = SourceViews(views.images, views.c2w, gains=views.gains)
+        pending = refine
+    if result is None and on_disk:
+        result = prepare_cached(views, models, cache_dir, files)
+    elif result is None:
         # Other networks than the shipped files: the disk cache (keyed by those files) is
         # neither read nor written.
-        if defer_refine and refine is not None:
-            views = SourceViews(views.images, views.c2w, gains=views.gains)
-            pending = refine
         start = time.perf_counter()
         views.cache_for(METHOD, models)
         seconds = time.perf_counter() - start
