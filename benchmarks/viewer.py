@@ -18,6 +18,13 @@
   ``--repeats``; it includes the viewer's debounce (`STILL_DELAY`) and the viewer drawing
   beside the worker. Beside it, in the same process, the seed's method as published (64 + 64
   samples per ray at 512 x 1024, all sources) once, as the baseline;
+- the per-scene depth refinement (on by default since round 16), which `panogrf view` runs in
+  a background thread while the window already shows the plain scene: its seconds alone
+  (`session.refine_prepared` on a deferred preparation, median of ``--repeats``), then
+  ``--repeats`` viewer sessions that walk back and forth while it runs: its seconds there,
+  the preview's median frame period while it runs and after the refined scene was swapped
+  in, and the time the swap takes in its frame (new preview meshes, the worker's new cache);
+  ``--no-background`` skips it;
 - peak resident memory of the process.
 A table is printed last.
 """
@@ -45,6 +52,14 @@ def main() -> None:
     parser.add_argument("--skip-paper", action="store_true", help="skip the 64 + 64 baseline")
     parser.add_argument(
         "--no-sharp", action="store_true", help="the preview upsampled while moving (not sharp)"
+    )
+    parser.add_argument(
+        "--no-background",
+        action="store_true",
+        help="skip the sessions during the background depth refinement",
+    )
+    parser.add_argument(
+        "--walks", type=int, default=8, help="walks forward and back per background session"
     )
     args = parser.parse_args()
     from panogrf.app.runtime import keep_freed_memory
@@ -121,6 +136,7 @@ def main() -> None:
         render_panorama(net, cache, views.c2w[0], 512, "paper")
         paper_s = time.perf_counter() - t0
         print(f"paper (64 + 64) 512x1024: {paper_s:.1f} s")
+    background = None if args.no_background else background_sessions(scene_dir, args, quiet)
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
     report = {
@@ -142,6 +158,7 @@ def main() -> None:
         "refine_first_level_s": {"median": statistics.median(first), "runs": first},
         "refine_full_512x1024_s": {"median": statistics.median(full), "runs": full},
         "paper_64_64_512x1024_s": paper_s,
+        "background_refinement": background,
         "peak_rss_mb": peak_mb,
         "machine": f"{platform.machine()}, {torch.get_num_threads()} torch threads, CPU, "
         "Mesa llvmpipe (EGL)",
@@ -159,10 +176,95 @@ def main() -> None:
     ]
     if paper_s is not None:
         rows.append(("paper / fast refinement", f"{paper_s / statistics.median(full):.1f}x", ""))
+    if background is not None:
+        b = background
+        rows += [
+            ("depth refinement alone", f"{b['alone_s']['median']:.2f} s", "-"),
+            ("depth refinement in the viewer", f"{b['in_viewer_s']['median']:.2f} s", "-"),
+            ("preview while it runs", f"{1000 / b['refining_frame_ms']['median']:.1f} fps", "-"),
+            ("preview after the swap", f"{1000 / b['after_frame_ms']['median']:.1f} fps", "-"),
+            ("swap into the viewer", f"{1000 * b['swap_s']['median']:.0f} ms", "-"),
+        ]
     print(f"\n{'measure':<32} {'median':>12} {'target':>10}")
     for name, value, target in rows:
         print(f"{name:<32} {value:>12} {target:>10}")
     print(f"wrote {args.out}")
+
+
+def background_sessions(scene_dir: Path, args, quiet) -> dict:
+    """The depth refinement alone, then in the background of ``args.repeats`` viewer sessions
+    that walk while it runs (as `panogrf view` does): seconds, frame periods, the swap."""
+    from panogrf.app.scene.session import prepare_scene, refine_prepared
+    from panogrf.app.viewer.scene_refiner import SceneRefiner
+    from panogrf.app.viewer.window import ViewerSetup, parse_script, run_viewer
+    from panogrf.app.viewer.worker import LEVELS, RenderWorker
+    from panogrf.model.refine import PREPARE_REFINE
+
+    def deferred(tmp: str):
+        prepared = prepare_scene(
+            scene_dir, Path(tmp), refine=PREPARE_REFINE, defer_refine=True, log=quiet
+        )
+        assert prepared.pending_refine is not None
+        return prepared
+
+    alone = []
+    for _ in range(args.repeats):
+        with tempfile.TemporaryDirectory() as tmp:
+            prepared = deferred(tmp)
+            t0 = time.perf_counter()
+            refine_prepared(prepared, log=quiet)
+            alone.append(time.perf_counter() - t0)
+    in_viewer, refining, after, swaps = [], [], [], []
+    walks = ",".join(f"{'ws'[k % 2]}*{args.walk_frames}" for k in range(args.walks))
+    for _ in range(args.repeats):
+        with tempfile.TemporaryDirectory() as tmp:
+            prepared = deferred(tmp)
+            views, models = prepared.views, prepared.models
+            worker = RenderWorker(
+                models.renderer("panogrf"), views.cache_for("panogrf", models), levels=LEVELS
+            ).start()
+            refiner = SceneRefiner(prepared, log=quiet).start()
+            setup = ViewerSetup.from_views(
+                views,
+                worker=worker,
+                script=parse_script(f"{walks},esc"),
+                fixed_step=1 / 30,
+                preview_height=512,
+                scene_refiner=refiner,
+                log=quiet,
+            )
+            try:
+                config = run_viewer(setup, "headless", (1024, 512))
+            finally:
+                worker.stop()
+                refiner.stop()
+            if not config.scene_swapped:
+                raise SystemExit(
+                    f"the refinement did not finish within {args.walks} walks: raise --walks"
+                )
+            n = len(config.refining_frame_times)
+            in_viewer.append(refiner.seconds)
+            refining.append(1000 * statistics.median(config.refining_frame_times))
+            after.append(1000 * statistics.median(config.moving_frame_times[n + 1 :]))
+            swaps.append(config.swap_seconds)
+    print(
+        f"depth refinement: alone {statistics.median(alone):.2f} s, in the viewer "
+        f"{statistics.median(in_viewer):.2f} s; preview {statistics.median(refining):.1f} ms "
+        f"per frame while it runs, {statistics.median(after):.1f} ms after the swap "
+        f"({1000 * statistics.median(swaps):.0f} ms)"
+    )
+
+    def med(runs: list[float]) -> dict:
+        return {"median": statistics.median(runs), "runs": runs}
+
+    return {
+        "setting": repr(PREPARE_REFINE),
+        "alone_s": med(alone),
+        "in_viewer_s": med(in_viewer),
+        "refining_frame_ms": med(refining),
+        "after_frame_ms": med(after),
+        "swap_s": med(swaps),
+    }
 
 
 if __name__ == "__main__":

@@ -48,6 +48,9 @@ class RefineConfig:
     """Adam steps compared at ``height // 2`` rows before the ``iterations`` at ``height`` (a
     quarter of the pixels each: the correction's large moves are made cheaply, the last steps
     see the detail)."""
+    fine: int = 0
+    """Adam steps compared at ``2 * height`` rows after the ``iterations`` (four times the
+    pixels each; capped at the images' own rows): the detail of a 512-row capture."""
 
 
 #: The refinement of a scene's cached depth at preparation (`SourceViews.refine`; on by
@@ -62,7 +65,11 @@ class RefineConfig:
 #: s; **30 at 128 rows then 30 at 256 27.84 / 0.0847 / 0.105, 2.47 s**; 45 + 15 27.82 / 0.0848
 #: / 0.107, 2.03 s; 60 at 128 27.65 / 0.0876 / 0.115, 1.37 s; 30 at 256 27.80 / 0.0847 /
 #: 0.104, 1.71 s (the cheapest within 0.03 dB, 0.002 LPIPS and 0.003 m of 60 steps wins:
-#: 30 at 256 missed by 0.003 dB).
+#: 30 at 256 missed by 0.003 dB). Round 17 measured steps at 512 rows after them (``fine``; the
+#: same scenes, refine_fine_val.json; it needed +0.10 dB to ship): 5 27.87 / 0.0841 / 0.103,
+#: 1.43x the time; 10 27.87 / 0.0837 / 0.102, 1.95x; 20 27.90 / 0.0833 / 0.101, 2.86x; 30 + 15
+#: + 10 27.83 / 0.0839 / 0.103, 1.56x: +0.03 to +0.06 dB for 1.4 to 2.9 times the time, so
+#: ``fine`` stays 0.
 PREPARE_REFINE = RefineConfig(smooth=1.0, coarse=30, iterations=30)
 
 
@@ -144,14 +151,19 @@ def refine_depth(
     delta = torch.zeros_like(log_d0, requires_grad=True)
     opt = torch.optim.Adam([delta], lr=config.lr)
     refs = [r for r in range(v) if sources[r]]
-    if not refs or config.iterations + config.coarse <= 0:
+    if not refs or config.iterations + config.coarse + config.fine <= 0:
         return depth
     # Image gradients at the depth's resolution for the edge-aware smoothness.
     small = F.interpolate(images, size=(h, w), mode="area").mean(1, keepdim=True)
     gx_img = (small - torch.roll(small, 1, -1)).abs()
     gy_img = (small[..., 1:, :] - small[..., :-1, :]).abs()
     wx, wy = torch.exp(-10 * gx_img), torch.exp(-10 * gy_img)
-    for hh, steps in ((config.height // 2, config.coarse), (config.height, config.iterations)):
+    stages = (
+        (config.height // 2, config.coarse),
+        (config.height, config.iterations),
+        (min(2 * config.height, images.shape[-2]), config.fine),
+    )
+    for hh, steps in stages:
         if steps <= 0:
             continue
         mode = "area" if images.shape[-2] > hh else "bilinear"

@@ -52,6 +52,12 @@ class SceneRefiner:
             return self._result
 
     @property
+    def seconds(self) -> float | None:
+        """How long the refinement took, once it is done."""
+        with self._lock:
+            return self._seconds
+
+    @property
     def error(self) -> str | None:
         with self._lock:
             return self._error

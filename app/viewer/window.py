@@ -146,6 +146,10 @@ class PanoViewer(ExportsMixin, OverlayMixin, mglw.WindowConfig):
         self.frame_count = 0
         self.frame_times: list[float] = []  # seconds between consecutive frame starts
         self.moving_frame_times: list[float] = []  # the same, of frames where the camera moved
+        # Moving frames while the scene's depth was still refined in the background.
+        self.refining_frame_times: list[float] = []
+        self.scene_swapped = False
+        self.swap_seconds: float | None = None  # the frame's time spent swapping the scene in
         self.last_start: float | None = None
         self.preview_key = None
         self.preview_out = None
@@ -177,6 +181,8 @@ class PanoViewer(ExportsMixin, OverlayMixin, mglw.WindowConfig):
         prepared = refiner.take() if refiner is not None else None
         if prepared is None:
             return
+        self.scene_swapped = True
+        t0 = time.perf_counter()
         views = prepared.views
         depth = views.depth["full"][:, 0].numpy()
         old, self.preview = self.preview, self._make_preview(depth)
@@ -186,6 +192,7 @@ class PanoViewer(ExportsMixin, OverlayMixin, mglw.WindowConfig):
         if self.setup.worker is not None:
             self.setup.worker.replace_cache(views.cache_for("panogrf", prepared.models))
             self.refinement.restart()
+        self.swap_seconds = time.perf_counter() - t0
         self.say(refiner.status_text())
 
     def _texture(self, rgb: np.ndarray) -> moderngl.Texture:
@@ -303,6 +310,8 @@ class PanoViewer(ExportsMixin, OverlayMixin, mglw.WindowConfig):
             self.frame_times.append(start - self.last_start)
             if self.refinement.moved:
                 self.moving_frame_times.append(start - self.last_start)
+                if self.setup.scene_refiner is not None and not self.scene_swapped:
+                    self.refining_frame_times.append(start - self.last_start)
         self.last_start = start
         dt = self.setup.fixed_step or min(frame_time, 0.1)
         self._swap_refined_scene()
