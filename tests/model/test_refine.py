@@ -149,6 +149,23 @@ def test_a_coarse_stage_alone_also_reduces_the_error(scene):
     assert (out - small).abs().mean() < 0.5 * (wrong - small).abs().mean()
 
 
+def test_a_fine_stage_alone_reduces_the_error_at_no_more_than_the_images_rows(scene):
+    images, c2w, depth = scene
+    small = torch.nn.functional.interpolate(depth, size=(32, 64), mode="area")
+    wrong = small * 1.1
+    config = RefineConfig(iterations=0, fine=40, height=32)  # compared at 64 rows
+    out = refine_depth(images, c2w, wrong, [[1], [0]], config)
+    assert (out - small).abs().mean() < 0.5 * (wrong - small).abs().mean()
+    # Twice the rows of the images: compared at the images' own rows, as many steps.
+    rows = images.shape[-2]
+    capped = RefineConfig(iterations=0, fine=40, height=rows)
+    again = RefineConfig(iterations=40, height=rows)
+    torch.testing.assert_close(
+        refine_depth(images, c2w, wrong, [[1], [0]], capped),
+        refine_depth(images, c2w, wrong, [[1], [0]], again),
+    )
+
+
 def test_fast_window_means_match_average_pooling():
     """The separable slice sums of `photometric_error` and `box_mean` against
     ``F.avg_pool2d`` on the same seam-wrapped, pole-repeated padding."""
