@@ -35,7 +35,11 @@ from panogrf.model.refine import (
     photometric_choice,
     sweep_depth,
 )
-from panogrf.model.select import HypothesisSelector, selection_features
+from panogrf.model.select import (
+    HypothesisSelector,
+    cross_view_consistency,
+    selection_features,
+)
 
 MODES = ("full", "mono", "mvs")
 GUIDES = ("mono", "aligned", "mvs")
@@ -229,40 +233,12 @@ class DepthEstimator(nn.Module):
             return 1.0
         return float((mono[ok] / mvs[ok]).median().clamp(0.25, 4.0))
 
-    def _chooser(self, pixels: Tensor, mono: Tensor, confidence: Tensor):
+    def _chooser(self, pixels: Tensor, mono: Tensor, confidence: Tensor) -> _SelectorChooser:
         """`sweep_depth`'s ``chooser`` for the two fused hypotheses: the selector's choice
-        (or, without one, the photometric rule), the selector's input appended to ``record``
-        when recording. mono, confidence: [V, 1 | 2, h, w] at the working resolution."""
-        rows = self.selector.config.rows if self.selector is not None else 128
-        images: dict[int, Tensor] = {}
-
-        def choose(r: int, cost: Tensor, log_hyp: Tensor, ends: Tensor, offsets: Tensor):
-            hh, ww = cost.shape[-2:]
-            if hh not in images:
-                mode = "area" if pixels.shape[-2] > hh else "bilinear"
-                images[hh] = F.interpolate(pixels, size=(hh, ww), mode=mode)
-            up = dict(size=(hh, ww), mode="bilinear", align_corners=False)
-            log_mono = F.interpolate(torch.log(self._clean(mono[r : r + 1])), **up)[0, 0]
-            conf = F.interpolate(confidence[r : r + 1], **up)[0]
-            feats = selection_features(
-                images[hh][r], cost, log_hyp, ends, log_mono, conf, offsets, rows
-            )
-            rule = photometric_choice(cost, offsets, self.switch_gain)
-            if self.record is not None:
-                pool = dict(size=feats.shape[-2:], mode="area")
-                self.record.append(
-                    {
-                        "view": r,
-                        "features": feats,
-                        "ends": F.interpolate(ends[None], **pool)[0],
-                        "rule": F.interpolate(rule[None, None].to(feats), **pool)[0, 0],
-                    }
-                )
-            if self.selector is None:
-                return rule
-            return self.selector.choose(feats, (hh, ww), rule, self.select_margin)
-
-        return choose
+        (or, without one, the photometric rule), made once every view's search ends are
+        known (`cross_view_consistency`); the selector's input appended to ``record`` when
+        recording. mono, confidence: [V, 1 | 2, h, w] at the working resolution."""
+        return _SelectorChooser(self, pixels, mono, confidence)
 
     @torch.no_grad()
     def forward(
@@ -355,3 +331,57 @@ class DepthEstimator(nn.Module):
         if canonical_far is not None:
             out_of_range |= canonical_far
         return DepthEstimate(depth, mono_depth, out_of_range, sources, warnings)
+
+
+class _SelectorChooser:
+    """`DepthEstimator._chooser`: each view's selection features and photometric rule are made
+    when the sweep reaches it; the choice is made in `finish`, when the cross-view consistency
+    of every view's search ends can be measured."""
+
+    def __init__(self, estimator: DepthEstimator, pixels: Tensor, mono: Tensor, confidence):
+        self.est = estimator
+        self.pixels, self.mono, self.confidence = pixels, mono, confidence
+        self.rows = estimator.selector.config.rows if estimator.selector is not None else 128
+        self.images: dict[int, Tensor] = {}
+        self.pending: dict[int, tuple[Tensor, Tensor]] = {}  # view -> (features, rule)
+
+    def __call__(self, r: int, cost: Tensor, log_hyp: Tensor, ends: Tensor, offsets: Tensor):
+        hh, ww = cost.shape[-2:]
+        if hh not in self.images:
+            mode = "area" if self.pixels.shape[-2] > hh else "bilinear"
+            self.images[hh] = F.interpolate(self.pixels, size=(hh, ww), mode=mode)
+        up = dict(size=(hh, ww), mode="bilinear", align_corners=False)
+        log_mono = F.interpolate(torch.log(self.est._clean(self.mono[r : r + 1])), **up)[0, 0]
+        conf = F.interpolate(self.confidence[r : r + 1], **up)[0]
+        feats = selection_features(
+            self.images[hh][r], cost, log_hyp, ends, log_mono, conf, offsets, self.rows
+        )
+        self.pending[r] = (feats, photometric_choice(cost, offsets, self.est.switch_gain))
+        return None
+
+    def finish(self, ends: dict[int, Tensor], c2w: Tensor, sources: list[list[int]]):
+        pooled = {
+            r: F.interpolate(ends[r][None], size=feats.shape[-2:], mode="area")[0]
+            for r, (feats, _) in self.pending.items()
+        }
+        consistency = cross_view_consistency(pooled, c2w, sources)
+        out = {}
+        for r, (feats, rule) in self.pending.items():
+            feats = torch.cat((feats, consistency[r]))
+            if self.est.record is not None:
+                pool = dict(size=feats.shape[-2:], mode="area")
+                self.est.record.append(
+                    {
+                        "view": r,
+                        "features": feats,
+                        "ends": pooled[r],
+                        "rule": F.interpolate(rule[None, None].to(feats), **pool)[0, 0],
+                    }
+                )
+            if self.est.selector is None:
+                out[r] = rule
+            else:
+                out[r] = self.est.selector.choose(
+                    feats, tuple(rule.shape), rule, self.est.select_margin
+                )
+        return out

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Protocol
 
 import torch
 import torch.nn.functional as F
@@ -222,10 +223,22 @@ class SweepConfig:
     """A pixel moves only if its best cost is this much below the cost at the network's depth."""
 
 
-#: Picks each pixel's hypothesis in `sweep_depth`: (view r, cost curves [K, D, H, W], the
-#: hypotheses' log depth [K, H, W], where the search from each ends [K, H, W], the offsets [D])
-#: -> index [H, W] (long) of the hypothesis each pixel keeps.
-Chooser = Callable[[int, Tensor, Tensor, Tensor, Tensor], Tensor]
+class Chooser(Protocol):
+    """Picks each pixel's hypothesis in `sweep_depth`."""
+
+    def __call__(
+        self, r: int, cost: Tensor, log_hyp: Tensor, ends: Tensor, offsets: Tensor
+    ) -> Tensor | None:
+        """(view r, cost curves [K, D, H, W], the hypotheses' log depth [K, H, W], where the
+        search from each ends [K, H, W], the offsets [D]) -> index [H, W] (long) of the
+        hypothesis each pixel keeps; None: decided in `finish`, once every view's search
+        ends are known."""
+
+    def finish(
+        self, ends: dict[int, Tensor], c2w: Tensor, sources: list[list[int]]
+    ) -> dict[int, Tensor]:
+        """The indices of the views left undecided, given the search ends [K, H, W] of every
+        view that has sources."""
 
 
 def median_filter(depth: Tensor, window: int) -> Tensor:
@@ -272,7 +285,8 @@ def sweep_depth(
 
     ``chooser``: picks each pixel's hypothesis instead of the photometric rule (see `Chooser`;
     `panogrf.model.select`). It is given every hypothesis' cost curve and where the search
-    from each would end, and returns the index of the hypothesis each pixel keeps.
+    from each would end, and returns the index of the hypothesis each pixel keeps, or leaves
+    the choice to its ``finish``, which sees every view's search ends (cross-view checks).
     """
     v, _, h, w = depth.shape
     hh, ww = config.height, 2 * config.height
@@ -290,6 +304,16 @@ def sweep_depth(
     centre = int(torch.argmin(offsets.abs()))
     step = float(offsets[1] - offsets[0]) if len(offsets) > 1 else 0.0
     out = depth.clone()
+
+    def move(r: int, ends: Tensor, start: Tensor) -> None:
+        end = ends.gather(0, start[None])[0]
+        # The change against ``depth``, averaged down to the depth's grid: pixels that keep
+        # the first hypothesis and do not move stay exactly as given.
+        change = end - log_hyp[0, r]
+        small = F.interpolate(change[None, None], size=(h, w), mode="area")[0]
+        out[r] = (depth[r] * torch.exp(small)).clamp(*d_range)
+
+    pending: dict[int, Tensor] = {}  # search ends of the views the chooser decides at the end
     for r in range(v):
         if not sources[r]:
             continue
@@ -307,12 +331,13 @@ def sweep_depth(
             start = photometric_choice(cost, offsets, switch_gain)
         else:
             start = chooser(r, cost, log_hyp[:, r], ends, offsets)
-        end = ends.gather(0, start[None])[0]
-        # The change against ``depth``, averaged down to the depth's grid: pixels that keep
-        # the first hypothesis and do not move stay exactly as given.
-        change = end - log_hyp[0, r]
-        small = F.interpolate(change[None, None], size=(h, w), mode="area")[0]
-        out[r] = (depth[r] * torch.exp(small)).clamp(*d_range)
+        if start is None:
+            pending[r] = ends
+        else:
+            move(r, ends, start)
+    if pending:
+        for r, start in chooser.finish(pending, c2w, sources).items():
+            move(r, pending[r], start)
     return out
 
 

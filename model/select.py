@@ -33,12 +33,16 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from panogrf.model.erp import latitude_weights
+from panogrf.model.erp import erp_to_world, latitude_weights, sample_erp, world_to_erp
 from panogrf.model.layers import CircularConv2d
 from panogrf.model.refine import box_mean
 
 #: Channels of `selection_features`.
 FEATURES = 18
+#: Channels of `cross_view_consistency`, after them.
+CONSISTENCY = 2
+#: Largest |log depth| disagreement `cross_view_consistency` reports.
+CONSISTENCY_CAP = 0.5
 
 
 @dataclass(frozen=True)
@@ -53,6 +57,10 @@ class SelectorConfig:
     """A scene-wide summary (the latitude-weighted mean of the hidden features, through a
     linear layer) added to every pixel's hidden features: whether the monocular prior holds is
     a property of the whole capture, which a pixel's neighbourhood cannot see."""
+    consistency: bool = False
+    """The selector also sees how well each hypothesis' search end agrees in 3D with the
+    search ends of the view's sources (`cross_view_consistency`): a depth that is right in
+    one view reappears in the others, whatever the texture says."""
 
 
 def _local_std(gray: Tensor, k: int = 7) -> Tensor:
@@ -100,6 +108,30 @@ def selection_features(
     return feats
 
 
+def cross_view_consistency(
+    ends: dict[int, Tensor], c2w: Tensor, sources: list[list[int]]
+) -> dict[int, Tensor]:
+    """For every view r of ``ends`` (its hypotheses' search ends [2, h, w], log metres), how far
+    each end's point is from the surfaces its sources' ends put there: [2, h, w], the smallest
+    |log(distance from the source) - log(the source's end at that pixel)| over the sources in
+    ``ends`` and their two ends (nearest pixel), at most `CONSISTENCY_CAP` (also where no
+    source has ends). Small: the end reappears in another view's depth."""
+    out = {}
+    for r, e in ends.items():
+        h, w = e.shape[-2:]
+        best = torch.full_like(e, CONSISTENCY_CAP)
+        for s in sources[r]:
+            if s not in ends:
+                continue
+            points = erp_to_world(torch.exp(e), c2w[r].to(e))  # [2, h*w, 3]
+            uv, dist = world_to_erp(points, c2w[s].to(e), h, w)
+            seen = sample_erp(ends[s][None].expand(2, -1, -1, -1), uv, "nearest")  # [2, 2, N]
+            gap = (torch.log(dist.clamp(min=1e-3))[:, None] - seen).abs().amin(1)
+            best = torch.minimum(best, gap.reshape(2, h, w))
+        out[r] = best.clamp(max=CONSISTENCY_CAP)
+    return out
+
+
 class HypothesisSelector(nn.Module):
     """Selection features [B, FEATURES, h, w] -> logit [B, 1, h, w] that the unguided depth's
     search ends nearer the truth than the mono-guided one's."""
@@ -108,8 +140,9 @@ class HypothesisSelector(nn.Module):
         super().__init__()
         self.config = config
         c = config.channels
+        self.inputs = FEATURES + (CONSISTENCY if config.consistency else 0)
         self.net = nn.Sequential(
-            CircularConv2d(FEATURES, c, 3, padding=1),
+            CircularConv2d(self.inputs, c, 3, padding=1),
             nn.ReLU(inplace=True),
             CircularConv2d(c, c, 3, padding=2, dilation=2),
             nn.ReLU(inplace=True),
@@ -120,7 +153,9 @@ class HypothesisSelector(nn.Module):
         self.context = nn.Linear(c, c) if config.context else None
 
     def forward(self, features: Tensor) -> Tensor:
-        hidden = self.net[:4](features)
+        """features [B, C >= inputs, h, w]: the first ``inputs`` channels are read (the
+        consistency channels follow `selection_features`' when recorded)."""
+        hidden = self.net[:4](features[:, : self.inputs])
         if self.context is not None:
             h, w = hidden.shape[-2:]
             lat = latitude_weights(h, w, dtype=hidden.dtype)

@@ -163,6 +163,11 @@ def register(subparsers) -> None:
         action="store_true",
         help="no scene-wide summary in the selector (round 14's: local only)",
     )
+    select.add_argument(
+        "--no-consistency",
+        action="store_true",
+        help="the selector does not see the cross-view consistency of the search ends (round 15's)",
+    )
     select.add_argument("--seed", type=int, default=0, help="seed (default 0)")
     select.add_argument(
         "--threads", type=thread_count, default=0, help="torch threads (default: all)"
@@ -303,6 +308,7 @@ def run_select(args: argparse.Namespace) -> int:
         shift=args.mono_shift,
         height=args.height,
         context=not args.no_context,
+        consistency=not args.no_consistency,
         seed=args.seed,
         limit_scenes=args.limit_scenes,
     )

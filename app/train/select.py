@@ -38,7 +38,7 @@ from panogrf.app.train.loop import Steps, held_back, save_trained
 from panogrf.app.train.renderer import _weights_key
 from panogrf.model.depth import DepthEstimator
 from panogrf.model.photometric import balance_exposure
-from panogrf.model.select import HypothesisSelector, SelectorConfig
+from panogrf.model.select import CONSISTENCY, FEATURES, HypothesisSelector, SelectorConfig
 
 
 @dataclass
@@ -69,6 +69,9 @@ class TrainSelectConfig:
     """Largest weight of a pixel (metres by which one search end is nearer the truth)."""
     context: bool = True
     """The selector sees a scene-wide summary of its features (`SelectorConfig.context`)."""
+    consistency: bool = True
+    """The selector sees the cross-view consistency of the search ends
+    (`SelectorConfig.consistency`)."""
     seed: int = 0
     log_every: int = 100
     limit_scenes: int | None = None
@@ -82,7 +85,8 @@ RECORD_KEYS = ("features", "ends", "truth", "rule")
 def _key(estimator: DepthEstimator, names: list[str], cfg: TrainSelectConfig) -> str:
     h = hashlib.sha256(_weights_key(estimator).encode())
     h.update("\n".join(names).encode())
-    h.update(json.dumps([cfg.shift, cfg.photometric, cfg.height, cfg.seed]).encode())
+    channels = FEATURES + CONSISTENCY  # what a record holds per pixel
+    h.update(json.dumps([cfg.shift, cfg.photometric, cfg.height, cfg.seed, channels]).encode())
     return h.hexdigest()[:16]
 
 
@@ -96,10 +100,11 @@ def record_scenes(
     photometric rule gives the unguided depth}. Cached in the data folder."""
     path = Path(cfg.data) / f".select_{_key(estimator, [data.names[i] for i in indices], cfg)}"
     path = path.with_suffix(".safetensors")
+    channels = FEATURES + CONSISTENCY
     if path.exists():
         try:
             cached = load_file(str(path))
-            if set(cached) == set(RECORD_KEYS):
+            if set(cached) == set(RECORD_KEYS) and cached["features"].shape[1] == channels:
                 return cached
             log(f"selector cache {path.name} holds {sorted(cached)}: rebuilding")
         except Exception as exc:  # a broken cache is rebuilt, never trusted
@@ -191,7 +196,11 @@ def train_selector(cfg: TrainSelectConfig, estimator: DepthEstimator, log=print)
         val = record_scenes(estimator, data, val_idx.tolist(), cfg, log)
     finally:
         estimator.selector = selector
-    net = HypothesisSelector(SelectorConfig(rows=train["features"].shape[-2], context=cfg.context))
+    net = HypothesisSelector(
+        SelectorConfig(
+            rows=train["features"].shape[-2], context=cfg.context, consistency=cfg.consistency
+        )
+    )
     log(
         f"selector ({sum(p.numel() for p in net.parameters())} parameters): "
         f"{train['features'].shape[0]} training views, {val['features'].shape[0]} held back"

@@ -269,7 +269,7 @@ def test_the_selector_chooses_and_the_record_holds_its_input(estimator):
     """Mode full fused: with ``record`` a list, every reference view's selector input and search
     ends are appended (with the world's scale); without a selector the photometric rule still
     chooses (the depth is unchanged); a selector that always says "unguided" changes it."""
-    from panogrf.model.select import FEATURES, HypothesisSelector, SelectorConfig
+    from panogrf.model.select import CONSISTENCY, FEATURES, HypothesisSelector, SelectorConfig
 
     images = _images(2, WORKING, seed=7)
     c2w = _poses((0, 0, 0), (1.0, 0, 0))
@@ -284,7 +284,8 @@ def test_the_selector_chooses_and_the_record_holds_its_input(estimator):
     assert [e["view"] for e in record] == [0, 1]
     rows = SelectorConfig().rows
     for e in record:
-        assert e["features"].shape == (FEATURES, rows, 2 * rows)
+        # The selection features, then the cross-view consistency of both search ends.
+        assert e["features"].shape == (FEATURES + CONSISTENCY, rows, 2 * rows)
         assert e["ends"].shape == (2, rows, 2 * rows) and e["rule"].shape == (rows, 2 * rows)
         assert e["scale"] > 0
     unguided = HypothesisSelector().eval()

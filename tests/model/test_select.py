@@ -98,3 +98,53 @@ def test_unsure_pixels_keep_the_fallbacks_choice(bias):
     unsure = abs(torch.sigmoid(torch.tensor(bias)) - 0.5) < 0.1
     assert torch.equal(choice, fallback if unsure else plain)
     assert torch.equal(plain, torch.full((32, 64), int(bias > 0)))
+
+
+def _sphere_depth(centre: torch.Tensor, radius: float, h: int) -> torch.Tensor:
+    """Spherical depth [h, 2h] of a camera at ``centre`` (identity rotation) inside a sphere of
+    ``radius`` around the origin: |c + t d| = radius solved for t."""
+    from panogrf.model.erp import erp_directions
+
+    d = erp_directions(h, 2 * h)
+    b = (d * centre).sum(-1)
+    return -b + torch.sqrt(b * b - (centre @ centre - radius**2))
+
+
+def test_cross_view_consistency_finds_the_end_that_reappears_in_the_other_view():
+    """Two views inside a sphere: the true depth's points land on the other view's true depth
+    (near zero); a wrong end (30 % too far in one view, 30 % too near in the other) lands on
+    neither of the other view's ends; a view whose source has no search ends gets the cap."""
+    from panogrf.model.select import CONSISTENCY_CAP, cross_view_consistency
+
+    h = 48
+    centres = torch.tensor([[0.0, 0.0, 0.0], [0.8, 0.0, 0.3]])
+    c2w = torch.eye(4).repeat(2, 1, 1)
+    c2w[:, :3, 3] = centres
+    ends = {}
+    for v, wrong in enumerate((1.3, 0.7)):
+        true = torch.log(_sphere_depth(centres[v], 3.0, h))
+        ends[v] = torch.stack((true, true + torch.log(torch.tensor(wrong))))
+    out = cross_view_consistency(ends, c2w, [[1], [0]])
+    for v in range(2):
+        assert out[v].shape == (2, h, 2 * h)
+        assert float(out[v][0].median()) < 0.02  # the right end reappears
+        assert float(out[v][1].median()) > 0.1  # the wrong one does not
+        assert float(out[v].max()) <= CONSISTENCY_CAP
+    alone = cross_view_consistency({0: ends[0]}, c2w, [[1], [0]])
+    torch.testing.assert_close(alone[0], torch.full_like(ends[0], CONSISTENCY_CAP))
+
+
+def test_a_selector_without_consistency_reads_only_the_selection_features():
+    """Records hold the consistency channels after the features; a selector trained without
+    them (round 15's) reads the first `FEATURES` and gives the same logit either way."""
+    from panogrf.model.select import CONSISTENCY
+
+    torch.manual_seed(0)
+    plain = HypothesisSelector(SelectorConfig(context=True)).eval()
+    feats = torch.rand(1, FEATURES + CONSISTENCY, 16, 32)
+    torch.testing.assert_close(plain(feats), plain(feats[:, :FEATURES]))
+    with_it = HypothesisSelector(SelectorConfig(context=True, consistency=True)).eval()
+    assert with_it.net[0].in_channels == FEATURES + CONSISTENCY
+    changed = feats.clone()
+    changed[:, FEATURES:] += 0.3
+    assert not torch.allclose(with_it(feats), with_it(changed))
