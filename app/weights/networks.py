@@ -49,7 +49,7 @@ RENDERER_WEIGHTS = {
 
 # Config fields added after some shipped weights were trained, with the value those weights
 # implicitly have.
-ADDED_DEFAULTS = {"trunk": 0, "context": False}
+ADDED_DEFAULTS = {"trunk": 0, "context": False, "consistency": False}
 
 
 def weights_path(name: str) -> Path:
