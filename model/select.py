@@ -18,9 +18,15 @@ network put out of its domain on some scenes (`panogrf.app.train.augment.out_of_
 that a wrong prior is among what it sees.
 
 It also sees a summary of the whole panorama (``SelectorConfig.context``): whether the prior
-holds is a property of the capture. Where its probability is within a margin of one half, the
-caller keeps the photometric rule's choice (`choose`'s ``fallback``;
-`DepthEstimator.select_margin`).
+holds is a property of the capture. And it can see, per pixel, whether each hypothesis' search
+end reappears in the view's sources (``SelectorConfig.consistency``, `cross_view_consistency`):
+the point it puts in the world, seen from a source, should lie on that source's own depth. The
+photometric curves say how well the colours match, which blank walls and repeated wallpaper
+leave open; this says whether the views agree on the geometry. The choice is therefore made
+once the sweep has every view's search ends (`panogrf.model.refine.Chooser.finish`).
+
+Where its probability is within a margin of one half, the caller keeps the photometric rule's
+choice (`choose`'s ``fallback``; `DepthEstimator.select_margin`).
 
 25k parameters at 128 x 256: about 0.02 s per pair of views (`depth_select_val.json`).
 """
