@@ -19,12 +19,11 @@
   beside the worker. Beside it, in the same process, the seed's method as published (64 + 64
   samples per ray at 512 x 1024, all sources) once, as the baseline;
 - the per-scene depth refinement (on by default since round 16), which `panogrf view` runs in
-  a background thread while the window already shows the plain scene: its seconds alone
-  (`session.refine_prepared` on a deferred preparation, median of ``--repeats``), then
-  ``--repeats`` viewer sessions that walk back and forth while it runs: its seconds there,
-  the preview's median frame period while it runs and after the refined scene was swapped
-  in, and the time the swap takes in its frame (new preview meshes, the worker's new cache);
-  ``--no-background`` skips it;
+  a background thread while the window already shows the plain scene: its seconds in the main
+  thread (`session.refine_prepared` on a deferred preparation) and in `SceneRefiner`'s thread
+  with nothing else running, median of ``--repeats``; then ``--repeats`` viewer sessions of
+  ``--walks`` walks that start with it: the preview's median frame period while it runs
+  (the sessions end before it does); ``--no-background`` skips it;
 - peak resident memory of the process.
 A table is printed last.
 """
@@ -179,11 +178,9 @@ def main() -> None:
     if background is not None:
         b = background
         rows += [
-            ("depth refinement alone", f"{b['alone_s']['median']:.2f} s", "-"),
-            ("depth refinement in the viewer", f"{b['in_viewer_s']['median']:.2f} s", "-"),
+            ("depth refinement, main thread", f"{b['main_thread_s']['median']:.2f} s", "-"),
+            ("depth refinement, background", f"{b['background_thread_s']['median']:.2f} s", "-"),
             ("preview while it runs", f"{1000 / b['refining_frame_ms']['median']:.1f} fps", "-"),
-            ("preview after the swap", f"{1000 / b['after_frame_ms']['median']:.1f} fps", "-"),
-            ("swap into the viewer", f"{1000 * b['swap_s']['median']:.0f} ms", "-"),
         ]
     print(f"\n{'measure':<32} {'median':>12} {'target':>10}")
     for name, value, target in rows:
@@ -192,8 +189,9 @@ def main() -> None:
 
 
 def background_sessions(scene_dir: Path, args, quiet) -> dict:
-    """The depth refinement alone, then in the background of ``args.repeats`` viewer sessions
-    that walk while it runs (as `panogrf view` does): seconds, frame periods, the swap."""
+    """The depth refinement in the main thread, then in `SceneRefiner`'s background thread with
+    nothing else running, then beside ``args.repeats`` viewer sessions that walk while it runs
+    (as `panogrf view` does): seconds, and the preview's frame period while it runs."""
     from panogrf.app.scene.session import prepare_scene, refine_prepared
     from panogrf.app.viewer.scene_refiner import SceneRefiner
     from panogrf.app.viewer.window import ViewerSetup, parse_script, run_viewer
@@ -207,14 +205,17 @@ def background_sessions(scene_dir: Path, args, quiet) -> dict:
         assert prepared.pending_refine is not None
         return prepared
 
-    alone = []
+    main, thread, refining = [], [], []
     for _ in range(args.repeats):
         with tempfile.TemporaryDirectory() as tmp:
             prepared = deferred(tmp)
             t0 = time.perf_counter()
             refine_prepared(prepared, log=quiet)
-            alone.append(time.perf_counter() - t0)
-    in_viewer, refining, after, swaps = [], [], [], []
+            main.append(time.perf_counter() - t0)
+        with tempfile.TemporaryDirectory() as tmp:
+            refiner = SceneRefiner(deferred(tmp), log=quiet).start()
+            refiner.join()
+            thread.append(refiner.seconds)
     walks = ",".join(f"{'ws'[k % 2]}*{args.walk_frames}" for k in range(args.walks))
     for _ in range(args.repeats):
         with tempfile.TemporaryDirectory() as tmp:
@@ -238,20 +239,13 @@ def background_sessions(scene_dir: Path, args, quiet) -> dict:
             finally:
                 worker.stop()
                 refiner.stop()
-            if not config.scene_swapped:
-                raise SystemExit(
-                    f"the refinement did not finish within {args.walks} walks: raise --walks"
-                )
-            n = len(config.refining_frame_times)
-            in_viewer.append(refiner.seconds)
+            if not config.refining_frame_times:
+                raise SystemExit("the refinement ended before the walk began: lower --walks")
             refining.append(1000 * statistics.median(config.refining_frame_times))
-            after.append(1000 * statistics.median(config.moving_frame_times[n + 1 :]))
-            swaps.append(config.swap_seconds)
     print(
-        f"depth refinement: alone {statistics.median(alone):.2f} s, in the viewer "
-        f"{statistics.median(in_viewer):.2f} s; preview {statistics.median(refining):.1f} ms "
-        f"per frame while it runs, {statistics.median(after):.1f} ms after the swap "
-        f"({1000 * statistics.median(swaps):.0f} ms)"
+        f"depth refinement: main thread {statistics.median(main):.2f} s, background thread "
+        f"{statistics.median(thread):.2f} s; preview {statistics.median(refining):.1f} ms per "
+        "frame while it runs"
     )
 
     def med(runs: list[float]) -> dict:
@@ -259,11 +253,9 @@ def background_sessions(scene_dir: Path, args, quiet) -> dict:
 
     return {
         "setting": repr(PREPARE_REFINE),
-        "alone_s": med(alone),
-        "in_viewer_s": med(in_viewer),
+        "main_thread_s": med(main),
+        "background_thread_s": med(thread),
         "refining_frame_ms": med(refining),
-        "after_frame_ms": med(after),
-        "swap_s": med(swaps),
     }
 
 

@@ -17,9 +17,19 @@ import time
 class SceneRefiner:
     """One background refinement of a `PreparedScene` with a pending refinement."""
 
-    def __init__(self, prepared, log=print) -> None:
+    def __init__(self, prepared, log=print, threads: int = 1) -> None:
         self.prepared = prepared
         self.log = log
+        self.threads = threads
+        """Torch threads of the refinement. One: torch's intra-op threads are fast in the
+        main thread only (its OpenMP team spins between the refinement's many small ops); a
+        second thread's team is not (on 2 cores the demo's refinement took 19.7 s in a thread
+        with two against 8.1 s in the main thread), and one thread leaves the other core to
+        the window and the render worker. Torch's count is process-wide for threads started
+        later, so the caller's count is put back when the refinement ends."""
+        import torch
+
+        self._caller_threads = torch.get_num_threads()
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._result = None  # the refined PreparedScene until taken
@@ -74,8 +84,12 @@ class SceneRefiner:
         return f"refining depth ({time.perf_counter() - self._started:.0f} s)"
 
     def _run(self) -> None:
+        import torch
+
         from panogrf.app.scene import session
 
+        if self.threads:
+            torch.set_num_threads(self.threads)
         try:
             out = session.refine_prepared(self.prepared, self._stop.is_set, self.log)
         except Exception as exc:  # shown on screen and in the terminal; the plain scene stays
@@ -84,6 +98,9 @@ class SceneRefiner:
                 self._error = message
             print(f"panogrf view: depth refinement failed: {message}", file=sys.stderr)
             return
+        finally:
+            if self.threads:
+                torch.set_num_threads(self._caller_threads)
         if out is None:  # stopped
             return
         with self._lock:
