@@ -22,11 +22,12 @@ class SceneRefiner:
         self.log = log
         self.threads = threads
         """Torch threads of the refinement. One: torch's intra-op threads are fast in the
-        main thread only (its OpenMP team spins between the refinement's many small ops); a
-        second thread's team is not (on 2 cores the demo's refinement took 19.7 s in a thread
-        with two against 8.1 s in the main thread), and one thread leaves the other core to
-        the window and the render worker. Torch's count is process-wide for threads started
-        later, so the caller's count is put back when the refinement ends."""
+        main thread only (in a profile the same small element-wise ops took twice as long in
+        another thread); on 2 cores the bundled scene's refinement took 6.75 s in the main
+        thread, 9.78 s here with one thread (`benchmarks/viewer.py`) and 15-20 s with two
+        (single runs), and one thread leaves the other core to the window and the render
+        worker. Torch's count is process-wide for threads started later, so the caller's count
+        is put back when the refinement ends."""
         import torch
 
         self._caller_threads = torch.get_num_threads()

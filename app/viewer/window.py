@@ -149,7 +149,6 @@ class PanoViewer(ExportsMixin, OverlayMixin, mglw.WindowConfig):
         # Moving frames while the scene's depth was still refined in the background.
         self.refining_frame_times: list[float] = []
         self.scene_swapped = False
-        self.swap_seconds: float | None = None  # the frame's time spent swapping the scene in
         self.last_start: float | None = None
         self.preview_key = None
         self.preview_out = None
@@ -182,7 +181,6 @@ class PanoViewer(ExportsMixin, OverlayMixin, mglw.WindowConfig):
         if prepared is None:
             return
         self.scene_swapped = True
-        t0 = time.perf_counter()
         views = prepared.views
         depth = views.depth["full"][:, 0].numpy()
         old, self.preview = self.preview, self._make_preview(depth)
@@ -192,7 +190,6 @@ class PanoViewer(ExportsMixin, OverlayMixin, mglw.WindowConfig):
         if self.setup.worker is not None:
             self.setup.worker.replace_cache(views.cache_for("panogrf", prepared.models))
             self.refinement.restart()
-        self.swap_seconds = time.perf_counter() - t0
         self.say(refiner.status_text())
 
     def _texture(self, rgb: np.ndarray) -> moderngl.Texture:

@@ -97,3 +97,48 @@ def test_a_stopped_background_refinement_writes_nothing(tmp_path):
     assert refiner.take() is None and refiner.error is None
     assert refiner.status_text() == "depth refinement stopped"
     assert len(list(cache.glob("*.safetensors"))) == 1  # the plain scene only
+
+
+def test_the_background_refinement_gives_the_thread_count_back(tmp_path):
+    """`SceneRefiner` refines on one torch thread (fast in a thread that is not the main one)
+    and puts the caller's count back when done: threads started later (the render worker)
+    get the caller's, not one."""
+    import threading
+
+    import torch
+
+    from panogrf.app.viewer.scene_refiner import SceneRefiner
+    from panogrf.model import refine
+
+    prepared = session.prepare_scene(
+        asset_path("demo"),
+        tmp_path / "cache",
+        log=lambda *a: None,
+        refine=refine.PREPARE_REFINE,
+        defer_refine=True,
+    )
+    saved = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        seen_inside = []
+        original = session.refine_prepared
+
+        def spy(*args, **kwargs):
+            seen_inside.append(torch.get_num_threads())
+            return original(*args, **kwargs)
+
+        session.refine_prepared = spy
+        try:
+            refiner = SceneRefiner(prepared, log=lambda *a: None).start()
+            refiner.join(120)
+        finally:
+            session.refine_prepared = original
+        assert refiner.error is None and refiner.take() is not None
+        assert seen_inside == [1]
+        later = []
+        t = threading.Thread(target=lambda: later.append(torch.get_num_threads()))
+        t.start()
+        t.join()
+        assert later == [2] and torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(saved)

