@@ -126,10 +126,10 @@ def cross_view_consistency(
     for r, e in ends.items():
         h, w = e.shape[-2:]
         best = torch.full_like(e, CONSISTENCY_CAP)
+        points = erp_to_world(torch.exp(e), c2w[r].to(e))  # [2, h*w, 3]
         for s in sources[r]:
             if s not in ends:
                 continue
-            points = erp_to_world(torch.exp(e), c2w[r].to(e))  # [2, h*w, 3]
             uv, dist = world_to_erp(points, c2w[s].to(e), h, w)
             seen = sample_erp(ends[s][None].expand(2, -1, -1, -1), uv, "nearest")  # [2, 2, N]
             gap = (torch.log(dist.clamp(min=1e-3))[:, None] - seen).abs().amin(1)

@@ -80,13 +80,16 @@ class TrainSelectConfig:
 
 #: What `record_scenes` returns (and caches).
 RECORD_KEYS = ("features", "ends", "truth", "rule")
+#: Channels per pixel of a record's features: the selection features, then the consistency.
+RECORD_CHANNELS = FEATURES + CONSISTENCY
 
 
 def _key(estimator: DepthEstimator, names: list[str], cfg: TrainSelectConfig) -> str:
     h = hashlib.sha256(_weights_key(estimator).encode())
     h.update("\n".join(names).encode())
-    channels = FEATURES + CONSISTENCY  # what a record holds per pixel
-    h.update(json.dumps([cfg.shift, cfg.photometric, cfg.height, cfg.seed, channels]).encode())
+    h.update(
+        json.dumps([cfg.shift, cfg.photometric, cfg.height, cfg.seed, RECORD_CHANNELS]).encode()
+    )
     return h.hexdigest()[:16]
 
 
@@ -100,11 +103,10 @@ def record_scenes(
     photometric rule gives the unguided depth}. Cached in the data folder."""
     path = Path(cfg.data) / f".select_{_key(estimator, [data.names[i] for i in indices], cfg)}"
     path = path.with_suffix(".safetensors")
-    channels = FEATURES + CONSISTENCY
     if path.exists():
         try:
             cached = load_file(str(path))
-            if set(cached) == set(RECORD_KEYS) and cached["features"].shape[1] == channels:
+            if set(cached) == set(RECORD_KEYS) and cached["features"].shape[1] == RECORD_CHANNELS:
                 return cached
             log(f"selector cache {path.name} holds {sorted(cached)}: rebuilding")
         except Exception as exc:  # a broken cache is rebuilt, never trusted

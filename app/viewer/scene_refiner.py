@@ -13,6 +13,8 @@ import sys
 import threading
 import time
 
+import torch
+
 
 class SceneRefiner:
     """One background refinement of a `PreparedScene` with a pending refinement."""
@@ -28,8 +30,6 @@ class SceneRefiner:
         (single runs), and one thread leaves the other core to the window and the render
         worker. Torch's count is process-wide for threads started later, so the caller's count
         is put back when the refinement ends."""
-        import torch
-
         self._caller_threads = torch.get_num_threads()
         self._lock = threading.Lock()
         self._stop = threading.Event()
@@ -85,8 +85,6 @@ class SceneRefiner:
         return f"refining depth ({time.perf_counter() - self._started:.0f} s)"
 
     def _run(self) -> None:
-        import torch
-
         from panogrf.app.scene import session
 
         if self.threads:
