@@ -19,11 +19,16 @@
   beside the worker. Beside it, in the same process, the seed's method as published (64 + 64
   samples per ray at 512 x 1024, all sources) once, as the baseline;
 - the per-scene depth refinement (on by default since round 16), which `panogrf view` runs in
-  a background thread while the window already shows the plain scene: its seconds in the main
-  thread (`session.refine_prepared` on a deferred preparation) and in `SceneRefiner`'s thread
-  with nothing else running, median of ``--repeats``; then ``--repeats`` viewer sessions of
-  ``--walks`` walks that start with it: the preview's median frame period while it runs
-  (the sessions end before it does); ``--no-background`` skips it;
+  a background thread while the window already shows the plain scene: its seconds alone in a
+  thread on the session's torch threads (`session.refine_prepared` on a deferred preparation)
+  and in `SceneRefiner`'s thread (one torch thread) with nothing else running, median of
+  ``--repeats``; then ``--repeats`` viewer sessions of ``--walks`` walks that start with it:
+  the preview's median frame period while it runs (the sessions end before it does);
+  ``--no-background`` skips it;
+- as `panogrf view` does, the main thread only draws and every torch computation runs in
+  another thread (`panogrf.app.viewer.torch_threads`). Last, the baseline for that: the main
+  thread runs one parallel kernel, so that its OpenMP pool lives on as it did before round 18,
+  and the scripted session and the refinement alone run again (``--no-baseline`` skips it);
 - peak resident memory of the process.
 A table is printed last.
 """
@@ -58,22 +63,27 @@ def main() -> None:
         help="skip the sessions during the background depth refinement",
     )
     parser.add_argument(
+        "--no-baseline",
+        action="store_true",
+        help="skip the viewer as it ran before round 18 (the main thread's OpenMP pool alive)",
+    )
+    parser.add_argument(
         "--walks", type=int, default=8, help="walks forward and back per background session"
     )
     args = parser.parse_args()
     from panogrf.app.runtime import keep_freed_memory
+    from panogrf.app.viewer.torch_threads import serial_main_thread
 
     keep_freed_memory()  # as the `panogrf` command does
+    # As `panogrf view` does: the main thread only draws, the torch work runs in other threads.
+    with serial_main_thread() as threads:
+        measure(args, threads)
 
+
+def measure(args: argparse.Namespace, threads: int) -> None:
     from panogrf.app.files.images import write_json_atomic
     from panogrf.app.scene.session import prepare_scene
-    from panogrf.app.viewer.window import (
-        UPSAMPLED_MOVING_ROWS,
-        ViewerSetup,
-        parse_script,
-        run_viewer,
-    )
-    from panogrf.app.viewer.worker import LEVELS, RenderWorker
+    from panogrf.app.viewer.torch_threads import off_main_thread
     from panogrf.assets import path as asset_path
     from panogrf.renderer.render import render_panorama
 
@@ -83,10 +93,10 @@ def main() -> None:
     for _ in range(args.repeats):
         with tempfile.TemporaryDirectory() as tmp:
             t0 = time.perf_counter()
-            prepare_scene(scene_dir, Path(tmp), log=quiet)
+            off_main_thread(threads, prepare_scene, scene_dir, Path(tmp), log=quiet)
             cold.append(time.perf_counter() - t0)
             t0 = time.perf_counter()
-            prepared = prepare_scene(scene_dir, Path(tmp), log=quiet)
+            prepared = off_main_thread(threads, prepare_scene, scene_dir, Path(tmp), log=quiet)
             views, models, result = prepared.views, prepared.models, prepared.cache
             cached.append(time.perf_counter() - t0)
             assert result.status == "loaded", result.status
@@ -94,48 +104,20 @@ def main() -> None:
     print(f"preparation: cold {cold_s:.2f} s, cached {cached_s:.2f} s")
 
     net = models.renderer("panogrf")
-    cache = views.cache_for("panogrf", models)
-    worker = RenderWorker(net, cache, levels=LEVELS).start()
-    # Walk forward, wait for the refinement, walk back, wait, ...: the camera stays near the
-    # sources (1.5 m at most with the default 45 frames at 1 m/s).
-    cycles = [f"{'ws'[k % 2]}*{args.walk_frames},refined" for k in range(args.repeats)]
-    setup = ViewerSetup.from_views(
-        views,
-        worker=worker,
-        script=parse_script(",".join(["wait*5", *cycles, "esc"])),
-        fixed_step=1 / 30,
-        preview_height=512,
-        sharp=not args.no_sharp,
-        **({"moving_height": UPSAMPLED_MOVING_ROWS} if args.no_sharp else {}),
-        log=quiet,
-    )
-    config = run_viewer(setup, "headless", (1024, 512))
-    frame_ms = 1000 * statistics.median(config.moving_frame_times)
-    # Each cycle's last level and the first level just before it (the start pose, still for a
-    # few frames while the shaders compile, may get a first level of its own: not a cycle's).
-    log, last = config.refine_log, len(LEVELS) - 1
-    full = [s for level, s in log if level == last]
-    first = [log[i - 1][1] for i, (level, _) in enumerate(log) if level == last and i > 0]
-    if len(full) != args.repeats or any(
-        log[i - 1][0] != 0 for i, e in enumerate(log) if e[0] == last
-    ):
-        raise SystemExit(f"expected {args.repeats} refinements, got {config.refine_log}")
-    print(
-        f"preview while moving (512x1024, geometry at {setup.moving_height or 512} rows, "
-        f"{'sharp' if setup.sharp else 'upsampled'}): "
-        f"{frame_ms:.1f} ms per frame, {1000 / frame_ms:.1f} fps"
-    )
-    print(
-        f"first refined level after {statistics.median(first):.2f} s, last level (512x1024) "
-        f"after {statistics.median(full):.2f} s"
-    )
+    cache = off_main_thread(threads, views.cache_for, "panogrf", models)
+    frame_ms, first, full, setup, config = walk_and_refine(views, net, cache, threads, args)
     paper_s = None
     if not args.skip_paper:
         t0 = time.perf_counter()
-        render_panorama(net, cache, views.c2w[0], 512, "paper")
+        off_main_thread(threads, render_panorama, net, cache, views.c2w[0], 512, "paper")
         paper_s = time.perf_counter() - t0
         print(f"paper (64 + 64) 512x1024: {paper_s:.1f} s")
-    background = None if args.no_background else background_sessions(scene_dir, args, quiet)
+    background = None
+    if not args.no_background:
+        background = background_sessions(scene_dir, threads, args, quiet)
+    baseline = None
+    if not args.no_baseline:
+        baseline = main_pool_baseline(scene_dir, views, net, cache, threads, args, quiet)
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
     report = {
@@ -158,9 +140,9 @@ def main() -> None:
         "refine_full_512x1024_s": {"median": statistics.median(full), "runs": full},
         "paper_64_64_512x1024_s": paper_s,
         "background_refinement": background,
+        "main_thread_pool_baseline": baseline,
         "peak_rss_mb": peak_mb,
-        "machine": f"{platform.machine()}, {torch.get_num_threads()} torch threads, CPU, "
-        "Mesa llvmpipe (EGL)",
+        "machine": f"{platform.machine()}, {threads} torch threads, CPU, Mesa llvmpipe (EGL)",
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
     write_json_atomic(args.out, report)
@@ -178,40 +160,96 @@ def main() -> None:
     if background is not None:
         b = background
         rows += [
-            ("depth refinement, main thread", f"{b['main_thread_s']['median']:.2f} s", "-"),
+            (f"depth refinement, {threads} threads", f"{b['alone_s']['median']:.2f} s", "-"),
             ("depth refinement, background", f"{b['background_thread_s']['median']:.2f} s", "-"),
             ("preview while it runs", f"{1000 / b['refining_frame_ms']['median']:.1f} fps", "-"),
         ]
-    print(f"\n{'measure':<32} {'median':>12} {'target':>10}")
+    if baseline is not None:
+        old_full = baseline["refine_full_512x1024_s"]["median"]
+        old_alone = baseline["depth_refinement_alone_s"]["median"]
+        rows += [
+            ("before round 18: stop -> refined", f"{old_full:.2f} s", "-"),
+            ("  ratio (now / before)", f"{statistics.median(full) / old_full:.2f}x", "-"),
+            (f"before: depth refinement, {threads} thr", f"{old_alone:.2f} s", "-"),
+        ]
+        if background is not None:
+            ratio = background["alone_s"]["median"] / old_alone
+            rows.append(("  ratio (now / before)", f"{ratio:.2f}x", "-"))
+    print(f"\n{'measure':<40} {'median':>10} {'target':>10}")
     for name, value, target in rows:
-        print(f"{name:<32} {value:>12} {target:>10}")
+        print(f"{name:<40} {value:>10} {target:>10}")
     print(f"wrote {args.out}")
 
 
-def background_sessions(scene_dir: Path, args, quiet) -> dict:
-    """The depth refinement in the main thread, then in `SceneRefiner`'s background thread with
-    nothing else running, then beside ``args.repeats`` viewer sessions that walk while it runs
-    (as `panogrf view` does): seconds, and the preview's frame period while it runs."""
-    from panogrf.app.scene.session import prepare_scene, refine_prepared
+def walk_and_refine(views, net, cache, threads: int, args):
+    """The scripted session (walk, then still until refined, ``args.repeats`` times): the
+    preview's median frame period while moving (ms), the seconds to the first and the last
+    refined level of each cycle, the setup and the session's config."""
+    from panogrf.app.viewer.window import (
+        UPSAMPLED_MOVING_ROWS,
+        ViewerSetup,
+        parse_script,
+        run_viewer,
+    )
+    from panogrf.app.viewer.worker import LEVELS, RenderWorker
+
+    worker = RenderWorker(net, cache, levels=LEVELS, threads=threads).start()
+    # Walk forward, wait for the refinement, walk back, wait, ...: the camera stays near the
+    # sources (1.5 m at most with the default 45 frames at 1 m/s).
+    cycles = [f"{'ws'[k % 2]}*{args.walk_frames},refined" for k in range(args.repeats)]
+    setup = ViewerSetup.from_views(
+        views,
+        worker=worker,
+        script=parse_script(",".join(["wait*5", *cycles, "esc"])),
+        fixed_step=1 / 30,
+        preview_height=512,
+        sharp=not args.no_sharp,
+        **({"moving_height": UPSAMPLED_MOVING_ROWS} if args.no_sharp else {}),
+        log=lambda *a: None,
+    )
+    try:
+        config = run_viewer(setup, "headless", (1024, 512))
+    finally:
+        worker.stop()
+    frame_ms = 1000 * statistics.median(config.moving_frame_times)
+    # Each cycle's last level and the first level just before it (the start pose, still for a
+    # few frames while the shaders compile, may get a first level of its own: not a cycle's).
+    log, last = config.refine_log, len(LEVELS) - 1
+    full = [s for level, s in log if level == last]
+    first = [log[i - 1][1] for i, (level, _) in enumerate(log) if level == last and i > 0]
+    if len(full) != args.repeats or any(
+        log[i - 1][0] != 0 for i, e in enumerate(log) if e[0] == last
+    ):
+        raise SystemExit(f"expected {args.repeats} refinements, got {config.refine_log}")
+    print(
+        f"preview while moving (512x1024, geometry at {setup.moving_height or 512} rows, "
+        f"{'sharp' if setup.sharp else 'upsampled'}): "
+        f"{frame_ms:.1f} ms per frame, {1000 / frame_ms:.1f} fps"
+    )
+    print(
+        f"first refined level after {statistics.median(first):.2f} s, last level (512x1024) "
+        f"after {statistics.median(full):.2f} s"
+    )
+    return frame_ms, first, full, setup, config
+
+
+def background_sessions(scene_dir: Path, threads: int, args, quiet) -> dict:
+    """The depth refinement alone in a thread on the session's ``threads`` torch threads, then
+    in `SceneRefiner`'s background thread (one torch thread) with nothing else running, then
+    beside ``args.repeats`` viewer sessions that walk while it runs (as `panogrf view` does):
+    seconds, and the preview's frame period while it runs."""
     from panogrf.app.viewer.scene_refiner import SceneRefiner
+    from panogrf.app.viewer.torch_threads import off_main_thread
     from panogrf.app.viewer.window import ViewerSetup, parse_script, run_viewer
     from panogrf.app.viewer.worker import LEVELS, RenderWorker
     from panogrf.model.refine import PREPARE_REFINE
 
     def deferred(tmp: str):
-        prepared = prepare_scene(
-            scene_dir, Path(tmp), refine=PREPARE_REFINE, defer_refine=True, log=quiet
-        )
-        assert prepared.pending_refine is not None
-        return prepared
+        return deferred_scene(scene_dir, Path(tmp), threads, quiet)
 
-    main, thread, refining = [], [], []
+    alone, thread, refining = [], [], []
     for _ in range(args.repeats):
-        with tempfile.TemporaryDirectory() as tmp:
-            prepared = deferred(tmp)
-            t0 = time.perf_counter()
-            refine_prepared(prepared, log=quiet)
-            main.append(time.perf_counter() - t0)
+        alone.append(refine_alone(scene_dir, threads, quiet))
         with tempfile.TemporaryDirectory() as tmp:
             refiner = SceneRefiner(deferred(tmp), log=quiet).start()
             refiner.join()
@@ -221,8 +259,9 @@ def background_sessions(scene_dir: Path, args, quiet) -> dict:
         with tempfile.TemporaryDirectory() as tmp:
             prepared = deferred(tmp)
             views, models = prepared.views, prepared.models
+            cache = off_main_thread(threads, views.cache_for, "panogrf", models)
             worker = RenderWorker(
-                models.renderer("panogrf"), views.cache_for("panogrf", models), levels=LEVELS
+                models.renderer("panogrf"), cache, levels=LEVELS, threads=threads
             ).start()
             refiner = SceneRefiner(prepared, log=quiet).start()
             setup = ViewerSetup.from_views(
@@ -243,20 +282,64 @@ def background_sessions(scene_dir: Path, args, quiet) -> dict:
                 raise SystemExit("the refinement ended before the walk began: lower --walks")
             refining.append(1000 * statistics.median(config.refining_frame_times))
     print(
-        f"depth refinement: main thread {statistics.median(main):.2f} s, background thread "
-        f"{statistics.median(thread):.2f} s; preview {statistics.median(refining):.1f} ms per "
-        "frame while it runs"
+        f"depth refinement: alone on {threads} threads {statistics.median(alone):.2f} s, "
+        f"background thread {statistics.median(thread):.2f} s; preview "
+        f"{statistics.median(refining):.1f} ms per frame while it runs"
     )
-
-    def med(runs: list[float]) -> dict:
-        return {"median": statistics.median(runs), "runs": runs}
-
     return {
         "setting": repr(PREPARE_REFINE),
-        "main_thread_s": med(main),
-        "background_thread_s": med(thread),
-        "refining_frame_ms": med(refining),
+        "alone_s": _med(alone),
+        "background_thread_s": _med(thread),
+        "refining_frame_ms": _med(refining),
     }
+
+
+def deferred_scene(scene_dir: Path, tmp: Path, threads: int, quiet):
+    """The scene prepared in a thread of its own, its depth refinement left to do."""
+    from panogrf.app.scene.session import prepare_scene
+    from panogrf.app.viewer.torch_threads import off_main_thread
+    from panogrf.model.refine import PREPARE_REFINE
+
+    prepared = off_main_thread(
+        threads, prepare_scene, scene_dir, tmp, refine=PREPARE_REFINE, defer_refine=True, log=quiet
+    )
+    assert prepared.pending_refine is not None
+    return prepared
+
+
+def main_pool_baseline(scene_dir: Path, views, net, cache, threads: int, args, quiet) -> dict:
+    """The viewer as it ran before round 18, last in the process (the pool stays): the main
+    thread runs one parallel kernel on the session's threads, so that its OpenMP pool lives on
+    beside the worker threads (`panogrf.app.viewer.torch_threads`). Then the scripted session
+    again, and the depth refinement alone in a thread."""
+    torch.set_num_threads(threads)
+    torch.ones(1 << 22).mul_(2)  # far above torch's grain: runs on the main thread's pool
+    print("with the main thread's OpenMP pool (as before round 18):")
+    frame_ms, first, full, *_ = walk_and_refine(views, net, cache, threads, args)
+    alone = [refine_alone(scene_dir, threads, quiet) for _ in range(args.repeats)]
+    print(f"depth refinement alone on {threads} threads: {statistics.median(alone):.2f} s")
+    return {
+        "preview_512x1024_frame_ms": frame_ms,
+        "refine_first_level_s": _med(first),
+        "refine_full_512x1024_s": _med(full),
+        "depth_refinement_alone_s": _med(alone),
+    }
+
+
+def refine_alone(scene_dir: Path, threads: int, quiet) -> float:
+    """Seconds of one depth refinement in a thread of its own on ``threads`` torch threads."""
+    from panogrf.app.scene.session import refine_prepared
+    from panogrf.app.viewer.torch_threads import off_main_thread
+
+    with tempfile.TemporaryDirectory() as tmp:
+        prepared = deferred_scene(scene_dir, Path(tmp), threads, quiet)
+        t0 = time.perf_counter()
+        off_main_thread(threads, refine_prepared, prepared, log=quiet)
+        return time.perf_counter() - t0
+
+
+def _med(runs: list[float]) -> dict:
+    return {"median": statistics.median(runs), "runs": runs}
 
 
 if __name__ == "__main__":

@@ -102,17 +102,7 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import numpy as np
-    import torch
-
-    from panogrf.app.viewer.screen import refine_summary
-    from panogrf.app.viewer.window import (
-        UPSAMPLED_MOVING_ROWS,
-        ViewerSetup,
-        parse_script,
-        run_viewer,
-    )
-    from panogrf.app.viewer.worker import RenderWorker
+    from panogrf.app.viewer.torch_threads import serial_main_thread
 
     if args.window == "pyglet" and not _has_display():
         raise UserError(
@@ -122,8 +112,25 @@ def run(args: argparse.Namespace) -> int:
         raise UserError("--frames must be at least 1")
     if args.moving_rows is not None and not 16 <= args.moving_rows <= 512:
         raise UserError("--moving-rows must be between 16 and 512")
-    if args.threads:
-        torch.set_num_threads(args.threads)
+    # The main thread only draws; the torch work runs in other threads (torch_threads).
+    with serial_main_thread() as threads:
+        return _session(args, args.threads or threads)
+
+
+def _session(args: argparse.Namespace, threads: int) -> int:
+    """`run` once the main thread is serial: ``threads`` torch threads for the others."""
+    import numpy as np
+
+    from panogrf.app.viewer.screen import refine_summary
+    from panogrf.app.viewer.torch_threads import off_main_thread
+    from panogrf.app.viewer.window import (
+        UPSAMPLED_MOVING_ROWS,
+        ViewerSetup,
+        parse_script,
+        run_viewer,
+    )
+    from panogrf.app.viewer.worker import RenderWorker
+
     try:
         script = parse_script(args.script)
     except ValueError as exc:
@@ -132,8 +139,13 @@ def run(args: argparse.Namespace) -> int:
 
     # The refined scene when it is cached; else the plain one now and the refinement in the
     # background, swapped in when done (SceneRefiner).
-    prepared = session.prepare_scene(
-        args.scene, args.cache_dir, refine=refine_setting(args), defer_refine=True
+    prepared = off_main_thread(
+        threads,
+        session.prepare_scene,
+        args.scene,
+        args.cache_dir,
+        refine=refine_setting(args),
+        defer_refine=True,
     )
     scene, views, models = prepared.scene, prepared.views, prepared.models
     if not 0 <= args.start_frame < scene.num_views:
@@ -146,8 +158,8 @@ def run(args: argparse.Namespace) -> int:
         refiner = SceneRefiner(prepared).start()
     worker = None
     if not args.no_refine:
-        cache = views.cache_for("panogrf", models)
-        worker = RenderWorker(models.renderer("panogrf"), cache).start()
+        cache = off_main_thread(threads, views.cache_for, "panogrf", models)
+        worker = RenderWorker(models.renderer("panogrf"), cache, threads=threads).start()
     moving = args.moving_rows or (UPSAMPLED_MOVING_ROWS if args.no_sharp else None)
     setup = ViewerSetup.from_views(
         views,

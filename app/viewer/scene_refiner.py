@@ -23,13 +23,14 @@ class SceneRefiner:
         self.prepared = prepared
         self.log = log
         self.threads = threads
-        """Torch threads of the refinement. One: torch's intra-op threads are fast in the
-        main thread only (in a profile the same small element-wise ops took twice as long in
-        another thread); on 2 cores the bundled scene's refinement took 6.75 s in the main
-        thread, 9.78 s here with one thread (`benchmarks/viewer.py`) and 15-20 s with two
-        (single runs), and one thread leaves the other core to the window and the render
-        worker. Torch's count is process-wide for threads started later, so the caller's count
-        is put back when the refinement ends."""
+        """Torch threads of the refinement. One: beside the render worker, whose OpenMP pool
+        lives as long as the session, a second pool would outnumber this machine's 2 cores,
+        and libgomp then puts idle workers to sleep between kernels, slowing both threads
+        (`panogrf.app.viewer.torch_threads`). On the bundled scene, beside an idle render
+        worker: 10.3-12.2 s on one thread, 14.9-15.0 s on two (diagnostic runs); alone in a
+        thread on two, 6.9 s (`benchmarks/viewer.py`). One thread also leaves the other core
+        to the window and the render worker. Torch's count is process-wide for threads started
+        later, so the caller's count is put back when the refinement ends."""
         self._caller_threads = torch.get_num_threads()
         self._lock = threading.Lock()
         self._stop = threading.Event()

@@ -331,3 +331,42 @@ def test_the_refined_depth_replaces_the_plain_one_in_a_running_session(tmp_path)
     assert config.scene_swapped
     assert config.refining_frame_times == []
     assert refiner.seconds is not None and refiner.seconds > 0
+
+
+def test_the_main_thread_only_draws(tmp_path, monkeypatch):
+    """The scene is prepared in another thread on the session's torch threads, the window runs
+    with the main thread's torch serial (so that it never holds an OpenMP pool of its own:
+    `panogrf.app.viewer.torch_threads`), and the caller's count is back afterwards."""
+    import threading
+
+    import torch
+
+    from panogrf.app import cli
+    from panogrf.app.scene import session
+    from panogrf.app.viewer import window
+
+    seen = {}
+    prepare, run = session.prepare_scene, window.run_viewer
+
+    def spy_prepare(*args, **kwargs):
+        seen["prepare"] = (threading.current_thread() is threading.main_thread(),
+                           torch.get_num_threads())  # fmt: skip
+        return prepare(*args, **kwargs)
+
+    def spy_run(*args, **kwargs):
+        seen["window"] = (threading.current_thread() is threading.main_thread(),
+                          torch.get_num_threads())  # fmt: skip
+        return run(*args, **kwargs)
+
+    monkeypatch.setattr(session, "prepare_scene", spy_prepare)
+    monkeypatch.setattr(window, "run_viewer", spy_run)
+    before = torch.get_num_threads()
+    code = cli.main(
+        ["view", str(DEMO), "--window", "headless", "--size", "128x64", "--frames", "5",
+         "--no-refine", "--no-refine-depth", "--cache-dir", str(tmp_path / "c"),
+         "--threads", "2"]
+    )  # fmt: skip
+    assert code == 0
+    assert seen["prepare"] == (False, 2)
+    assert seen["window"] == (True, 1)
+    assert torch.get_num_threads() == before
