@@ -2,9 +2,9 @@
 
 Torch's CPU kernels run in parallel through OpenMP (GNU libgomp in the pip wheels). Each thread
 that runs a parallel kernel keeps its own pool of OpenMP workers for as long as it lives, and
-libgomp counts the workers of every pool. When they outnumber the CPUs, it stops letting idle
-workers spin between parallel regions: they sleep, and each of torch's many small element-wise
-kernels then waits for them to wake.
+libgomp counts the workers of every pool. When they outnumber the CPUs, an idle worker spins
+100 times instead of 300,000 before it sleeps (libgomp's manual, GOMP_SPINCOUNT), and each of
+torch's many small element-wise kernels then waits for the workers to wake.
 
 So if the main thread has run a parallel kernel, its pool stays alive for the whole session,
 and every parallel kernel of the viewer's background threads (the render worker, the depth
