@@ -122,8 +122,9 @@ class DepthEstimator(nn.Module):
         rule's choice (0: the selector's everywhere). The rule's doubtful choices are single
         pixels, which the median outvotes; the selector's come in patches, which it keeps.
         Measured on the validation scenes (`depth_select_context_val.json`, mean L1 of the
-        eight columns): 0 0.1609, 0.1 0.1593, 0.2 0.1595. Kept, not chosen again, for round
-        17's selector with cross-view consistency (0.1545 with it)."""
+        eight columns): 0 0.1609, 0.1 0.1593, 0.2 0.1595. Chosen again in round 18 for round
+        17's selector with cross-view consistency (`depth_select_margin_round18_val.json`): 0
+        0.1552, 0.1 0.1545, 0.2 0.1552."""
         self.record: list[dict] | None = None
         """When a list, mode "full" fused appends, per reference view, the selector's input
         and where the search from each hypothesis ends (the selector's training data)."""

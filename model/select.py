@@ -5,7 +5,7 @@ mono-guided network's and the unguided one's. The sweep's own rule keeps, per pi
 its nearest sources match best at its own depth. Where the match says little (blank walls,
 bright windows, repeated texture) that rule keeps the mono-guided depth, and on a real capture
 the monocular prior is often wrong exactly there. On the training run's held-back scenes the
-rule's choice scores 0.203 m, the selector's 0.179 and the truth's 0.151
+rule's choice scores 0.203 m, the selector's 0.177 and the truth's 0.151
 (`docs/training/depth_select.log`).
 
 `HypothesisSelector` makes the choice from what is known at that point, per pixel: each

@@ -100,9 +100,9 @@ def test_a_stopped_background_refinement_writes_nothing(tmp_path):
 
 
 def test_the_background_refinement_gives_the_thread_count_back(tmp_path):
-    """`SceneRefiner` refines on one torch thread (fast in a thread that is not the main one)
-    and puts the caller's count back when done: threads started later (the render worker)
-    get the caller's, not one."""
+    """`SceneRefiner` refines on one torch thread (beside the render worker's OpenMP pool, a
+    second pool would outnumber 2 cores: `panogrf.app.viewer.torch_threads`) and puts the
+    caller's count back when done: threads started later get the caller's, not one."""
     import threading
 
     import torch
