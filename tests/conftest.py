@@ -14,5 +14,7 @@ def quick_scene_refinement(monkeypatch):
     subprocesses keep the shipped setting."""
     from panogrf.model import refine
 
-    quick = refine.RefineConfig(smooth=1.0, coarse=2, iterations=2, height=32)
+    quick = refine.RefineConfig(
+        smooth=1.0, coarse=2, iterations=2, height=32, free_space=1.0, free_space_shrink=2
+    )
     monkeypatch.setattr(refine, "PREPARE_REFINE", quick)

@@ -13,6 +13,7 @@ from panogrf.model.refine import (
     RefineConfig,
     SweepConfig,
     box_mean,
+    free_space_violation,
     median_filter,
     photometric_error,
     refine_depth,
@@ -167,6 +168,46 @@ def test_the_fine_stage_works_at_no_more_than_the_images_rows(scene):
         refine_depth(images, c2w, wrong, [[1], [0]], capped),
         refine_depth(images, c2w, wrong, [[1], [0]], again),
     )
+
+
+def test_the_true_depths_do_not_contradict_each_other(scene):
+    _, c2w, depth = scene
+    assert float(free_space_violation(torch.log(depth), c2w, [[1], [0]])) < 1e-3
+
+
+@pytest.mark.parametrize("factor", [0.8, 1.25])
+def test_one_view_wrong_either_way_is_a_violation(scene, factor):
+    """Too near: its points lie in front of the other view's surface. Too far: the other
+    view's points lie in front of it. Both are seen, whichever view reads."""
+    _, c2w, depth = scene
+    log_d = torch.log(depth).clone()
+    log_d[0] += math.log(factor)
+    violation = float(free_space_violation(log_d, c2w, [[1], [0]]))
+    assert violation > 0.5 * abs(math.log(factor)) / 2 - 0.02
+    # Only the pairs asked for are checked: view 1 reading view 0 sees nothing when 0 is too far.
+    alone = float(free_space_violation(log_d, c2w, [[], [0]]))
+    assert (alone > 0.05) == (factor > 1)
+
+
+@pytest.mark.parametrize("shrink", [1, 2])
+def test_free_space_brings_the_views_together_where_the_photometry_is_blank(scene, shrink):
+    """On a blank sphere the photometric term says nothing and the views keep their depths;
+    with the free-space term they come to agree, the wrong view moving towards the truth. It
+    cannot tell which view was right, so the right one gives ground too."""
+    images, c2w, depth = scene
+    blank = torch.full_like(images, 0.5)
+    small = torch.nn.functional.interpolate(depth, size=(32, 64), mode="area")
+    wrong = small.clone()
+    wrong[0] *= 1.2
+    off = refine_depth(blank, c2w, wrong, [[1], [0]], RefineConfig(iterations=40, height=64))
+    torch.testing.assert_close(off, wrong, atol=1e-3, rtol=1e-3)
+    config = RefineConfig(iterations=40, height=64, free_space=1.0, free_space_shrink=shrink)
+    out = refine_depth(blank, c2w, wrong, [[1], [0]], config)
+    error = (wrong[0] - small[0]).abs().mean()
+    assert (out[0] - small[0]).abs().mean() < 0.8 * error
+    before = free_space_violation(torch.log(wrong), c2w, [[1], [0]])
+    after = free_space_violation(torch.log(out), c2w, [[1], [0]])
+    assert after < 0.5 * before
 
 
 def test_fast_window_means_match_average_pooling():
