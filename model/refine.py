@@ -214,6 +214,10 @@ def refine_depth(
     delta = torch.zeros_like(log_d0, requires_grad=True)
     opt = torch.optim.Adam([delta], lr=config.lr)
     refs = [r for r in range(v) if sources[r]]
+    # Only views with sources move: the free-space term would otherwise also reach a view that
+    # is only another's source.
+    moves = torch.zeros(v, 1, 1, 1, dtype=depth.dtype, device=depth.device)
+    moves[refs] = 1.0
     if not refs or config.iterations + config.coarse + config.fine <= 0:
         return depth
     # Image gradients at the depth's resolution for the edge-aware smoothness.
@@ -236,7 +240,7 @@ def refine_depth(
         for _ in range(steps):
             if should_stop is not None and should_stop():
                 return None
-            log_d = log_d0 + delta
+            log_d = log_d0 + delta * moves
             log_full = F.interpolate(log_d, size=(hh, 2 * hh), mode="bilinear", align_corners=False)
             full = torch.exp(log_full)
             loss = depth.new_zeros(())
@@ -265,7 +269,7 @@ def refine_depth(
             loss.backward()
             opt.step()
     with torch.no_grad():
-        return torch.exp(log_d0 + delta).clamp(*d_range)
+        return torch.exp(log_d0 + delta * moves).clamp(*d_range)
 
 
 @dataclass(frozen=True)

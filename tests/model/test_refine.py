@@ -189,6 +189,16 @@ def test_one_view_wrong_either_way_is_a_violation(scene, factor):
     assert (alone > 0.05) == (factor > 1)
 
 
+def test_a_view_without_sources_keeps_its_depth_with_free_space_on(scene):
+    """View 1 is view 0's source but has none of its own: only view 0 moves."""
+    images, c2w, depth = scene
+    wrong = torch.nn.functional.interpolate(depth, size=(32, 64), mode="area") * 1.1
+    config = RefineConfig(iterations=10, height=64, free_space=1.0)
+    out = refine_depth(images, c2w, wrong, [[1], []], config)
+    torch.testing.assert_close(out[1], wrong[1])
+    assert not torch.equal(out[0], wrong[0])
+
+
 @pytest.mark.parametrize("shrink", [1, 2])
 def test_free_space_brings_the_views_together_where_the_photometry_is_blank(scene, shrink):
     """On a blank sphere the photometric term says nothing and the views keep their depths;
