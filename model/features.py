@@ -127,27 +127,42 @@ def match_guided(
 ) -> np.ndarray:
     """Matches [M, 2] given an essential matrix (b_b^T E b_a = 0): each keypoint's candidates
     are those within ``threshold`` radians of its epipolar plane in both views; among them the
-    nearest descriptor wins if it passes the ratio test and the choice is mutual."""
-    na = a.bearings @ e.T  # epipolar plane normals in view b, [Na, 3]
-    nb = b.bearings @ e  # and in view a, [Nb, 3]
-    num = np.abs(na @ b.bearings.T)
-    sin_err = np.maximum(
-        num / np.maximum(np.linalg.norm(na, axis=1), 1e-12)[:, None],
-        num / np.maximum(np.linalg.norm(nb, axis=1), 1e-12)[None, :],
-    )
-    da, db = a.descriptors, b.descriptors
-    dist = (da * da).sum(1)[:, None] + (db * db).sum(1)[None] - 2.0 * da @ db.T
-    dist = np.sqrt(np.maximum(dist, 0.0))
-    dist[sin_err > math.sin(threshold)] = np.inf
-    if dist.shape[1] < 2:
+    nearest descriptor wins if it passes the ratio test and the choice is mutual.
+
+    Computed in blocks of rows, in single precision (the descriptor distances and the sines of
+    the epipolar angles of all pairs at once would take gigabytes for two panoramas' keypoints).
+    """
+    if len(b.descriptors) < 2 or len(a.descriptors) == 0:
         return np.zeros((0, 2), int)
-    order = np.argpartition(dist, 1, axis=1)[:, :2]
-    rows = np.arange(len(dist))
-    first, second = dist[rows, order[:, 0]], dist[rows, order[:, 1]]
-    swap = second < first
-    best = np.where(swap, order[:, 1], order[:, 0])
-    d1, d2 = np.minimum(first, second), np.maximum(first, second)
-    ok = np.isfinite(d1) & (d1 < ratio * d2)
-    mutual = dist.argmin(0)[best] == rows
-    keep = ok & mutual
-    return np.stack((rows[keep], best[keep]), 1)
+    ba = torch.from_numpy(a.bearings).float()
+    bb = torch.from_numpy(b.bearings).float()
+    et = torch.from_numpy(np.asarray(e, np.float64)).float()
+    na = ba @ et.T  # epipolar plane normals in view b, [Na, 3]
+    nb = bb @ et  # and in view a, [Nb, 3]
+    inv_na = 1.0 / na.norm(dim=1).clamp(min=1e-12)
+    inv_nb = 1.0 / nb.norm(dim=1).clamp(min=1e-12)
+    da, db = torch.from_numpy(a.descriptors).float(), torch.from_numpy(b.descriptors).float()
+    sq_a, sq_b = (da * da).sum(1), (db * db).sum(1)
+    limit = math.sin(threshold)
+    rows = len(da)
+    best = torch.empty(rows, dtype=torch.long)
+    d1 = torch.empty(rows)
+    d2 = torch.empty(rows)
+    col_min = torch.full((len(db),), math.inf)
+    col_arg = torch.zeros(len(db), dtype=torch.long)
+    block = 1024
+    for lo in range(0, rows, block):
+        hi = min(rows, lo + block)
+        num = (na[lo:hi] @ bb.T).abs()
+        sin_err = torch.maximum(num * inv_na[lo:hi, None], num * inv_nb[None])
+        dist = (sq_a[lo:hi, None] + sq_b[None] - 2.0 * da[lo:hi] @ db.T).clamp(min=0).sqrt()
+        dist[sin_err > limit] = math.inf
+        two = dist.topk(2, dim=1, largest=False)
+        best[lo:hi], d1[lo:hi], d2[lo:hi] = two.indices[:, 0], two.values[:, 0], two.values[:, 1]
+        m, arg = dist.min(0)
+        better = m < col_min
+        col_min = torch.where(better, m, col_min)
+        col_arg = torch.where(better, arg + lo, col_arg)
+    index = torch.arange(rows)
+    keep = torch.isfinite(d1) & (d1 < ratio * d2) & (col_arg[best] == index)
+    return torch.stack((index[keep], best[keep]), 1).numpy().astype(int)
