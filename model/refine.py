@@ -29,7 +29,6 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from panogrf.model.anchors import Anchors, anchor_loss, triangulated_anchors
 from panogrf.model.erp import (
     direction_to_pixel,
     erp_directions,
@@ -71,11 +70,6 @@ class RefineConfig:
     free_space_shrink: int = 1
     """The free-space term is computed at the stage's rows divided by this (its cost grows with
     the pixels; the corrections it makes are large and smooth)."""
-    anchors: float = 0.0
-    """Weight of `anchor_loss`: SIFT matches between the views triangulated with the known poses
-    (`panogrf.model.anchors`), found once before the steps. 0: off (none are found)."""
-    anchor_scale: float = 0.1
-    """Scale (log depth) of the anchors' bounded loss: residuals well beyond it pull little."""
 
 
 #: The refinement of a scene's cached depth at preparation (`SourceViews.refine`; on by
@@ -212,11 +206,9 @@ def refine_depth(
     config: RefineConfig = RefineConfig(),
     d_range: tuple[float, float] = (0.1, 10.0),
     should_stop: Callable[[], bool] | None = None,
-    anchors: list[Anchors] | None = None,
 ) -> Tensor | None:
     """Refined depth [V, 1, h, w]; views without sources are returned unchanged. None when
-    ``should_stop`` (asked before every step) says so: a viewer closed before the end.
-    ``anchors``: each view's `Anchors` for ``config.anchors`` (None: triangulated here)."""
+    ``should_stop`` (asked before every step) says so: a viewer closed before the end."""
     v, _, h, w = depth.shape
     log_d0 = torch.log(depth.clamp(*d_range)).detach()
     delta = torch.zeros_like(log_d0, requires_grad=True)
@@ -228,10 +220,6 @@ def refine_depth(
     moves[refs] = 1.0
     if not refs or config.iterations + config.coarse + config.fine <= 0:
         return depth
-    if config.anchors <= 0:
-        anchors = None
-    elif anchors is None:
-        anchors = triangulated_anchors(images, c2w, sources, d_range=d_range)
     # Image gradients at the depth's resolution for the edge-aware smoothness.
     small = F.interpolate(images, size=(h, w), mode="area").mean(1, keepdim=True)
     gx_img = (small - torch.roll(small, 1, -1)).abs()
@@ -277,10 +265,6 @@ def refine_depth(
                     size = (max(hh // k, 4), 2 * max(hh // k, 4))
                     log_fs = F.interpolate(log_d, size=size, mode="bilinear", align_corners=False)
                 loss = loss + config.free_space * free_space_violation(log_fs, c2w, sources)
-            if anchors is not None:
-                loss = loss + config.anchors * anchor_loss(
-                    log_d, anchors, refs, config.anchor_scale
-                )
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()

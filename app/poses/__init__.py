@@ -1,7 +1,7 @@
 """Poses for one's own captures: estimated from plain 360-degree panoramas, or imported.
 
-- `panogrf.model.features` (shared with the depth refinement's anchors): SIFT on cube faces
-  rendered from a panorama, unit bearings, ratio-tested and cross-checked matches.
+- `panogrf.app.poses.features`: SIFT on cube faces rendered from a panorama, unit bearings,
+  ratio-tested and cross-checked matches.
 - `panogrf.app.poses.geometry`: the essential matrix on bearings (8-point inside RANSAC on the
   angular epipolar error), cheirality, triangulation, bundle adjustment on angular residuals.
 - `panogrf.app.poses.estimate`: the pipeline for V views, with a report per pair and per view.

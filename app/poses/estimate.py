@@ -14,8 +14,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from panogrf.app.poses import features as ft
 from panogrf.app.poses import geometry as geo
-from panogrf.model import features as ft
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,49 @@
+"""Guided matching, computed in blocks of rows, gives the matches of the whole distance matrix
+at once (the plain definition, written out here in numpy)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from panogrf.app.poses.features import Features, match_guided
+
+
+def _dense(a: Features, b: Features, e: np.ndarray, threshold: float, ratio: float) -> set:
+    na, nb = a.bearings @ e.T, b.bearings @ e
+    num = np.abs(na @ b.bearings.T)
+    sin_err = np.maximum(
+        num / np.linalg.norm(na, axis=1)[:, None], num / np.linalg.norm(nb, axis=1)[None]
+    )
+    da, db = a.descriptors.astype(np.float64), b.descriptors.astype(np.float64)
+    dist = np.sqrt(np.maximum((da**2).sum(1)[:, None] + (db**2).sum(1)[None] - 2 * da @ db.T, 0))
+    dist[sin_err > math.sin(threshold)] = np.inf
+    order = np.argsort(dist, axis=1)[:, :2]
+    rows = np.arange(len(dist))
+    d1, d2 = dist[rows, order[:, 0]], dist[rows, order[:, 1]]
+    keep = np.isfinite(d1) & (d1 < ratio * d2) & (dist.argmin(0)[order[:, 0]] == rows)
+    return {(int(i), int(order[i, 0])) for i in rows[keep]}
+
+
+def _features(rng, n: int) -> Features:
+    bearings = rng.normal(size=(n, 3))
+    bearings /= np.linalg.norm(bearings, axis=1, keepdims=True)
+    return Features(bearings, rng.integers(0, 60, size=(n, 128)).astype(np.float32))
+
+
+def test_blocks_match_the_whole_matrix():
+    rng = np.random.default_rng(0)
+    a, b = _features(rng, 2300), _features(rng, 1700)  # more rows than one block
+    # b's keypoints 0..799 are a's 0..799 seen 1 m along +x, with slightly noisy descriptors.
+    shift = np.array([1.0, 0.0, 0.0])
+    points = a.bearings[:800] * rng.uniform(1, 5, (800, 1)) - shift
+    b.bearings[:800] = points / np.linalg.norm(points, axis=1, keepdims=True)
+    b.descriptors[:800] = a.descriptors[:800] + rng.normal(0, 2, (800, 128)).astype(np.float32)
+    skew = np.array([[0, -shift[2], shift[1]], [shift[2], 0, -shift[0]], [-shift[1], shift[0], 0]])
+    e = -skew  # x_b = x_a - shift: E = [t]x R with t = -shift, R = I
+    got = match_guided(a, b, e, 0.01, 0.7)
+    want = _dense(a, b, e, 0.01, 0.7)
+    assert {tuple(m) for m in got.tolist()} == want
+    assert len(want) > 600  # the true pairs are found
+    assert all(i == j for i, j in want if i < 800)
