@@ -21,7 +21,8 @@ evidence), and a median after the sweep (``DepthEstimator.median``, in modes ful
 round 14's: the learned choice of each pixel's hypothesis (``DepthEstimator.selector``, when
 ``depth_select.safetensors`` is among the weights).
 ``--mono-shape`` also measures every setting with the monocular depth made wrong in
-shape (`corrupt_mono`), as on real captures.
+shape (`corrupt_mono`), as on real captures; ``--mono-shift`` with the monocular network out of
+its domain; ``--mono-heights`` with its ceiling and floor at wrong heights (`wrong_heights`).
 Prints a table of mean L1 (m) per dataset and overall, and the seconds per pair.
 """
 
@@ -36,7 +37,12 @@ from pathlib import Path
 
 import torch
 
-from panogrf.app.train.augment import corrupt_mono, mono_out_of_domain, patched_mono
+from panogrf.app.train.augment import (
+    corrupt_mono,
+    mono_out_of_domain,
+    mono_wrong_heights,
+    patched_mono,
+)
 from panogrf.app.train.data import load_triplets
 from panogrf.app.weights.networks import (
     SELECTOR,
@@ -57,7 +63,8 @@ def _pairs(
     estimator, data, mode: str, scale: float = 1.0, mono: str = "clean"
 ) -> tuple[list[float], list[float]]:
     """L1 of the first and last views and seconds per pair; ``mono``: "clean", "shape" (its
-    depth wrong in shape) or "shift" (the network out of its domain)."""
+    depth wrong in shape), "shift" (the network out of its domain) or "heights" (its ceiling
+    and floor at wrong heights, `wrong_heights`, seeded per scene)."""
     errors, seconds = [], []
     for i in range(len(data)):
         images = data.images[i, [0, 2]].float() / 255.0
@@ -69,6 +76,8 @@ def _pairs(
         elif mono == "shift":
             partner = data.images[(i + 1) % len(data), [0, 2]].float() / 255.0
             context = _mono_out_of_domain(estimator, partner, seed=i)
+        elif mono == "heights":
+            context = mono_wrong_heights(estimator, torch.Generator().manual_seed(i))
         else:
             context = nullcontext()
         with context:
@@ -144,6 +153,13 @@ def main() -> None:
         help="measure every scene (at scale 1) also / only with the monocular network out of its "
         "domain, depth and features wrong together (column 'DATA mono-shift')",
     )
+    parser.add_argument(
+        "--mono-heights",
+        choices=("no", "also", "only"),
+        default="no",
+        help="measure every scene (at scale 1) also / only with the monocular depth's ceiling "
+        "and floor at wrong heights (column 'DATA mono-heights')",
+    )
     parser.add_argument("--threads", type=int, default=0)
     parser.add_argument("--out", type=Path, default=None)
     args = parser.parse_args()
@@ -203,9 +219,11 @@ def main() -> None:
     scales = [float(x) for x in args.scales.split(",")]
     results: dict[str, dict] = {}
     columns: list[str] = []
-    monos = ["clean"] if "only" not in (args.mono_shape, args.mono_shift) else []
+    only = "only" in (args.mono_shape, args.mono_shift, args.mono_heights)
+    monos = [] if only else ["clean"]
     monos += ["shape"] if args.mono_shape != "no" else []
     monos += ["shift"] if args.mono_shift != "no" else []
+    monos += ["heights"] if args.mono_heights != "no" else []
     runs = [(f, s, m) for f in args.data for s in scales for m in monos if m == "clean" or s == 1]
     for folder, scale, mono in runs:
         data = load_triplets(folder, 256)

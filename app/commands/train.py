@@ -153,6 +153,13 @@ def register(subparsers) -> None:
         "domain (default 0.3)",
     )
     select.add_argument(
+        "--mono-heights",
+        type=float,
+        default=0.0,
+        help="fraction of the scenes whose monocular depth puts the ceiling and the floor at "
+        "wrong heights (default 0)",
+    )
+    select.add_argument(
         "--height",
         type=int,
         default=256,
@@ -293,6 +300,10 @@ def run_select(args: argparse.Namespace) -> int:
         raise UserError("--steps, --batch and --scenes must be at least 1")
     if not 0 <= args.mono_shift <= 1:
         raise UserError(f"--mono-shift is a fraction of the scenes (0-1), got {args.mono_shift}")
+    if not 0 <= args.mono_heights <= 1:
+        raise UserError(
+            f"--mono-heights is a fraction of the scenes (0-1), got {args.mono_heights}"
+        )
     if args.height < 32 or args.height % 32:
         raise UserError(f"--height must be a multiple of 32, got {args.height}")
     if args.threads:
@@ -306,6 +317,7 @@ def run_select(args: argparse.Namespace) -> int:
         batch=args.batch,
         lr=args.lr,
         shift=args.mono_shift,
+        heights=args.mono_heights,
         height=args.height,
         context=not args.no_context,
         consistency=not args.no_consistency,

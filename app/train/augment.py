@@ -10,7 +10,9 @@ global scale, smooth regions too near or too far), so the mono-guided MVS learns
 prior against the cost volume instead of copying it. It corrupts the depth only: the
 monocular features that go with it stay as the network computed them. `out_of_domain` makes
 the monocular network itself wrong, depth and features alike, the way a real room it never
-learned makes it wrong: it sees a panorama blended with another one.
+learned makes it wrong: it sees a panorama blended with another one. `wrong_heights` makes
+the monocular depth plausible but for the room's height: the ceiling and the floor too near or
+too far, as on a real room whose ceiling is higher or lower than the rooms the network learned.
 
 All functions draw from a torch.Generator and work on batches [B, C, H, W].
 """
@@ -24,6 +26,8 @@ from contextlib import contextmanager
 import torch
 import torch.nn.functional as F
 from torch import Tensor
+
+from panogrf.model.mono import MonoOutput
 
 
 def _u(gen: torch.Generator, b: int, lo: float, hi: float, *shape: int) -> Tensor:
@@ -85,6 +89,28 @@ def corrupt_mono(depth: Tensor, gen: torch.Generator, p: float = 0.6) -> Tensor:
     return hit * wrong + (1 - hit) * depth
 
 
+def _smoothstep(x: Tensor) -> Tensor:
+    x = x.clamp(0, 1)
+    return x * x * (3 - 2 * x)
+
+
+def wrong_heights(depth: Tensor, gen: torch.Generator, strength: float = 0.4) -> Tensor:
+    """Monocular depth [B, 1, h, w] (metres, level cameras) with the ceiling and the floor put
+    at wrong heights: the depth looking up scaled by exp(a), looking down by exp(b), a and b
+    uniform in +-``strength`` per panorama, blended in smoothly between 12 and 44 degrees of
+    elevation (the walls at the horizon keep their depth). A network that learned rooms of
+    some heights puts a real room's ceiling where its rooms had theirs; the depth stays
+    plausible, only the room's height is wrong, and a blank ceiling gives the cost volume
+    nothing to correct it with."""
+    b, _, h, _ = depth.shape
+    lat = math.pi * (0.5 - (torch.arange(h, dtype=depth.dtype) + 0.5) / h)
+    sin = torch.sin(lat).view(1, 1, h, 1)
+    up, down = _smoothstep((sin - 0.2) / 0.5), _smoothstep((-sin - 0.2) / 0.5)
+    a = _u(gen, b, -strength, strength, 1, 1, 1).to(depth.dtype)
+    c = _u(gen, b, -strength, strength, 1, 1, 1).to(depth.dtype)
+    return depth * torch.exp(a * up + c * down)
+
+
 def out_of_domain(images: Tensor, gen: torch.Generator) -> Tensor:
     """Panoramas [B, 3, H, W] moved out of the monocular network's domain, for its input only:
     each blended (weight 0.35-0.55) with another panorama of the batch turned by a random yaw
@@ -124,5 +150,19 @@ def mono_out_of_domain(estimator, partner: Tensor, gen: torch.Generator):
             return forward(both[0::2])
 
         return shifted
+
+    return patched_mono(estimator, make)
+
+
+def mono_wrong_heights(estimator, gen: torch.Generator, strength: float = 0.4):
+    """While inside, ``estimator``'s monocular depth has its ceiling and floor at wrong heights
+    (`wrong_heights`, one draw per call of the network); its features stay as computed."""
+
+    def make(forward):
+        def wrong(images: Tensor):
+            out = forward(images)
+            return MonoOutput(wrong_heights(out.depth, gen, strength), out.features)
+
+        return wrong
 
     return patched_mono(estimator, make)

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -32,7 +33,7 @@ from tqdm import tqdm
 
 from panogrf.app.errors import UserError
 from panogrf.app.files.atomic import save_tensors_atomic
-from panogrf.app.train.augment import mono_out_of_domain, photometric
+from panogrf.app.train.augment import mono_out_of_domain, mono_wrong_heights, photometric
 from panogrf.app.train.data import load_triplets
 from panogrf.app.train.loop import Steps, held_back, save_trained
 from panogrf.app.train.renderer import _weights_key
@@ -57,6 +58,9 @@ class TrainSelectConfig:
     """Fraction of the scenes whose monocular network sees its input out of its domain."""
     photometric: float = 0.5
     """Fraction of the scenes whose views are put through the camera corruptions."""
+    heights: float = 0.0
+    """Fraction of the scenes whose monocular depth puts the ceiling and the floor at wrong
+    heights (`wrong_heights`), drawn independently of ``shift``."""
     height: int = 256
     """Rows the panoramas are loaded at (the sweep's resolution)."""
     steps: int = 1500
@@ -88,7 +92,10 @@ def _key(estimator: DepthEstimator, names: list[str], cfg: TrainSelectConfig) ->
     h = hashlib.sha256(_weights_key(estimator).encode())
     h.update("\n".join(names).encode())
     h.update(
-        json.dumps([cfg.shift, cfg.photometric, cfg.height, cfg.seed, RECORD_CHANNELS]).encode()
+        json.dumps(
+            [cfg.shift, cfg.photometric, cfg.height, cfg.seed, RECORD_CHANNELS]
+            + ([cfg.heights] if cfg.heights else [])
+        ).encode()
     )
     return h.hexdigest()[:16]
 
@@ -119,13 +126,16 @@ def record_scenes(
             images = balance_exposure(photometric(images, gen))[0]
         c2w = data.c2w[i, [0, 2]]
         shifted = float(torch.rand(1, generator=gen)) < cfg.shift
+        # Drawn only when asked for, so that runs without it record what they always did.
+        heights = cfg.heights > 0 and float(torch.rand(1, generator=gen)) < cfg.heights
         partner = data.images[indices[(n + 1) % len(indices)], [0, 2]].float() / 255.0
         estimator.record = []
         try:
-            if shifted:
-                with mono_out_of_domain(estimator, partner, gen):
-                    estimator(images, c2w, "full")
-            else:
+            with ExitStack() as stack:
+                if shifted:
+                    stack.enter_context(mono_out_of_domain(estimator, partner, gen))
+                if heights:
+                    stack.enter_context(mono_wrong_heights(estimator, gen))
                 estimator(images, c2w, "full")
             records = estimator.record
         finally:

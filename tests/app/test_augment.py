@@ -2,9 +2,17 @@
 
 from __future__ import annotations
 
+import math
+
 import torch
 
-from panogrf.app.train.augment import corrupt_mono, out_of_domain, photometric
+from panogrf.app.train.augment import (
+    corrupt_mono,
+    mono_wrong_heights,
+    out_of_domain,
+    photometric,
+    wrong_heights,
+)
 
 
 def _images(n=4, h=16, w=32):
@@ -60,3 +68,42 @@ def test_out_of_domain_blends_another_panorama():
     assert not torch.allclose(turned, one, atol=1e-3)
     again = out_of_domain(one, torch.Generator().manual_seed(6))
     assert torch.equal(turned, again)
+
+
+def test_wrong_heights_moves_ceiling_and_floor_not_the_walls():
+    """Rows looking up are scaled by one factor, rows looking down by another, within
+    exp(+-strength); the rows near the horizon keep their depth."""
+    h = 64
+    depth = torch.rand(6, 1, h, 2 * h, generator=torch.Generator().manual_seed(0)) + 1.0
+    out = wrong_heights(depth, torch.Generator().manual_seed(3), strength=0.4)
+    again = wrong_heights(depth, torch.Generator().manual_seed(3), strength=0.4)
+    assert torch.equal(out, again)
+    ratio = torch.log(out / depth)  # [6, 1, h, w]
+    lat = 90 - (torch.arange(h) + 0.5) / h * 180
+    horizon = lat.abs() < 11
+    assert ratio[:, :, horizon].abs().max() < 1e-6
+    top, bottom = ratio[:, 0, 0], ratio[:, 0, -1]  # [6, w]: constant along each row
+    assert torch.allclose(top, top[:, :1].expand_as(top), atol=1e-6)
+    assert top.abs().max() <= 0.4 + 1e-6 and bottom.abs().max() <= 0.4 + 1e-6
+    assert top[:, 0].std() > 0.05 and not torch.allclose(top[:, 0], bottom[:, 0])
+    # Smooth: no jump between neighbouring rows larger than the ramp allows.
+    assert (ratio[:, :, 1:] - ratio[:, :, :-1]).abs().max() < 0.4 * 3 * math.pi / h
+
+
+def test_mono_wrong_heights_changes_the_depth_not_the_features():
+    from panogrf.model.mono import MonoOutput
+
+    class Mono(torch.nn.Module):
+        def forward(self, images):
+            return MonoOutput(images[:, :1] + 1.0, images)
+
+    class Estimator:
+        mono = Mono()
+
+    est, images = Estimator(), _images(2, 32, 64)
+    plain = est.mono(images)
+    with mono_wrong_heights(est, torch.Generator().manual_seed(0)):
+        wrong = est.mono(images)
+    assert torch.equal(wrong.features, plain.features)
+    assert not torch.allclose(wrong.depth, plain.depth)
+    assert torch.equal(est.mono(images).depth, plain.depth)  # the patch is gone afterwards
