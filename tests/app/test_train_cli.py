@@ -140,6 +140,11 @@ def test_train_select_smoke(tiny_train, tmp_path, capsys):
     assert main([*args, "--scenes", "1", "--steps", "1", "--batch", "2", "--no-context"]) == 0
     assert "unreadable" in capsys.readouterr().out
     assert load_selector(out).context is None  # round 14's local selector
+    # Wrong room heights in the mono prior are another recording (its own cache).
+    assert (
+        main([*args, "--scenes", "1", "--steps", "1", "--batch", "2", "--mono-heights", "1"]) == 0
+    )
+    assert len(list(tiny_train.glob(".select_*.safetensors"))) == 4
     # Recording ran the rule on the shared, cached estimator; it keeps its shipped selector.
     from panogrf.app.weights.networks import load_depth_estimator
 
@@ -151,6 +156,8 @@ def test_train_select_errors(tmp_path, capsys):
     assert main([*base, "--out", "x.pt"]) == 2
     assert "safetensors" in capsys.readouterr().err
     assert main([*base, "--out", str(tmp_path / "s.safetensors"), "--mono-shift", "2"]) == 2
+    assert "0-1" in capsys.readouterr().err
+    assert main([*base, "--out", str(tmp_path / "s.safetensors"), "--mono-heights", "-1"]) == 2
     assert "0-1" in capsys.readouterr().err
     assert main([*base, "--out", str(tmp_path / "s.safetensors"), "--scenes", "0"]) == 2
     assert "at least 1" in capsys.readouterr().err
