@@ -131,11 +131,15 @@ def patched_mono(estimator, make) -> Iterator[None]:
     """While inside, ``estimator``'s monocular network's forward is ``make(forward)`` (its own
     forward wrapped)."""
     net = estimator.mono
+    outer = net.__dict__.get("forward")  # another patch around this one, kept on the way out
     net.forward = make(net.forward)
     try:
         yield
     finally:
-        del net.forward
+        if outer is None:
+            del net.forward
+        else:
+            net.forward = outer
 
 
 def mono_out_of_domain(estimator, partner: Tensor, gen: torch.Generator):

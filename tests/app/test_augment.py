@@ -107,3 +107,10 @@ def test_mono_wrong_heights_changes_the_depth_not_the_features():
     assert torch.equal(wrong.features, plain.features)
     assert not torch.allclose(wrong.depth, plain.depth)
     assert torch.equal(est.mono(images).depth, plain.depth)  # the patch is gone afterwards
+    # Inside another patch (a view also out of its domain): both apply, both end.
+    with mono_wrong_heights(est, torch.Generator().manual_seed(0)):
+        with mono_wrong_heights(est, torch.Generator().manual_seed(1)):
+            twice = est.mono(images)
+        once = est.mono(images)
+    assert not torch.allclose(twice.depth, once.depth)
+    assert torch.equal(est.mono(images).depth, plain.depth)
