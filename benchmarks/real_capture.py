@@ -12,8 +12,10 @@ and exits 0.
 For every triplet the middle view is rendered from the first and last by every method at each
 height and scored (PSNR, WS-PSNR, SSIM, LPIPS). Depth: the first and last views, each the
 other's source, estimated by every depth mode (mono, MVS-only, full) and compared with the
-ground truth at the dataset's resolution on 0 < gt <= d_max. ``--picture`` writes the true
-middle view, PanoGRF, MVS-only and meshwarp stacked (into the ignored data folder by default).
+ground truth at the dataset's resolution on 0 < gt <= d_max, also by band of elevation (L1
+over both views' pixels in the band: where each depth is wrong, the ceiling, walls or floor).
+``--picture`` writes the true middle view, PanoGRF, MVS-only and meshwarp stacked (into the
+ignored data folder by default).
 Every multi-view depth is refined per scene first (`SourceViews.refine`, as the CLI does by
 default since round 16), for the depth table and every method that reads it;
 ``--no-refine-depth`` uses the networks' depth as it is.
@@ -47,6 +49,10 @@ METHODS = ("panogrf", "no_mono", "no_mvs", "meshwarp", "nearest")
 DEPTH_MODES = ("mono", "mvs", "full")
 IMAGE_KEYS = ("psnr", "ws_psnr", "ssim", "lpips")
 DEPTH_KEYS = ("l1", "rmse", "ws_l1", "ws_rmse")
+#: Bands of elevation (degrees, camera frame) of the depth's L1 by band: where a depth is wrong
+#: (the ceiling, the walls, the floor).
+BANDS = ((90, 60), (60, 30), (30, 0), (0, -30), (-30, -60), (-60, -90))
+BAND_KEYS = tuple(f"l1_{hi}_{lo}" for hi, lo in BANDS)
 
 
 def triplets(root: Path) -> list[Path]:
@@ -69,7 +75,18 @@ def depth_scores(models, views, data, mode: str) -> dict[str, float]:
         mask = (gt > 0) & (gt <= est_net.d_max)
         m = depth_metrics(depth[k, 0], gt, mask)
         rows.append([float(getattr(m, key)) for key in DEPTH_KEYS])
-    return dict(zip(DEPTH_KEYS, np.mean(rows, axis=0).tolist(), strict=True))
+    scores = dict(zip(DEPTH_KEYS, np.mean(rows, axis=0).tolist(), strict=True))
+    # L1 by band of elevation, over the pixels of both views in the band.
+    gt = data.depths[[0, 2], 0].to(depth.dtype)
+    error = (depth[:, 0] - gt).abs()
+    ok = (gt > 0) & (gt <= est_net.d_max)
+    h = gt.shape[-2]
+    lat = 90.0 - (torch.arange(h, dtype=torch.float64) + 0.5) / h * 180.0
+    for (hi, lo), key in zip(BANDS, BAND_KEYS, strict=True):
+        rows_in = (lat <= hi) & (lat > lo)
+        m = ok[:, rows_in]
+        scores[key] = float(error[:, rows_in][m].mean()) if bool(m.any()) else float("nan")
+    return scores
 
 
 def _with_true_depth(views, data, models):
@@ -222,7 +239,8 @@ def main() -> int:
         for (m, h), rows in image_rows.items()
     }
     depth_table = {
-        mode: {k: statistics.fmean(r[k] for r in rows) for k in DEPTH_KEYS} | {"n": len(rows)}
+        mode: {k: statistics.fmean(r[k] for r in rows) for k in (*DEPTH_KEYS, *BAND_KEYS)}
+        | {"n": len(rows)}
         for mode, rows in depth_rows.items()
     }
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
@@ -247,6 +265,10 @@ def main() -> int:
     print(f"{'mode':>6} " + " ".join(f"{k:>8}" for k in DEPTH_KEYS) + "   (depth, metres)")
     for mode, r in depth_table.items():
         print(f"{mode:>6} " + " ".join(f"{r[k]:8.3f}" for k in DEPTH_KEYS))
+    print(f"\n{'mode':>6} " + " ".join(f"{f'{hi}..{lo}':>8}" for hi, lo in BANDS), end="")
+    print("   (depth L1 by elevation band, degrees; metres)")
+    for mode, r in depth_table.items():
+        print(f"{mode:>6} " + " ".join(f"{r[k]:8.3f}" for k in BAND_KEYS))
     print(
         f"\n{'method':>12} {'rows':>5} {'PSNR':>7} {'WS-PSNR':>8} {'SSIM':>6} {'LPIPS':>6} {'s':>6}"
     )
