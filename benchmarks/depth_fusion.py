@@ -39,9 +39,9 @@ import torch
 
 from panogrf.app.train.augment import (
     corrupt_mono,
+    mono_depth_changed,
     mono_out_of_domain,
     mono_wrong_heights,
-    patched_mono,
 )
 from panogrf.app.train.data import load_triplets
 from panogrf.app.weights.networks import (
@@ -52,8 +52,14 @@ from panogrf.app.weights.networks import (
 )
 from panogrf.model.depth import DEFAULT_SWEEP
 from panogrf.model.metrics import depth_metrics
-from panogrf.model.mono import MonoOutput
 from panogrf.model.refine import SweepConfig
+
+#: The monocular prior's conditions besides "clean" (`_pairs`'s ``mono``): what each does.
+MONO_CONDITIONS = {
+    "shape": "its monocular depth wrong in shape, as on real captures",
+    "shift": "the monocular network out of its domain, depth and features wrong together",
+    "heights": "the monocular depth's ceiling and floor at wrong heights",
+}
 
 #: The monocular depth as a third hypothesis of the fusion.
 MONO = {"mono_hypothesis": True}
@@ -94,15 +100,7 @@ def _mono_wrong_in_shape(estimator, seed: int):
     """The monocular network's depth made wrong as on real rooms while inside: smooth regions
     off by up to +-40 % and a global scale of 0.7-1.4x (`corrupt_mono`, every view), seeded."""
     gen = torch.Generator().manual_seed(seed)
-
-    def make(forward):
-        def wrong(images):
-            out = forward(images)
-            return MonoOutput(corrupt_mono(out.depth, gen, p=1.0), out.features)
-
-        return wrong
-
-    return patched_mono(estimator, make)
+    return mono_depth_changed(estimator, lambda depth: corrupt_mono(depth, gen, p=1.0))
 
 
 def _mono_out_of_domain(estimator, partner, seed: int):
@@ -139,27 +137,15 @@ def main() -> None:
         help="only settings whose name contains one of these |-separated parts (names hold "
         "commas); a part starting with = must match a name exactly (=mono: only the row 'mono')",
     )
-    parser.add_argument(
-        "--mono-shape",
-        choices=("no", "also", "only"),
-        default="no",
-        help="measure every scene (at scale 1) also / only with its monocular depth wrong in "
-        "shape, as on real captures (column 'DATA mono-shape')",
-    )
-    parser.add_argument(
-        "--mono-shift",
-        choices=("no", "also", "only"),
-        default="no",
-        help="measure every scene (at scale 1) also / only with the monocular network out of its "
-        "domain, depth and features wrong together (column 'DATA mono-shift')",
-    )
-    parser.add_argument(
-        "--mono-heights",
-        choices=("no", "also", "only"),
-        default="no",
-        help="measure every scene (at scale 1) also / only with the monocular depth's ceiling "
-        "and floor at wrong heights (column 'DATA mono-heights')",
-    )
+    # The monocular prior's conditions, each a column 'DATA mono-NAME' measured at scale 1.
+    for name, what in MONO_CONDITIONS.items():
+        parser.add_argument(
+            f"--mono-{name}",
+            choices=("no", "also", "only"),
+            default="no",
+            help=f"measure every scene (at scale 1) also / only with {what} "
+            f"(column 'DATA mono-{name}')",
+        )
     parser.add_argument("--threads", type=int, default=0)
     parser.add_argument("--out", type=Path, default=None)
     args = parser.parse_args()
@@ -219,11 +205,9 @@ def main() -> None:
     scales = [float(x) for x in args.scales.split(",")]
     results: dict[str, dict] = {}
     columns: list[str] = []
-    only = "only" in (args.mono_shape, args.mono_shift, args.mono_heights)
-    monos = [] if only else ["clean"]
-    monos += ["shape"] if args.mono_shape != "no" else []
-    monos += ["shift"] if args.mono_shift != "no" else []
-    monos += ["heights"] if args.mono_heights != "no" else []
+    asked = {name: getattr(args, f"mono_{name}") for name in MONO_CONDITIONS}
+    monos = [] if "only" in asked.values() else ["clean"]
+    monos += [name for name, value in asked.items() if value != "no"]
     runs = [(f, s, m) for f in args.data for s in scales for m in monos if m == "clean" or s == 1]
     for folder, scale, mono in runs:
         data = load_triplets(folder, 256)

@@ -129,8 +129,9 @@ def match_guided(
     are those within ``threshold`` radians of its epipolar plane in both views; among them the
     nearest descriptor wins if it passes the ratio test and the choice is mutual.
 
-    Computed in blocks of rows, in single precision (the descriptor distances and the sines of
-    the epipolar angles of all pairs at once would take gigabytes for two panoramas' keypoints).
+    Computed in blocks of rows, in single precision: the descriptor distances and the sines of
+    the epipolar angles of all pairs at once, in double precision, take up to 4.6 GB per array
+    for two panoramas of 24,000 keypoints (4000 per face).
     """
     if len(b.descriptors) < 2 or len(a.descriptors) == 0:
         return np.zeros((0, 2), int)

@@ -20,7 +20,7 @@ All functions draw from a torch.Generator and work on batches [B, C, H, W].
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
 import torch
@@ -158,15 +158,21 @@ def mono_out_of_domain(estimator, partner: Tensor, gen: torch.Generator):
     return patched_mono(estimator, make)
 
 
+def mono_depth_changed(estimator, change: Callable[[Tensor], Tensor]):
+    """While inside, ``estimator``'s monocular depth is ``change(depth)`` at every call of the
+    network; its features stay as computed."""
+
+    def make(forward):
+        def changed(images: Tensor):
+            out = forward(images)
+            return MonoOutput(change(out.depth), out.features)
+
+        return changed
+
+    return patched_mono(estimator, make)
+
+
 def mono_wrong_heights(estimator, gen: torch.Generator, strength: float = 0.4):
     """While inside, ``estimator``'s monocular depth has its ceiling and floor at wrong heights
     (`wrong_heights`, one draw per call of the network); its features stay as computed."""
-
-    def make(forward):
-        def wrong(images: Tensor):
-            out = forward(images)
-            return MonoOutput(wrong_heights(out.depth, gen, strength), out.features)
-
-        return wrong
-
-    return patched_mono(estimator, make)
+    return mono_depth_changed(estimator, lambda depth: wrong_heights(depth, gen, strength))
