@@ -63,6 +63,13 @@ def register(subparsers) -> None:
     make.add_argument(
         "--workers", type=int, default=2, help="pyrender worker processes (default 2)"
     )
+    make.add_argument(
+        "--trims",
+        type=float,
+        default=0.0,
+        help="home world: the fraction of scenes whose main room has a picture rail with a "
+        "frieze above it and maybe a dado with wainscot below (default 0)",
+    )
     make.add_argument("--seed", type=int, default=0, help="base seed (default 0)")
     make.add_argument("--start", type=int, default=0, help="index of the first scene")
     make.add_argument("--json", action="store_true", help="print the summary as JSON")
@@ -92,6 +99,10 @@ def run_make(args: argparse.Namespace) -> int:
         raise UserError(f"--height must be between 8 and 4096, got {args.height}")
     if args.workers < 1:
         raise UserError(f"--workers must be at least 1, got {args.workers}")
+    if not 0.0 <= args.trims <= 1.0:
+        raise UserError(f"--trims must be between 0 and 1, got {args.trims}")
+    if args.trims > 0 and args.world != "home":
+        raise UserError("--trims needs --world home")
     if args.out.exists() and not args.out.is_dir():
         raise UserError(f"--out {args.out} exists and is not a folder")
     cfg = MakeConfig(
@@ -103,6 +114,7 @@ def run_make(args: argparse.Namespace) -> int:
         world=args.world,
         renderer=args.renderer,
         workers=args.workers,
+        trims=args.trims,
         seed=args.seed,
         start=args.start,
     )

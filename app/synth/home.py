@@ -8,7 +8,12 @@ heights 1.0-1.8 m, baselines up to 3.5 m, the middle camera off the line), this:
   1, so the shader saturates it), some with curtains beside them: a bright patch that is *not*
   far away, which is what real captures show and the classic world never did;
 - lays rugs and sun patches (the floor's own texture, over-exposed) on the floor;
-- adds beds and tall shelves against the walls.
+- adds beds and tall shelves against the walls;
+- optionally (``trims``, a probability per scene) finishes the main room's walls in parts, as
+  older homes are: a picture rail with a plain frieze above it (often the ceiling's own paint,
+  so the strongest horizontal edge high on the wall is the rail, not the ceiling's corner) and
+  sometimes a dado rail with wainscot below. A monocular network that learned that the wall's
+  material ends at the ceiling reads such a room as too low.
 Depth stays exact: windows, rugs and patches are thin quads a few millimetres off their surface.
 """
 
@@ -104,8 +109,84 @@ def _floor_quad(rng, lo, hi, size_range, lift: float) -> trimesh.Trimesh | None:
     )
 
 
-def generate_home(seed: int, split: str, groups: dict[str, range], baseline: float | None = None):
-    """A home-world scene (deterministic from ``seed``); ``groups`` from `home_texture_bank`."""
+def _wall_spans(lx: float, lz: float, doorway: dict) -> list[tuple[str, float, float, float]]:
+    """The main room's four walls as (wall, start, end, lowest y) spans along them; the
+    divider (x = lx) in three: beside the doorway from the floor, above it from its head."""
+    dz, dw, dh = doorway["z"], doorway["width"], doorway["height"]
+    return [
+        ("x0", 0.0, lz, 0.0),
+        ("z0", 0.0, lx, 0.0),
+        ("z1", 0.0, lx, 0.0),
+        ("x1", 0.0, dz, 0.0),
+        ("x1", dz + dw, lz, 0.0),
+        ("x1", dz, dz + dw, dh),
+    ]
+
+
+def _on_wall(wall: str, s: float, y: float, lx: float, lz: float, off: float) -> list[float]:
+    """A point on a wall of the main room, ``off`` in front of it (towards the room)."""
+    if wall == "x0":
+        return [off, y, s]
+    if wall == "x1":
+        return [lx - off, y, s]
+    return [s, y, off if wall == "z0" else lz - off]
+
+
+def _trims(rng, lx, lz, ha, doorway, groups, ceiling: Material) -> list[SceneObject]:
+    """A picture rail with a frieze above it on every wall of the main room, and with
+    probability 0.5 a dado rail with wainscot below (`generate_home`'s ``trims``)."""
+    eps = 0.005
+    low = max(doorway["height"] + 0.05, ha - 1.1)
+    if low > ha - 0.25:
+        return []
+    rail_y = float(rng.uniform(low, ha - 0.25))
+    if rng.random() < 0.5:
+        frieze = ceiling  # the ceiling's paint carried down to the rail
+    else:
+        frieze = _pick(rng, groups["ceiling"], (1.0, 3.0), (0.6, 1.0))
+    rail_mat = _pick(rng, groups["furniture"], (0.2, 0.6), (0.5, 1.0))
+    bands = [(rail_y, ha, frieze, "frieze")]
+    rails = [(rail_y, float(rng.uniform(0.03, 0.08)))]
+    if rng.random() < 0.5:
+        dado_y = float(rng.uniform(0.7, 1.1))
+        bands.append((0.0, dado_y, _pick(rng, groups["furniture"], (0.3, 1.0), (0.5, 1.0)), "dado"))
+        rails.append((dado_y, float(rng.uniform(0.03, 0.06))))
+    out = []
+    for i, (wall, s0, s1, y_min) in enumerate(_wall_spans(lx, lz, doorway)):
+        if s1 - s0 < 0.05:
+            continue
+        for y0, y1, mat, name in bands:
+            y0 = max(y0, y_min)
+            if y1 - y0 < 0.02:
+                continue
+            corners = [
+                _on_wall(wall, s0, y0, lx, lz, eps),
+                _on_wall(wall, s1, y0, lx, lz, eps),
+                _on_wall(wall, s1, y1, lx, lz, eps),
+                _on_wall(wall, s0, y1, lx, lz, eps),
+            ]
+            out.append(SceneObject(f"{name}_{wall}_{i}", _quad(np.array(corners)), mat))
+        for y, h in rails:
+            if y - h / 2 < y_min:
+                continue
+            depth = 0.025
+            centre = _on_wall(wall, (s0 + s1) / 2, y, lx, lz, depth / 2)
+            ext = [depth, h, s1 - s0] if wall in ("x0", "x1") else [s1 - s0, h, depth]
+            out.append(SceneObject(f"rail_{wall}_{i}_{y:.2f}", _box(ext, centre), rail_mat))
+    return out
+
+
+def generate_home(
+    seed: int,
+    split: str,
+    groups: dict[str, range],
+    baseline: float | None = None,
+    trims: float = 0.0,
+):
+    """A home-world scene (deterministic from ``seed``); ``groups`` from `home_texture_bank`.
+    ``trims``: the probability that the main room's walls get rails, a frieze and maybe a
+    wainscot (`_trims`; drawn from a stream of its own, so the rest of the scene is the same
+    scene at any ``trims``)."""
     n_layers = max(r.stop for r in groups.values())
     scene = generate_layout(seed, split, n_layers, baseline, HOME_LAYOUT)
     rng = np.random.default_rng([seed, 0x40E])
@@ -168,6 +249,11 @@ def generate_home(seed: int, split: str, groups: dict[str, range], baseline: flo
                 _pick(rng, groups["furniture"], (0.3, 1.0), (0.6, 1.0)),
             )
         )
+
+    trim_rng = np.random.default_rng([seed, 0x7219])
+    if trims > 0 and trim_rng.random() < trims:
+        ceiling = next(o for o in objects if o.name == "roomA_ceiling").material
+        objects += _trims(trim_rng, lx, lz, ha, scene.meta["doorway"], groups, ceiling)
 
     cameras = scene.cameras.copy()
     if scene.baseline > 0.3:

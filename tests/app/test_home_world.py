@@ -79,3 +79,50 @@ def test_make_home_dataset(tmp_path):
             assert rgb.shape == (32, 64, 3) and np.all(depth > 0.05)
     with pytest.raises(ValueError, match="world"):
         make_dataset(MakeConfig(out=tmp_path, count=1, height=32, world="castle"), False)
+
+
+@pytest.mark.parametrize("index", range(4))
+def test_trims_finish_the_walls_without_moving_the_room(index):
+    """Rails, a frieze and maybe a wainscot: thin parts on the main room's walls, nowhere in
+    the doorway, and the rest of the scene the same scene as without them."""
+    _, groups = build_textures("train", 0, 8, world="home")
+    seed = scene_seed("train", 2, index)
+    plain = generate_home(seed, "train", groups)
+    zero = generate_home(seed, "train", groups, trims=0.0)
+    trimmed = generate_home(seed, "train", groups, trims=1.0)
+
+    def same(a, b) -> bool:
+        return (
+            a.name == b.name
+            and a.material == b.material
+            and np.array_equal(a.mesh.vertices, b.mesh.vertices)
+        )
+
+    n = len(plain.objects)
+    assert len(zero.objects) == n and all(map(same, plain.objects, zero.objects))
+    assert all(map(same, plain.objects, trimmed.objects[:n]))
+    assert np.array_equal(plain.cameras, trimmed.cameras)
+    added = trimmed.objects[n:]
+    names = [o.name for o in added]
+    assert any(n.startswith("frieze") for n in names) and any(n.startswith("rail") for n in names)
+    lx, ha, lz = trimmed.meta["room_a"]
+    door = trimmed.meta["doorway"]
+    for o in added:
+        v = np.asarray(o.mesh.vertices)
+        # Against a wall of room A: within 3 cm of x = 0, x = lx, z = 0 or z = lz.
+        gaps = np.stack([v[:, 0], lx - v[:, 0], v[:, 2], lz - v[:, 2]], 1)
+        assert (gaps.min(1) <= 0.0251).all() and (gaps.min(1) >= -1e-9).all(), o.name
+        assert v[:, 1].min() >= -1e-9 and v[:, 1].max() <= ha + 1e-9
+        if o.name.startswith("frieze"):
+            assert v[:, 1].min() > door["height"]  # above the doorway's head
+        on_divider = np.all(lx - v[:, 0] < 0.03)
+        if on_divider:  # nothing in the doorway's opening
+            in_gap = (v[:, 2] > door["z"] + 1e-6) & (v[:, 2] < door["z"] + door["width"] - 1e-6)
+            assert not np.any(in_gap & (v[:, 1] < door["height"] - 1e-6)), o.name
+
+
+def test_trims_need_the_home_world_and_a_probability(tmp_path):
+    with pytest.raises(ValueError, match="trims"):
+        make_dataset(MakeConfig(out=tmp_path, count=1, height=32, trims=0.5), False)
+    with pytest.raises(ValueError, match="trims"):
+        make_dataset(MakeConfig(out=tmp_path, count=1, height=32, world="home", trims=1.5), False)
