@@ -126,3 +126,18 @@ def test_trims_need_the_home_world_and_a_probability(tmp_path):
         make_dataset(MakeConfig(out=tmp_path, count=1, height=32, trims=0.5), False)
     with pytest.raises(ValueError, match="trims"):
         make_dataset(MakeConfig(out=tmp_path, count=1, height=32, world="home", trims=1.5), False)
+
+
+@pytest.mark.parametrize(
+    "extra,message",
+    [(["--trims", "1.5"], "between 0 and 1"), (["--trims", "0.5"], "needs --world home")],
+)
+def test_cli_refuses_bad_trims_in_one_line(tmp_path, extra, message):
+    import subprocess
+    import sys
+
+    cmd = [sys.executable, "-m", "panogrf.app.cli", "dataset", "make", "--out", str(tmp_path)]
+    run = subprocess.run([*cmd, "--count", "1", *extra], capture_output=True, text=True)
+    assert run.returncode != 0 and "Traceback" not in run.stderr
+    assert message in run.stderr
+    assert not any(tmp_path.iterdir())  # nothing written
