@@ -70,6 +70,13 @@ def register(subparsers) -> None:
         help="home world: the fraction of scenes whose main room has a picture rail with a "
         "frieze above it and maybe a dado with wainscot below (default 0)",
     )
+    make.add_argument(
+        "--coves",
+        type=float,
+        default=0.0,
+        help="home world: the fraction of scenes whose main room meets its ceiling in a cove or "
+        "a crown moulding (default 0)",
+    )
     make.add_argument("--seed", type=int, default=0, help="base seed (default 0)")
     make.add_argument("--start", type=int, default=0, help="index of the first scene")
     make.add_argument("--json", action="store_true", help="print the summary as JSON")
@@ -99,10 +106,12 @@ def run_make(args: argparse.Namespace) -> int:
         raise UserError(f"--height must be between 8 and 4096, got {args.height}")
     if args.workers < 1:
         raise UserError(f"--workers must be at least 1, got {args.workers}")
-    if not 0.0 <= args.trims <= 1.0:
-        raise UserError(f"--trims must be between 0 and 1, got {args.trims}")
-    if args.trims > 0 and args.world != "home":
-        raise UserError("--trims needs --world home")
+    for name in ("trims", "coves"):
+        p = getattr(args, name)
+        if not 0.0 <= p <= 1.0:
+            raise UserError(f"--{name} must be between 0 and 1, got {p}")
+        if p > 0 and args.world != "home":
+            raise UserError(f"--{name} needs --world home")
     if args.out.exists() and not args.out.is_dir():
         raise UserError(f"--out {args.out} exists and is not a folder")
     cfg = MakeConfig(
@@ -115,6 +124,7 @@ def run_make(args: argparse.Namespace) -> int:
         renderer=args.renderer,
         workers=args.workers,
         trims=args.trims,
+        coves=args.coves,
         seed=args.seed,
         start=args.start,
     )

@@ -13,7 +13,10 @@ heights 1.0-1.8 m, baselines up to 3.5 m, the middle camera off the line), this:
   older homes are: a picture rail with a plain frieze above it (often the ceiling's own paint,
   so the strongest horizontal edge high on the wall is the rail, not the ceiling's corner) and
   sometimes a dado rail with wainscot below. A monocular network that learned that the wall's
-  material ends at the ceiling reads such a room as too low.
+  material ends at the ceiling reads such a room as too low;
+- optionally (``coves``, a probability per scene) softens the corner between the main room's
+  walls and its ceiling: a cove (a concave quarter circle, mostly in the ceiling's paint) or a
+  crown moulding (a chamfer), so the ceiling no longer meets the walls in a sharp line.
 Depth stays exact: windows, rugs and patches are thin quads a few millimetres off their surface.
 """
 
@@ -176,17 +179,52 @@ def _trims(rng, lx, lz, ha, doorway, groups, ceiling: Material) -> list[SceneObj
     return out
 
 
+def _coves(rng, lx, lz, ha, groups, ceiling: Material) -> list[SceneObject]:
+    """A cove or a crown moulding along the top of every wall of the main room
+    (`generate_home`'s ``coves``): strips of quads whose profile runs from the wall to the
+    ceiling; the strips of two walls cross at the room's corners."""
+    if rng.random() < 0.5:  # cove: a quarter circle of radius r, concave towards the room
+        r = float(rng.uniform(0.12, 0.3))
+        theta = np.linspace(0.0, np.pi / 2, 6)
+        profile = np.stack([r - r * np.cos(theta), ha - r + r * np.sin(theta)], 1)
+        use_ceiling = rng.random() < 0.7
+        mat = ceiling if use_ceiling else _pick(rng, groups["ceiling"], (1.0, 3.0), (0.6, 1.0))
+        name = "cove"
+    else:  # crown moulding: a chamfer from the wall to the ceiling
+        drop, reach = rng.uniform(0.06, 0.15, size=2)
+        profile = np.array([[0.0, ha - drop], [reach, ha]])
+        mat = _pick(rng, groups["furniture"], (0.2, 0.6), (0.6, 1.0))
+        name = "crown"
+    profile[:, 0] += 0.002  # off the wall, so it is never coplanar with it
+    profile[:, 1] = np.minimum(profile[:, 1], ha - 0.002)
+    out = []
+    for wall, length in (("x0", lz), ("x1", lz), ("z0", lx), ("z1", lx)):
+        quads = []
+        for (o0, y0), (o1, y1) in zip(profile[:-1], profile[1:], strict=True):
+            corners = [
+                _on_wall(wall, 0.0, y0, lx, lz, o0),
+                _on_wall(wall, length, y0, lx, lz, o0),
+                _on_wall(wall, length, y1, lx, lz, o1),
+                _on_wall(wall, 0.0, y1, lx, lz, o1),
+            ]
+            quads.append(_quad(np.array(corners, float)))
+        out.append(SceneObject(f"{name}_{wall}", trimesh.util.concatenate(quads), mat))
+    return out
+
+
 def generate_home(
     seed: int,
     split: str,
     groups: dict[str, range],
     baseline: float | None = None,
     trims: float = 0.0,
+    coves: float = 0.0,
 ):
     """A home-world scene (deterministic from ``seed``); ``groups`` from `home_texture_bank`.
     ``trims``: the probability that the main room's walls get rails, a frieze and maybe a
-    wainscot (`_trims`; drawn from a stream of its own, so the rest of the scene is the same
-    scene at any ``trims``)."""
+    wainscot (`_trims`), ``coves`` that the corner between its walls and ceiling is a cove or
+    a crown moulding (`_coves`). Each is drawn from a random stream of its own, so the rest of
+    the scene is the same scene at any ``trims`` and ``coves``."""
     n_layers = max(r.stop for r in groups.values())
     scene = generate_layout(seed, split, n_layers, baseline, HOME_LAYOUT)
     rng = np.random.default_rng([seed, 0x40E])
@@ -254,6 +292,10 @@ def generate_home(
     if trims > 0 and trim_rng.random() < trims:
         ceiling = next(o for o in objects if o.name == "roomA_ceiling").material
         objects += _trims(trim_rng, lx, lz, ha, scene.meta["doorway"], groups, ceiling)
+    cove_rng = np.random.default_rng([seed, 0xC0E])
+    if coves > 0 and cove_rng.random() < coves:
+        ceiling = next(o for o in objects if o.name == "roomA_ceiling").material
+        objects += _coves(cove_rng, lx, lz, ha, groups, ceiling)
 
     cameras = scene.cameras.copy()
     if scene.baseline > 0.3:

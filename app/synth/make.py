@@ -72,6 +72,9 @@ class MakeConfig:
     """Home world: the probability per scene that the main room's walls are finished in parts
     (a picture rail with a frieze above it, maybe a dado rail with wainscot below;
     `panogrf.app.synth.home`). 0 leaves every scene as before."""
+    coves: float = 0.0
+    """Home world: the probability per scene that the main room's walls meet its ceiling in a
+    cove or a crown moulding instead of a sharp corner. 0 leaves every scene as before."""
 
 
 def scene_seed(split: str, base_seed: int, index: int) -> int:
@@ -106,13 +109,15 @@ def build_scene(
     config: LayoutConfig | None = None,
     groups: dict[str, range] | None = None,
     trims: float = 0.0,
+    coves: float = 0.0,
 ) -> SynthScene:
     """The layout of one synthetic scene whose materials index a pool of ``n_layers`` textures
-    (home world: ``groups``, the pool's material groups; ``trims``, `MakeConfig.trims`)."""
+    (home world: ``groups``, the pool's material groups; ``trims`` and ``coves``, as in
+    `MakeConfig`)."""
     if groups is not None:
         from panogrf.app.synth.home import generate_home
 
-        return generate_home(seed, split, groups, baseline, trims)
+        return generate_home(seed, split, groups, baseline, trims, coves)
     return generate_layout(seed, split, n_layers, baseline, config or LayoutConfig())
 
 
@@ -148,7 +153,9 @@ def _scene_job(cfg: MakeConfig, groups, n_layers: int, i: int):
     """Scene ``i``'s layout and its (created) folder."""
     seed = scene_seed(cfg.split, cfg.seed, i)
     baseline = cfg.baselines[i % len(cfg.baselines)] if cfg.baselines else None
-    scene = build_scene(cfg.split, seed, baseline, n_layers, groups=groups, trims=cfg.trims)
+    scene = build_scene(
+        cfg.split, seed, baseline, n_layers, groups=groups, trims=cfg.trims, coves=cfg.coves
+    )
     folder = Path(cfg.out) / f"{cfg.split}_{i:05d}"
     (folder / "images").mkdir(parents=True, exist_ok=True)
     (folder / "depth").mkdir(parents=True, exist_ok=True)
@@ -295,8 +302,10 @@ def make_dataset(cfg: MakeConfig, progress: bool = True) -> dict:
         raise ValueError(f"renderer must be one of {RENDERERS}, got {cfg.renderer!r}")
     if cfg.count < 1 or cfg.height < 8:
         raise ValueError("count must be >= 1 and height >= 8")
-    if not 0.0 <= cfg.trims <= 1.0 or (cfg.trims > 0 and cfg.world != "home"):
-        raise ValueError(f"trims must be in [0, 1] and needs the home world, got {cfg.trims}")
+    for name in ("trims", "coves"):
+        p = getattr(cfg, name)
+        if not 0.0 <= p <= 1.0 or (p > 0 and cfg.world != "home"):
+            raise ValueError(f"{name} must be in [0, 1] and needs the home world, got {p}")
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
@@ -314,7 +323,7 @@ def make_dataset(cfg: MakeConfig, progress: bool = True) -> dict:
             "generator": "panogrf dataset make",
             "world": cfg.world,
             "renderer": cfg.renderer,
-            **({"trims": cfg.trims} if cfg.trims > 0 else {}),
+            **{name: getattr(cfg, name) for name in ("trims", "coves") if getattr(cfg, name) > 0},
             "height": cfg.height,
             "width": 2 * cfg.height,
         }

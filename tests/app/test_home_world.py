@@ -121,16 +121,52 @@ def test_trims_finish_the_walls_without_moving_the_room(index):
             assert not np.any(in_gap & (v[:, 1] < door["height"] - 1e-6)), o.name
 
 
+@pytest.mark.parametrize("index", range(4))
+def test_coves_soften_the_ceiling_corner_only(index):
+    """A cove or a crown moulding: strips in the corner between the main room's walls and its
+    ceiling, added after everything else, the rest of the scene unchanged."""
+    _, groups = build_textures("train", 0, 8, world="home")
+    seed = scene_seed("train", 3, index)
+    plain = generate_home(seed, "train", groups, trims=1.0)
+    coved = generate_home(seed, "train", groups, trims=1.0, coves=1.0)
+    n = len(plain.objects)
+    assert [o.name for o in coved.objects[:n]] == [o.name for o in plain.objects]
+    assert all(
+        np.array_equal(a.mesh.vertices, b.mesh.vertices)
+        for a, b in zip(plain.objects, coved.objects[:n], strict=True)
+    )
+    added = coved.objects[n:]
+    assert len(added) == 4 and len({o.name.split("_")[0] for o in added}) == 1
+    assert added[0].name.split("_")[0] in ("cove", "crown")
+    lx, ha, lz = coved.meta["room_a"]
+    for o in added:
+        v = np.asarray(o.mesh.vertices)
+        own = {"x0": v[:, 0], "x1": lx - v[:, 0], "z0": v[:, 2], "z1": lz - v[:, 2]}
+        gap = own[o.name.split("_")[1]]  # distance from its own wall
+        assert (gap >= 0).all() and (gap <= 0.31).all(), o.name  # along that wall
+        assert (v[:, 1] >= ha - 0.31).all() and (v[:, 1] < ha).all(), o.name  # under the ceiling
+        # The profile runs from the wall (low) to the ceiling (out in the room).
+        low, high = v[:, 1] < ha - 0.05, gap > 0.05
+        assert low.any() and high.any() and not (low & high).any()
+
+
 def test_trims_need_the_home_world_and_a_probability(tmp_path):
     with pytest.raises(ValueError, match="trims"):
         make_dataset(MakeConfig(out=tmp_path, count=1, height=32, trims=0.5), False)
     with pytest.raises(ValueError, match="trims"):
         make_dataset(MakeConfig(out=tmp_path, count=1, height=32, world="home", trims=1.5), False)
+    with pytest.raises(ValueError, match="coves"):
+        make_dataset(MakeConfig(out=tmp_path, count=1, height=32, coves=0.5), False)
 
 
 @pytest.mark.parametrize(
     "extra,message",
-    [(["--trims", "1.5"], "between 0 and 1"), (["--trims", "0.5"], "needs --world home")],
+    [
+        (["--trims", "1.5"], "between 0 and 1"),
+        (["--trims", "0.5"], "needs --world home"),
+        (["--world", "home", "--coves", "-0.1"], "between 0 and 1"),
+        (["--coves", "1"], "needs --world home"),
+    ],
 )
 def test_cli_refuses_bad_trims_in_one_line(tmp_path, extra, message):
     import subprocess
