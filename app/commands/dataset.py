@@ -106,7 +106,9 @@ def run_make(args: argparse.Namespace) -> int:
         raise UserError(f"--height must be between 8 and 4096, got {args.height}")
     if args.workers < 1:
         raise UserError(f"--workers must be at least 1, got {args.workers}")
-    for name in ("trims", "coves"):
+    from panogrf.app.synth.make import FINISHES
+
+    for name in FINISHES:
         p = getattr(args, name)
         if not 0.0 <= p <= 1.0:
             raise UserError(f"--{name} must be between 0 and 1, got {p}")

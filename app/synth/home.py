@@ -62,6 +62,28 @@ def _kind_of(name: str) -> str:
     return "furniture"
 
 
+def _on_wall(wall: str, s: float, y: float, lx: float, lz: float, off: float) -> list[float]:
+    """A point on a wall of the main room, ``off`` in front of it (towards the room)."""
+    if wall == "x0":
+        return [off, y, s]
+    if wall == "x1":
+        return [lx - off, y, s]
+    return [s, y, off if wall == "z0" else lz - off]
+
+
+def _wall_strip(wall, s0, s1, low, high, lx, lz) -> trimesh.Trimesh:
+    """A quad along a wall of the main room from ``s0`` to ``s1``, between two (off, y) edges:
+    ``low`` and ``high``, each ``off`` in front of the wall at height ``y``."""
+    (o0, y0), (o1, y1) = low, high
+    corners = [
+        _on_wall(wall, s0, y0, lx, lz, o0),
+        _on_wall(wall, s1, y0, lx, lz, o0),
+        _on_wall(wall, s1, y1, lx, lz, o1),
+        _on_wall(wall, s0, y1, lx, lz, o1),
+    ]
+    return _quad(np.array(corners, float))
+
+
 def _window(rng, wall: str, lx: float, lz: float, ha: float, groups) -> list[SceneObject]:
     """A window on one wall of room A (x = 0, z = 0 or z = lz), maybe with curtains."""
     span = lz if wall == "x0" else lx
@@ -71,30 +93,21 @@ def _window(rng, wall: str, lx: float, lz: float, ha: float, groups) -> list[Sce
     if width < 0.5 or height < 0.5:
         return []
     s0 = float(rng.uniform(0.2, span - width - 0.2))
-    eps = 0.01
-
-    def at(s: float, y: float, off: float = eps) -> list[float]:
-        if wall == "x0":
-            return [off, y, s]
-        return [s, y, off if wall == "z0" else lz - off]
-
-    corners = np.array(
-        [at(s0, sill), at(s0 + width, sill), at(s0 + width, sill + height), at(s0, sill + height)]
-    )
+    glass = _wall_strip(wall, s0, s0 + width, (0.01, sill), (0.01, sill + height), lx, lz)
     glow = Material(
         layer=int(rng.choice(groups["window"])),
         scale=float(max(width, height)),
         offset=(float(rng.random()), float(rng.random())),
         tint=tuple(float(t) for t in rng.uniform(3.0, 8.0) * rng.uniform(0.9, 1.1, 3)),
     )
-    out = [SceneObject(f"window_{wall}", _quad(corners), glow)]
+    out = [SceneObject(f"window_{wall}", glass, glow)]
     if rng.random() < 0.5:
         cloth = _pick(rng, groups["furniture"], (0.3, 0.8))
         for side in (-1, 1):
             w = float(rng.uniform(0.2, 0.45))
             centre_s = s0 - w / 2 + 0.05 if side < 0 else s0 + width + w / 2 - 0.05
             inward = 0.08
-            c = at(centre_s, (sill + height + 0.15) / 2 + 0.05, inward)
+            c = _on_wall(wall, centre_s, (sill + height + 0.15) / 2 + 0.05, lx, lz, inward)
             ext = (
                 [0.06, sill + height + 0.15, w] if wall == "x0" else [w, sill + height + 0.15, 0.06]
             )
@@ -126,15 +139,6 @@ def _wall_spans(lx: float, lz: float, doorway: dict) -> list[tuple[str, float, f
     ]
 
 
-def _on_wall(wall: str, s: float, y: float, lx: float, lz: float, off: float) -> list[float]:
-    """A point on a wall of the main room, ``off`` in front of it (towards the room)."""
-    if wall == "x0":
-        return [off, y, s]
-    if wall == "x1":
-        return [lx - off, y, s]
-    return [s, y, off if wall == "z0" else lz - off]
-
-
 def _trims(rng, lx, lz, ha, doorway, groups, ceiling: Material) -> list[SceneObject]:
     """A picture rail with a frieze above it on every wall of the main room, and with
     probability 0.5 a dado rail with wainscot below (`generate_home`'s ``trims``)."""
@@ -162,13 +166,8 @@ def _trims(rng, lx, lz, ha, doorway, groups, ceiling: Material) -> list[SceneObj
             y0 = max(y0, y_min)
             if y1 - y0 < 0.02:
                 continue
-            corners = [
-                _on_wall(wall, s0, y0, lx, lz, eps),
-                _on_wall(wall, s1, y0, lx, lz, eps),
-                _on_wall(wall, s1, y1, lx, lz, eps),
-                _on_wall(wall, s0, y1, lx, lz, eps),
-            ]
-            out.append(SceneObject(f"{name}_{wall}_{i}", _quad(np.array(corners)), mat))
+            band = _wall_strip(wall, s0, s1, (eps, y0), (eps, y1), lx, lz)
+            out.append(SceneObject(f"{name}_{wall}_{i}", band, mat))
         for y, h in rails:
             if y - h / 2 < y_min:
                 continue
@@ -199,15 +198,10 @@ def _coves(rng, lx, lz, ha, groups, ceiling: Material) -> list[SceneObject]:
     profile[:, 1] = np.minimum(profile[:, 1], ha - 0.002)
     out = []
     for wall, length in (("x0", lz), ("x1", lz), ("z0", lx), ("z1", lx)):
-        quads = []
-        for (o0, y0), (o1, y1) in zip(profile[:-1], profile[1:], strict=True):
-            corners = [
-                _on_wall(wall, 0.0, y0, lx, lz, o0),
-                _on_wall(wall, length, y0, lx, lz, o0),
-                _on_wall(wall, length, y1, lx, lz, o1),
-                _on_wall(wall, 0.0, y1, lx, lz, o1),
-            ]
-            quads.append(_quad(np.array(corners, float)))
+        quads = [
+            _wall_strip(wall, 0.0, length, low, high, lx, lz)
+            for low, high in zip(profile[:-1], profile[1:], strict=True)
+        ]
         out.append(SceneObject(f"{name}_{wall}", trimesh.util.concatenate(quads), mat))
     return out
 
@@ -288,13 +282,12 @@ def generate_home(
             )
         )
 
+    ceiling = next(o for o in objects if o.name == "roomA_ceiling").material
     trim_rng = np.random.default_rng([seed, 0x7219])
     if trims > 0 and trim_rng.random() < trims:
-        ceiling = next(o for o in objects if o.name == "roomA_ceiling").material
         objects += _trims(trim_rng, lx, lz, ha, scene.meta["doorway"], groups, ceiling)
     cove_rng = np.random.default_rng([seed, 0xC0E])
     if coves > 0 and cove_rng.random() < coves:
-        ceiling = next(o for o in objects if o.name == "roomA_ceiling").material
         objects += _coves(cove_rng, lx, lz, ha, groups, ceiling)
 
     cameras = scene.cameras.copy()

@@ -35,6 +35,8 @@ from panogrf.app.synth.textures import texture_bank
 
 SPLITS = ("train", "test")
 WORLDS = ("classic", "home")
+#: `MakeConfig`'s home-world finishes, each a probability per scene.
+FINISHES = ("trims", "coves")
 RENDERERS = ("gl", "pyrender")
 NAMES = ["frame_000", "frame_001", "frame_002"]
 
@@ -302,7 +304,7 @@ def make_dataset(cfg: MakeConfig, progress: bool = True) -> dict:
         raise ValueError(f"renderer must be one of {RENDERERS}, got {cfg.renderer!r}")
     if cfg.count < 1 or cfg.height < 8:
         raise ValueError("count must be >= 1 and height >= 8")
-    for name in ("trims", "coves"):
+    for name in FINISHES:
         p = getattr(cfg, name)
         if not 0.0 <= p <= 1.0 or (p > 0 and cfg.world != "home"):
             raise ValueError(f"{name} must be in [0, 1] and needs the home world, got {p}")
@@ -323,7 +325,7 @@ def make_dataset(cfg: MakeConfig, progress: bool = True) -> dict:
             "generator": "panogrf dataset make",
             "world": cfg.world,
             "renderer": cfg.renderer,
-            **{name: getattr(cfg, name) for name in ("trims", "coves") if getattr(cfg, name) > 0},
+            **{name: getattr(cfg, name) for name in FINISHES if getattr(cfg, name) > 0},
             "height": cfg.height,
             "width": 2 * cfg.height,
         }
