@@ -126,6 +126,7 @@ def main() -> int:
             scores = image_scores(rgb, data.images[1:2])
             row = {k: scores[k] for k in KEYS[:3]}
             row |= {"depth_l1": depth_l1(depth, data, d_max), "seconds": seconds}
+            row["data"] = str(folder.parent)
             rows[name].append(row)
             print(
                 f"{folder.parent.name}/{folder.name} {name:>28}: WS-PSNR {row['ws_psnr']:.2f} "
@@ -138,6 +139,15 @@ def main() -> int:
         | {"seconds_median": statistics.median(r["seconds"] for r in rs), "n": len(rs)}
         for name, rs in rows.items()
     }
+    by_data = {
+        name: {
+            str(root): {
+                k: statistics.fmean(r[k] for r in rs if r["data"] == str(root)) for k in KEYS
+            }
+            for root in args.data
+        }
+        for name, rs in rows.items()
+    }
     shipped = table.get("shipped", {}).get("seconds_median")
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
     report = {
@@ -147,6 +157,7 @@ def main() -> int:
         "mono_shift": args.mono_shift,
         "settings": {name: repr(config) for name, config in settings.items()},
         "table": table,
+        "by_data": by_data,
         "machine": f"{platform.machine()}, {torch.get_num_threads()} torch threads, CPU",
         "seconds": round(time.perf_counter() - start, 1),
         "commit": commit.stdout.strip(),
@@ -163,6 +174,14 @@ def main() -> int:
             f"{name:>28} | {t['ws_psnr']:7.2f} | {t['ssim']:.4f} | {t['lpips']:.4f} | "
             f"{t['depth_l1']:10.4f} | {t['seconds_median']:17.2f} | {ratio:>9}"
         )
+    if len(args.data) > 1:
+        print("\nmean per dataset, WS-PSNR / LPIPS / depth L1 m:")
+        for name, sets in by_data.items():
+            cells = [
+                f"{Path(d).name} {t['ws_psnr']:.2f} / {t['lpips']:.4f} / {t['depth_l1']:.4f}"
+                for d, t in sets.items()
+            ]
+            print(f"{name:>28} | " + " | ".join(cells))
     return 0
 
 

@@ -115,6 +115,14 @@ def register(subparsers) -> None:
     renderer.add_argument("--limit-scenes", type=int, default=None, help="load only N scenes")
     renderer.add_argument("--init", type=Path, default=None, help="start from these weights")
     renderer.add_argument(
+        "--depth",
+        choices=("networks", "shipped"),
+        default="networks",
+        help="the sources' depth: networks (the depth networks alone, every pair of views; "
+        "default) or shipped (what the app renders with: the fusion and the per-scene "
+        "refinement, a few seconds per scene, so the outer pair only)",
+    )
+    renderer.add_argument(
         "--no-surface-loss",
         action="store_true",
         help="train only the composited colours (not the surface colour; round 1's behaviour)",
@@ -229,9 +237,13 @@ def run_renderer(args: argparse.Namespace) -> int:
         limit_scenes=args.limit_scenes,
         init=args.init,
         surface_loss=not args.no_surface_loss,
+        depth=args.depth,
     )
     try:
-        train_renderer(cfg, load_depth_estimator(("full",)), log=log)
+        if args.depth == "shipped":
+            train_renderer(cfg, log=log)
+        else:
+            train_renderer(cfg, load_depth_estimator(("full",)), log=log)
     finally:
         close()
     return 0

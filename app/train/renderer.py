@@ -9,6 +9,12 @@ each view turned by its own random yaw (exact augmentation). Rays of the target 
 probability proportional to cos(latitude) (the panorama's solid angle, as WS-PSNR weighs) and
 rendered with both samplings the renderer offers: coarse-to-fine and depth-guided. The loss is
 the photometric MSE of the coarse, fine and guided composites.
+
+The depth the renderer trains on is either the depth networks' own estimate of every ordered
+pair (``depth="networks"``, fast, every configuration above) or the depth the app renders
+with (``depth="shipped"``: mode full with the sweep, the canonical world, the selector and the
+preparation's per-scene refinement, `shipped_depths`), a few seconds per scene, so only of the
+outer pair: every sample then renders from the outer two views.
 """
 
 from __future__ import annotations
@@ -37,6 +43,7 @@ from panogrf.renderer.cache import build_cache
 from panogrf.renderer.render import QUALITY, Sampling, render_panorama, render_rays, target_rays
 
 PAIRS = ((0, 1), (0, 2), (1, 2))
+DEPTHS = ("networks", "shipped")
 
 
 @dataclass(frozen=True)
@@ -78,6 +85,9 @@ class TrainRendererConfig:
     surface_loss: bool = True
     """Also train the depth-guided pass's surface colour (`Sampling.surface`): density that
     peaks at the surface and blend weights that pick the sources that see it."""
+    depth: str = "networks"
+    """The sources' depth: "networks" (the depth networks alone, every ordered pair) or
+    "shipped" (what the app renders with, outer pair only; `shipped_depths`)."""
     extra: dict = field(default_factory=dict)
     """Free-form notes stored with the weights."""
 
@@ -103,13 +113,9 @@ def pair_depths(
     key = _weights_key(estimator)
     names = hashlib.sha256("\n".join(data.names).encode()).hexdigest()[:8]
     path = root / f".depth_full_{key}_{names}_{estimator.working_height}.safetensors"
-    if path.exists():
-        try:
-            cached = load_file(str(path))
-            if all(f"r{r}s{s}" in cached for a, b in PAIRS for r, s in ((a, b), (b, a))):
-                return cached
-        except Exception as exc:  # a broken cache is rebuilt, never trusted
-            log(f"depth cache {path.name} unreadable ({exc}): rebuilding")
+    keys = [f"r{r}s{s}" for a, b in PAIRS for r, s in ((a, b), (b, a))]
+    if (cached := _read_cache(path, keys, log)) is not None:
+        return cached
     out: dict[str, list[Tensor]] = {}
     n = len(data)
     for i in tqdm(range(n), desc="estimating depth of the training pairs", unit="scene"):
@@ -123,19 +129,66 @@ def pair_depths(
     return result
 
 
+def _read_cache(path: Path, keys: list[str], log) -> dict[str, Tensor] | None:
+    """The cached depths at ``path`` if it holds every key; None if absent or unreadable."""
+    if not path.exists():
+        return None
+    try:
+        cached = load_file(str(path))
+        if all(k in cached for k in keys):
+            return cached
+    except Exception as exc:  # a broken cache is rebuilt, never trusted
+        log(f"depth cache {path.name} unreadable ({exc}): rebuilding")
+    return None
+
+
+@torch.no_grad()
+def shipped_depths(models, data: TripletSet, root: Path, log=print) -> dict[str, Tensor]:
+    """The depth the app renders with, of the outer views of every scene, each the other's
+    source: {"r0s2", "r2s0": [N, 1, h, w] float16}, h the estimator's working height.
+
+    As `panogrf.renderer.methods.SourceViews` prepares a scene: exposure balanced, mode full
+    (sweep, canonical world, selector), then the preparation's refinement. Cached in ``root``
+    keyed by every depth weight, the refinement and the scenes (temporary file, renamed)."""
+    from panogrf.model.refine import PREPARE_REFINE
+    from panogrf.renderer.methods import METHODS, SourceViews
+
+    mode = METHODS["panogrf"].depth_mode
+    estimator = models.estimator(mode)
+    h = hashlib.sha256(_weights_key(estimator).encode())
+    h.update(repr(PREPARE_REFINE).encode())
+    names = hashlib.sha256("\n".join(data.names).encode()).hexdigest()[:8]
+    height = data.images.shape[-2]
+    path = root / f".depth_shipped_{h.hexdigest()[:16]}_{names}_{height}.safetensors"
+    keys = ["r0s2", "r2s0"]
+    if (cached := _read_cache(path, keys, log)) is not None:
+        return cached
+    out: dict[str, list[Tensor]] = {k: [] for k in keys}
+    for i in tqdm(range(len(data)), desc="shipped depth of the outer pairs", unit="scene"):
+        imgs = data.images[i, [0, 2]].float() / 255.0
+        views = SourceViews(imgs, data.c2w[i, [0, 2]], refine=PREPARE_REFINE)
+        depth = views.depth_for(mode, models)
+        out["r0s2"].append(depth[0:1].half())
+        out["r2s0"].append(depth[1:2].half())
+    result = {k: torch.cat(v) for k, v in out.items()}
+    save_tensors_atomic(path, result)
+    return result
+
+
 def _row_sampler(height: int, width: int) -> Tensor:
     """Probabilities [H*W] of the target pixels: proportional to cos(latitude)."""
     w = latitude_weights(height, width).reshape(-1)
     return w / w.sum()
 
 
-def _configuration(gen: torch.Generator) -> tuple[int, list[int]]:
-    """(target view, source views) of one training sample."""
+def _configuration(gen: torch.Generator, outer_only: bool = False) -> tuple[int, list[int]]:
+    """(target view, source views) of one training sample (``outer_only``: the sources are
+    always the outer two views)."""
     p = float(torch.rand(1, generator=gen))
     if p < 0.7:
         return 1, [0, 2]
     end = int(torch.randint(2, (1,), generator=gen)) * 2
-    if p < 0.9:
+    if p < 0.9 and not outer_only:
         return end, [v for v in range(3) if v != end]
     return end, [0, 2]
 
@@ -143,7 +196,7 @@ def _configuration(gen: torch.Generator) -> tuple[int, list[int]]:
 def _scene_sample(data: TripletSet, depths: dict[str, Tensor], i: int, gen: torch.Generator):
     """Target image [3, H, W] and pose, sources' images [2, 3, H, W], poses and depths
     [2, 1, h, w] of scene i, each view turned by its own random yaw."""
-    target, sources = _configuration(gen)
+    target, sources = _configuration(gen, outer_only="r0s1" not in depths)
     imgs = data.images[i].float() / 255.0  # [3, 3, H, W]
     dep = [depths[f"r{s}s{sources[1 - k]}"][i].float() for k, s in enumerate(sources)]
     ratio = imgs.shape[-1] // dep[0].shape[-1]
@@ -193,11 +246,30 @@ def _describe(mean: Tensor) -> str:
     )
 
 
-def train_renderer(cfg: TrainRendererConfig, estimator: DepthEstimator, log=print) -> dict:
-    """Train the renderer (preset cfg.preset) with the depth networks frozen."""
+def train_renderer(
+    cfg: TrainRendererConfig,
+    estimator: DepthEstimator | None = None,
+    models=None,
+    log=print,
+) -> dict:
+    """Train the renderer (preset cfg.preset) with the depth networks frozen: ``estimator``
+    (the mono-guided network alone) gives ``cfg.depth == "networks"``, ``models`` (a
+    `panogrf.renderer.methods.Models`; default: the shipped ones) "shipped"."""
+    if cfg.depth not in DEPTHS:
+        raise ValueError(f"depth must be one of {DEPTHS}, got {cfg.depth!r}")
     torch.manual_seed(cfg.seed)
     data = load_triplets(cfg.data, cfg.height, cfg.limit_scenes)
-    depths = pair_depths(estimator, _at_height(data, cfg.depth_height), Path(cfg.data), log)
+    if cfg.depth == "shipped":
+        if models is None:
+            from panogrf.app.scene.session import default_models
+
+            models = default_models()
+        # At the estimator's working height, whatever the images' (as the app renders).
+        depths = shipped_depths(models, data, Path(cfg.data), log)
+    else:
+        if estimator is None:
+            raise ValueError('depth "networks" needs the estimator')
+        depths = pair_depths(estimator, _at_height(data, cfg.depth_height), Path(cfg.data), log)
     train_idx, val_idx = held_back(len(data), cfg.val_scenes)
     net = RendererNet(PRESETS[cfg.preset])
     init_from(net, cfg.init, log)

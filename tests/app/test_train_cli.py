@@ -163,3 +163,51 @@ def test_train_select_errors(tmp_path, capsys):
     assert "at least 1" in capsys.readouterr().err
     assert main([*base, "--out", str(tmp_path / "s.safetensors"), "--height", "100"]) == 2
     assert "multiple of 32" in capsys.readouterr().err
+
+
+@pytest.mark.gl
+def test_train_renderer_on_shipped_depth(tiny_train, tmp_path, capsys):
+    """--depth shipped trains on the depth the app renders with (the fusion and the per-scene
+    refinement of the outer pair), cached beside the data; a broken cache is rebuilt."""
+    from safetensors.torch import load_file
+
+    from panogrf.app.scene.session import default_models
+    from panogrf.app.train.data import load_triplets
+    from panogrf.model.refine import PREPARE_REFINE
+    from panogrf.renderer.methods import SourceViews
+
+    out = tmp_path / "renderer.safetensors"
+    args = ["train", "renderer", "--data", str(tiny_train), "--out", str(out), "--steps", "2"]
+    args += ["--scenes", "1", "--rays", "16", "--height", "64", "--limit-scenes", "2"]
+    assert main([*args, "--depth", "shipped"]) == 0
+    with safe_open(str(out), framework="pt") as f:
+        assert json.loads(f.metadata()["train"])["depth"] == "shipped"
+    (cache,) = tiny_train.glob(".depth_shipped_*.safetensors")
+    # Copies: the file is overwritten below, and load_file maps it.
+    cached = {k: v.clone() for k, v in load_file(str(cache)).items()}
+    assert set(cached) == {"r0s2", "r2s0"} and cached["r0s2"].shape[0] == 2
+
+    # The cache holds what a scene prepared by the app has: scene 1's outer views, refined.
+    data = load_triplets(tiny_train, 64, 2)
+    views = SourceViews(data.images[1, [0, 2]].float() / 255, data.c2w[1, [0, 2]])
+    views.refine = PREPARE_REFINE
+    depth = views.depth_for("full", default_models())
+    assert torch.allclose(cached["r0s2"][1].float(), depth[0], rtol=2e-3, atol=2e-3)
+    assert torch.allclose(cached["r2s0"][1].float(), depth[1], rtol=2e-3, atol=2e-3)
+
+    cache.write_bytes(b"not a safetensors file")
+    capsys.readouterr()
+    assert main([*args, "--depth", "shipped"]) == 0
+    assert "unreadable" in capsys.readouterr().out
+    rebuilt = load_file(str(cache))
+    assert torch.equal(rebuilt["r0s2"], cached["r0s2"])
+
+
+def test_outer_only_samples_render_from_the_outer_views():
+    from panogrf.app.train.renderer import _configuration
+
+    gen = torch.Generator().manual_seed(0)
+    seen = {(t, tuple(s)) for t, s in (_configuration(gen, True) for _ in range(200))}
+    assert seen == {(1, (0, 2)), (0, (0, 2)), (2, (0, 2))}
+    seen = {(t, tuple(s)) for t, s in (_configuration(gen) for _ in range(200))}
+    assert (0, (1, 2)) in seen and (2, (0, 1)) in seen
