@@ -77,6 +77,13 @@ def register(subparsers) -> None:
         help="home world: the fraction of scenes whose main room meets its ceiling in a cove or "
         "a crown moulding (default 0)",
     )
+    make.add_argument(
+        "--sheers",
+        type=float,
+        default=0.0,
+        help="home world: the fraction of scenes whose windows get sheer or lace curtains, "
+        "pleated and glowing in front of the glass (default 0)",
+    )
     make.add_argument("--seed", type=int, default=0, help="base seed (default 0)")
     make.add_argument("--start", type=int, default=0, help="index of the first scene")
     make.add_argument("--json", action="store_true", help="print the summary as JSON")
@@ -125,8 +132,7 @@ def run_make(args: argparse.Namespace) -> int:
         world=args.world,
         renderer=args.renderer,
         workers=args.workers,
-        trims=args.trims,
-        coves=args.coves,
+        **{name: getattr(args, name) for name in FINISHES},
         seed=args.seed,
         start=args.start,
     )

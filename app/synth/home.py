@@ -16,7 +16,12 @@ heights 1.0-1.8 m, baselines up to 3.5 m, the middle camera off the line), this:
   material ends at the ceiling reads such a room as too low;
 - optionally (``coves``, a probability per scene) softens the corner between the main room's
   walls and its ceiling: a cove (a concave quarter circle, mostly in the ceiling's paint) or a
-  crown moulding (a chamfer), so the ceiling no longer meets the walls in a sharp line.
+  crown moulding (a chamfer), so the ceiling no longer meets the walls in a sharp line;
+- optionally (``sheers``, a probability per scene) hangs sheer or lace curtains across the
+  windows: pleated near-white fabric a few centimetres in front of the glass, wider than the
+  window and often down to the floor, glowing where the window is behind it. A bright,
+  textureless patch then is a near surface, not the blown-out exterior a network may read
+  as far away.
 Depth stays exact: windows, rugs and patches are thin quads a few millimetres off their surface.
 """
 
@@ -112,6 +117,70 @@ def _window(rng, wall: str, lx: float, lz: float, ha: float, groups) -> list[Sce
                 [0.06, sill + height + 0.15, w] if wall == "x0" else [w, sill + height + 0.15, 0.06]
             )
             out.append(SceneObject(f"curtain_{wall}_{side}", _box(ext, c), cloth))
+    return out
+
+
+def _pleat(wall, s0, s1, o0, o1, y0, y1, lx, lz) -> trimesh.Trimesh:
+    """A vertical quad in front of a wall of the main room from (``s0``, ``o0`` off the wall)
+    to (``s1``, ``o1``), between heights ``y0`` and ``y1``."""
+    corners = [
+        _on_wall(wall, s0, y0, lx, lz, o0),
+        _on_wall(wall, s1, y0, lx, lz, o1),
+        _on_wall(wall, s1, y1, lx, lz, o1),
+        _on_wall(wall, s0, y1, lx, lz, o0),
+    ]
+    return _quad(np.array(corners, float))
+
+
+def _sheers(rng, windows: list[SceneObject], lx, lz, ha, groups) -> list[SceneObject]:
+    """Sheer curtains across ``windows`` of the main room (`generate_home`'s ``sheers``):
+    pleats (vertical quads alternating between two distances from the wall, in front of the
+    glass and behind any side curtains), the parts in front of the glass a bright backlit
+    "sheer_glow", the rest lit fabric ("sheer")."""
+    out = []
+    for window in windows:
+        if rng.random() > 0.8:
+            continue
+        wall = window.name.removeprefix("window_")
+        lo, hi = window.mesh.bounds
+        along = 2 if wall == "x0" else 0
+        w0, w1, sill, head = float(lo[along]), float(hi[along]), float(lo[1]), float(hi[1])
+        span = lz if wall == "x0" else lx
+        top = min(ha - 0.03, head + rng.uniform(0.05, 0.3))
+        if rng.random() < 0.5:  # down to the floor
+            bottom = rng.uniform(0.01, 0.03)
+        else:
+            bottom = max(0.02, sill - rng.uniform(0.0, 0.15))
+        left = max(0.03, w0 - rng.uniform(0.05, 0.35))
+        right = min(span - 0.03, w1 + rng.uniform(0.05, 0.35))
+        panels = [(left, right)]
+        if rng.random() < 0.3:  # drawn apart in the middle
+            mid, gap = (w0 + w1) / 2, rng.uniform(0.15, 0.5) * (w1 - w0)
+            panels = [(left, mid - gap / 2), (mid + gap / 2, right)]
+        fold = rng.uniform(0.06, 0.14)
+        near, deep = 0.02, 0.02 + rng.uniform(0.01, 0.025)  # glass at 0.01, side curtains 0.05+
+        lit, glow = [], []
+        for a, b in panels:
+            cuts = np.unique(np.concatenate([np.arange(a, b, fold), [b, w0, w1]]))
+            cuts = cuts[(cuts >= a) & (cuts <= b)]
+            for k, (s0, s1) in enumerate(zip(cuts[:-1], cuts[1:], strict=True)):
+                o0, o1 = (near, deep) if k % 2 == 0 else (deep, near)
+                if w0 <= s0 and s1 <= w1:  # in front of the glass: backlit from sill to head
+                    spans = [(bottom, sill, lit), (sill, head, glow), (head, top, lit)]
+                else:
+                    spans = [(bottom, top, lit)]
+                for y0, y1, parts in spans:
+                    if y1 - y0 > 0.01:
+                        parts.append(_pleat(wall, s0, s1, o0, o1, y0, y1, lx, lz))
+        layer = int(rng.choice(groups["sheer"]))
+        scale, offset = float(rng.uniform(0.3, 0.8)), (float(rng.random()), float(rng.random()))
+        for name, parts, tint in (
+            ("sheer", lit, rng.uniform(0.8, 1.0)),
+            ("sheer_glow", glow, rng.uniform(1.6, 3.5)),
+        ):
+            if parts:
+                mat = Material(layer=layer, scale=scale, offset=offset, tint=(float(tint),) * 3)
+                out.append(SceneObject(f"{name}_{wall}", trimesh.util.concatenate(parts), mat))
     return out
 
 
@@ -213,13 +282,17 @@ def generate_home(
     baseline: float | None = None,
     trims: float = 0.0,
     coves: float = 0.0,
+    sheers: float = 0.0,
 ):
     """A home-world scene (deterministic from ``seed``); ``groups`` from `home_texture_bank`.
     ``trims``: the probability that the main room's walls get rails, a frieze and maybe a
     wainscot (`_trims`), ``coves`` that the corner between its walls and ceiling is a cove or
-    a crown moulding (`_coves`). Each is drawn from a random stream of its own, so the rest of
-    the scene is the same scene at any ``trims`` and ``coves``."""
-    n_layers = max(r.stop for r in groups.values())
+    a crown moulding (`_coves`), ``sheers`` that its windows get sheer curtains (`_sheers`).
+    Each is drawn from a random stream of its own, so the rest of the scene is the same scene
+    at any ``trims``, ``coves`` and ``sheers``."""
+    # The layout's own materials (all replaced below) index the pool as it was before the
+    # sheer group was added last, so its draws, and every scene made before, stay the same.
+    n_layers = max(r.stop for name, r in groups.items() if name != "sheer")
     scene = generate_layout(seed, split, n_layers, baseline, HOME_LAYOUT)
     rng = np.random.default_rng([seed, 0x40E])
     lx, ha, lz = scene.meta["room_a"]
@@ -289,6 +362,10 @@ def generate_home(
     cove_rng = np.random.default_rng([seed, 0xC0E])
     if coves > 0 and cove_rng.random() < coves:
         objects += _coves(cove_rng, lx, lz, ha, groups, ceiling)
+    sheer_rng = np.random.default_rng([seed, 0x5EE7])
+    if sheers > 0 and sheer_rng.random() < sheers:
+        windows = [o for o in objects if o.name.startswith("window_")]
+        objects += _sheers(sheer_rng, windows, lx, lz, ha, groups)
 
     cameras = scene.cameras.copy()
     if scene.baseline > 0.3:

@@ -36,7 +36,7 @@ from panogrf.app.synth.textures import texture_bank
 SPLITS = ("train", "test")
 WORLDS = ("classic", "home")
 #: `MakeConfig`'s home-world finishes, each a probability per scene.
-FINISHES = ("trims", "coves")
+FINISHES = ("trims", "coves", "sheers")
 RENDERERS = ("gl", "pyrender")
 NAMES = ["frame_000", "frame_001", "frame_002"]
 
@@ -77,6 +77,10 @@ class MakeConfig:
     coves: float = 0.0
     """Home world: the probability per scene that the main room's walls meet its ceiling in a
     cove or a crown moulding instead of a sharp corner. 0 leaves every scene as before."""
+    sheers: float = 0.0
+    """Home world: the probability per scene that the main room's windows get sheer or lace
+    curtains (pleated, near white, glowing in front of the glass). 0 leaves every scene as
+    before."""
 
 
 def scene_seed(split: str, base_seed: int, index: int) -> int:
@@ -110,16 +114,15 @@ def build_scene(
     n_layers: int,
     config: LayoutConfig | None = None,
     groups: dict[str, range] | None = None,
-    trims: float = 0.0,
-    coves: float = 0.0,
+    **finishes: float,
 ) -> SynthScene:
     """The layout of one synthetic scene whose materials index a pool of ``n_layers`` textures
-    (home world: ``groups``, the pool's material groups; ``trims`` and ``coves``, as in
-    `MakeConfig`)."""
+    (home world: ``groups``, the pool's material groups; ``finishes``, the probabilities named
+    in `FINISHES`, as in `MakeConfig`)."""
     if groups is not None:
         from panogrf.app.synth.home import generate_home
 
-        return generate_home(seed, split, groups, baseline, trims, coves)
+        return generate_home(seed, split, groups, baseline, **finishes)
     return generate_layout(seed, split, n_layers, baseline, config or LayoutConfig())
 
 
@@ -155,9 +158,8 @@ def _scene_job(cfg: MakeConfig, groups, n_layers: int, i: int):
     """Scene ``i``'s layout and its (created) folder."""
     seed = scene_seed(cfg.split, cfg.seed, i)
     baseline = cfg.baselines[i % len(cfg.baselines)] if cfg.baselines else None
-    scene = build_scene(
-        cfg.split, seed, baseline, n_layers, groups=groups, trims=cfg.trims, coves=cfg.coves
-    )
+    finishes = {name: getattr(cfg, name) for name in FINISHES}
+    scene = build_scene(cfg.split, seed, baseline, n_layers, groups=groups, **finishes)
     folder = Path(cfg.out) / f"{cfg.split}_{i:05d}"
     (folder / "images").mkdir(parents=True, exist_ok=True)
     (folder / "depth").mkdir(parents=True, exist_ok=True)

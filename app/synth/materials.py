@@ -4,7 +4,8 @@ The classic world (`panogrf.app.synth.textures`) dresses rooms in scikit-image's
 (an astronaut, coins, a motorcycle) and simple patterns; networks trained only there learn the
 generator, not rooms. This bank holds painted plaster, wallpapers with repeated motifs, wood
 planks, floor tiles, carpet, rugs with borders, fabric weaves and kitchen fronts, grouped so a
-room can put wallpaper on walls and planks on floors, plus blown-out "exteriors" for windows.
+room can put wallpaper on walls and planks on floors, plus blown-out "exteriors" for windows
+and near-white sheer and lace curtain fabric.
 
 Every texture is RGB float32 [S, S, 3] in [0, 1] and tiles (wrapping patterns), so walls show no
 seams. The train and test splits draw different parameter ranges' seeds from disjoint streams.
@@ -177,6 +178,21 @@ def exterior(rng: Rng, s: int) -> np.ndarray:
     return img
 
 
+def sheer(rng: Rng, s: int) -> np.ndarray:
+    """Sheer or lace curtain fabric: near white, a fine thread, often a faint lace motif."""
+    y, x = np.mgrid[0:s, 0:s].astype(np.float32)
+    c = _colour(rng, 0.85, 1.0, 0.06)
+    thread = 0.5 + 0.5 * np.sin(x / 2 * np.pi) * np.sin(y / 2 * np.pi)
+    img = c * (0.94 + 0.06 * thread[..., None])
+    if rng.random() < 0.6:  # lace: a repeated ring of petals, a little darker
+        n = int(rng.choice([4, 8]))
+        fy, fx = (y / s * n) % 1 - 0.5, (x / s * n) % 1 - 0.5
+        r, a = np.hypot(fx, fy), np.arctan2(fy, fx)
+        ring = np.abs(r - 0.25 * (0.7 + 0.3 * np.cos(6 * a))) < 0.04
+        img = img * (1 - rng.uniform(0.1, 0.3) * _blur(ring.astype(np.float32), 0.8)[..., None])
+    return img.clip(0, 1).astype(np.float32)
+
+
 GROUPS: dict[str, tuple[Callable[[Rng, int], np.ndarray], ...]] = {
     "wall": (plaster, plaster, wallpaper, wallpaper),
     "floor": (wood_planks, floor_tiles, carpet),
@@ -184,6 +200,8 @@ GROUPS: dict[str, tuple[Callable[[Rng, int], np.ndarray], ...]] = {
     "furniture": (fabric, kitchen_front, wood_planks, plaster),
     "rug": (rug, carpet),
     "window": (exterior,),
+    # Drawn last, so the layers above (and every scene made before sheers) stay as they were.
+    "sheer": (sheer,),
 }
 
 

@@ -166,6 +166,17 @@ class PyrenderPanoramaRenderer:
                 roughnessFactor=1.0,
                 doubleSided=True,
             )
+        if name.startswith("sheer_glow"):
+            # Sheer fabric lit from behind by the window: it emits what passes through.
+            return pr.MetallicRoughnessMaterial(
+                baseColorTexture=texture,
+                baseColorFactor=[*np.minimum(tint / tint.max(), 1.0), 1.0],
+                emissiveTexture=texture,
+                emissiveFactor=_emission(tint * 1.5 * PROBE),
+                metallicFactor=0.0,
+                roughnessFactor=1.0,
+                doubleSided=True,
+            )
         glossy = name.endswith("floor") or "cabinet" in name
         rough = light.gloss if glossy and rng.random() < 0.4 else float(rng.uniform(0.75, 1.0))
         extra = {}

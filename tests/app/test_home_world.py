@@ -150,6 +150,46 @@ def test_coves_soften_the_ceiling_corner_only(index):
         assert low.any() and high.any() and not (low & high).any()
 
 
+def test_sheers_hang_in_front_of_the_windows_only():
+    """Sheer curtains: pleats between the glass and any side curtains, glowing only in front of
+    the glass, added after everything else with the rest of the scene unchanged."""
+    _, groups = build_textures("train", 0, 8, world="home")
+    glowing = 0
+    for index in range(6):
+        seed = scene_seed("train", 4, index)
+        plain = generate_home(seed, "train", groups, trims=1.0, coves=1.0)
+        hung = generate_home(seed, "train", groups, trims=1.0, coves=1.0, sheers=1.0)
+        n = len(plain.objects)
+        assert [o.name for o in hung.objects[:n]] == [o.name for o in plain.objects]
+        assert all(
+            np.array_equal(a.mesh.vertices, b.mesh.vertices) and a.material == b.material
+            for a, b in zip(plain.objects, hung.objects[:n], strict=True)
+        )
+        assert np.array_equal(plain.cameras, hung.cameras)
+        lx, ha, lz = hung.meta["room_a"]
+        windows = {o.name.removeprefix("window_"): o for o in plain.objects if "window" in o.name}
+        for o in hung.objects[n:]:
+            kind, wall = o.name.rsplit("_", 1)
+            assert kind in ("sheer", "sheer_glow") and wall in windows
+            assert o.material.layer in groups["sheer"]
+            v = np.asarray(o.mesh.vertices)
+            own = {"x0": v[:, 0], "x1": lx - v[:, 0], "z0": v[:, 2], "z1": lz - v[:, 2]}[wall]
+            assert (own >= 0.02 - 1e-9).all() and (own <= 0.0451).all(), o.name  # pleats
+            assert own.max() - own.min() > 0.005  # folded, not flat
+            assert v[:, 1].min() >= 0 and v[:, 1].max() <= ha
+            lo, hi = windows[wall].mesh.bounds
+            along = 2 if wall == "x0" else 0
+            if kind == "sheer_glow":  # bright, and only where the glass is behind it
+                glowing += 1
+                assert min(o.material.tint) > 1.5
+                assert v[:, along].min() >= lo[along] - 1e-9
+                assert v[:, along].max() <= hi[along] + 1e-9
+                assert v[:, 1].min() >= lo[1] - 1e-9 and v[:, 1].max() <= hi[1] + 1e-9
+            else:
+                assert max(o.material.tint) <= 1.0
+    assert glowing >= 3
+
+
 def test_trims_need_the_home_world_and_a_probability(tmp_path):
     with pytest.raises(ValueError, match="trims"):
         make_dataset(MakeConfig(out=tmp_path, count=1, height=32, trims=0.5), False)
@@ -157,6 +197,8 @@ def test_trims_need_the_home_world_and_a_probability(tmp_path):
         make_dataset(MakeConfig(out=tmp_path, count=1, height=32, world="home", trims=1.5), False)
     with pytest.raises(ValueError, match="coves"):
         make_dataset(MakeConfig(out=tmp_path, count=1, height=32, coves=0.5), False)
+    with pytest.raises(ValueError, match="sheers"):
+        make_dataset(MakeConfig(out=tmp_path, count=1, height=32, sheers=-0.5), False)
 
 
 @pytest.mark.parametrize(
@@ -166,6 +208,8 @@ def test_trims_need_the_home_world_and_a_probability(tmp_path):
         (["--trims", "0.5"], "needs --world home"),
         (["--world", "home", "--coves", "-0.1"], "between 0 and 1"),
         (["--coves", "1"], "needs --world home"),
+        (["--world", "home", "--sheers", "2"], "between 0 and 1"),
+        (["--sheers", "0.3"], "needs --world home"),
     ],
 )
 def test_cli_refuses_bad_trims_in_one_line(tmp_path, extra, message):
