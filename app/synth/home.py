@@ -76,17 +76,19 @@ def _on_wall(wall: str, s: float, y: float, lx: float, lz: float, off: float) ->
     return [s, y, off if wall == "z0" else lz - off]
 
 
+def _wall_quad(wall, s0, s1, y0, y1, offsets, lx, lz) -> trimesh.Trimesh:
+    """A quad in front of a wall of the main room with corners (``s0``, ``y0``), (``s1``,
+    ``y0``), (``s1``, ``y1``), (``s0``, ``y1``), each its own ``offsets`` entry off the wall."""
+    ends = ((s0, y0), (s1, y0), (s1, y1), (s0, y1))
+    corners = [_on_wall(wall, s, y, lx, lz, o) for (s, y), o in zip(ends, offsets, strict=True)]
+    return _quad(np.array(corners, float))
+
+
 def _wall_strip(wall, s0, s1, low, high, lx, lz) -> trimesh.Trimesh:
     """A quad along a wall of the main room from ``s0`` to ``s1``, between two (off, y) edges:
     ``low`` and ``high``, each ``off`` in front of the wall at height ``y``."""
     (o0, y0), (o1, y1) = low, high
-    corners = [
-        _on_wall(wall, s0, y0, lx, lz, o0),
-        _on_wall(wall, s1, y0, lx, lz, o0),
-        _on_wall(wall, s1, y1, lx, lz, o1),
-        _on_wall(wall, s0, y1, lx, lz, o1),
-    ]
-    return _quad(np.array(corners, float))
+    return _wall_quad(wall, s0, s1, y0, y1, (o0, o0, o1, o1), lx, lz)
 
 
 def _window(rng, wall: str, lx: float, lz: float, ha: float, groups) -> list[SceneObject]:
@@ -118,18 +120,6 @@ def _window(rng, wall: str, lx: float, lz: float, ha: float, groups) -> list[Sce
             )
             out.append(SceneObject(f"curtain_{wall}_{side}", _box(ext, c), cloth))
     return out
-
-
-def _pleat(wall, s0, s1, o0, o1, y0, y1, lx, lz) -> trimesh.Trimesh:
-    """A vertical quad in front of a wall of the main room from (``s0``, ``o0`` off the wall)
-    to (``s1``, ``o1``), between heights ``y0`` and ``y1``."""
-    corners = [
-        _on_wall(wall, s0, y0, lx, lz, o0),
-        _on_wall(wall, s1, y0, lx, lz, o1),
-        _on_wall(wall, s1, y1, lx, lz, o1),
-        _on_wall(wall, s0, y1, lx, lz, o0),
-    ]
-    return _quad(np.array(corners, float))
 
 
 def _sheers(rng, windows: list[SceneObject], lx, lz, ha, groups) -> list[SceneObject]:
@@ -171,7 +161,7 @@ def _sheers(rng, windows: list[SceneObject], lx, lz, ha, groups) -> list[SceneOb
                     spans = [(bottom, top, lit)]
                 for y0, y1, parts in spans:
                     if y1 - y0 > 0.01:
-                        parts.append(_pleat(wall, s0, s1, o0, o1, y0, y1, lx, lz))
+                        parts.append(_wall_quad(wall, s0, s1, y0, y1, (o0, o1, o1, o0), lx, lz))
         layer = int(rng.choice(groups["sheer"]))
         scale, offset = float(rng.uniform(0.3, 0.8)), (float(rng.random()), float(rng.random()))
         for name, parts, tint in (
