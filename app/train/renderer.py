@@ -44,6 +44,7 @@ from panogrf.renderer.render import QUALITY, Sampling, render_panorama, render_r
 
 PAIRS = ((0, 1), (0, 2), (1, 2))
 DEPTHS = ("networks", "shipped")
+SAVE_EVERY = 20  # scenes between the shipped depth's partial saves
 
 
 @dataclass(frozen=True)
@@ -163,15 +164,25 @@ def shipped_depths(models, data: TripletSet, root: Path, log=print) -> dict[str,
     keys = ["r0s2", "r2s0"]
     if (cached := _read_cache(path, keys, log)) is not None:
         return cached
+    # Minutes of work: every SAVE_EVERY scenes what is done goes to a partial file (written
+    # atomically), and a run that was stopped resumes from it.
+    partial = path.with_name(path.name.replace(".safetensors", ".partial.safetensors"))
     out: dict[str, list[Tensor]] = {k: [] for k in keys}
-    for i in tqdm(range(len(data)), desc="shipped depth of the outer pairs", unit="scene"):
+    if (done := _read_cache(partial, keys, log)) is not None:
+        out = {k: [done[k].clone()] for k in keys}
+        log(f"resuming the shipped depth after {len(out['r0s2'][0])} of {len(data)} scenes")
+    first = sum(len(t) for t in out["r0s2"])
+    for i in tqdm(range(first, len(data)), desc="shipped depth of the outer pairs", unit="scene"):
         imgs = data.images[i, [0, 2]].float() / 255.0
         views = SourceViews(imgs, data.c2w[i, [0, 2]], refine=PREPARE_REFINE)
         depth = views.depth_for(mode, models)
         out["r0s2"].append(depth[0:1].half())
         out["r2s0"].append(depth[1:2].half())
+        if (i + 1) % SAVE_EVERY == 0 and i + 1 < len(data):
+            save_tensors_atomic(partial, {k: torch.cat(v) for k, v in out.items()})
     result = {k: torch.cat(v) for k, v in out.items()}
     save_tensors_atomic(path, result)
+    partial.unlink(missing_ok=True)
     return result
 
 

@@ -203,6 +203,42 @@ def test_train_renderer_on_shipped_depth(tiny_train, tmp_path, capsys):
     assert torch.equal(rebuilt["r0s2"], cached["r0s2"])
 
 
+@pytest.mark.gl
+def test_shipped_depth_resumes_after_an_interruption(tiny_train, tmp_path, monkeypatch):
+    """A run stopped part-way keeps what it computed (a partial file) and the next run goes on
+    from there; the result is the same as one run's."""
+    from panogrf.app.scene.session import default_models
+    from panogrf.app.train import renderer as tr
+    from panogrf.app.train.data import load_triplets
+    from panogrf.renderer.methods import SourceViews
+
+    data = load_triplets(tiny_train, 64, 3)
+    (tmp_path / "whole").mkdir()
+    whole = tr.shipped_depths(default_models(), data, tmp_path / "whole", log=lambda _: None)
+    monkeypatch.setattr(tr, "SAVE_EVERY", 1)
+    real, calls = SourceViews.depth_for, []
+
+    def stop_at_the_third(self, mode, models):
+        calls.append(mode)
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+        return real(self, mode, models)
+
+    root = tmp_path / "stopped"
+    root.mkdir()
+    monkeypatch.setattr(SourceViews, "depth_for", stop_at_the_third)
+    with pytest.raises(KeyboardInterrupt):
+        tr.shipped_depths(default_models(), data, root, log=lambda _: None)
+    assert len(list(root.glob("*.partial.safetensors"))) == 1
+    lines: list[str] = []
+    resumed = tr.shipped_depths(default_models(), data, root, log=lines.append)
+    assert any("after 2 of 3 scenes" in line for line in lines)
+    assert len(calls) == 4  # the third scene only, once more
+    assert not list(root.glob("*.partial.safetensors"))
+    for k in ("r0s2", "r2s0"):
+        assert torch.equal(resumed[k], whole[k])
+
+
 def test_outer_only_samples_render_from_the_outer_views():
     from panogrf.app.train.renderer import _configuration
 
