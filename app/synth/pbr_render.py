@@ -170,7 +170,7 @@ class PyrenderPanoramaRenderer:
             # Sheer fabric lit from behind by the window: it emits what passes through.
             return pr.MetallicRoughnessMaterial(
                 baseColorTexture=texture,
-                baseColorFactor=[*np.minimum(tint / tint.max(), 1.0), 1.0],
+                baseColorFactor=[*(tint / tint.max()), 1.0],
                 emissiveTexture=texture,
                 emissiveFactor=_emission(tint * 1.5 * PROBE),
                 metallicFactor=0.0,
