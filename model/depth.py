@@ -26,10 +26,13 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from panogrf.model.blend import DepthBlend, blend_features, parallax
+from panogrf.model.erp import erp_directions
 from panogrf.model.mono import MonoDepthNet, MonoOutput
 from panogrf.model.mvs import MVSNet
 from panogrf.model.refine import (
     SweepConfig,
+    cost_at,
     median_filter,
     nearest_sources,
     photometric_choice,
@@ -128,6 +131,12 @@ class DepthEstimator(nn.Module):
         self.record: list[dict] | None = None
         """When a list, mode "full" fused appends, per reference view, the selector's input
         and where the search from each hypothesis ends (the selector's training data)."""
+        self.blend: DepthBlend | None = None
+        """Mode "full" fused: a learned per-pixel blend of the fused depth with the monocular
+        depth after the median (`panogrf.model.blend`); None: the fused depth as it is."""
+        self.blend_record: list[dict] | None = None
+        """When a list, mode "full" fused appends, per reference view, the blend's input and
+        the two depths it blends (its training data); the depth is not blended then."""
         self.canonical = True
         """Mode "full" with the unguided network loaded: the MVS networks and the sweep work in
         the world scaled by k = median(mono / unguided MVS depth) (`_world_scale`), the room
@@ -235,6 +244,45 @@ class DepthEstimator(nn.Module):
             return 1.0
         return float((mono[ok] / mvs[ok]).median().clamp(0.25, 4.0))
 
+    def _blended(self, pixels, c2w, depth, mono, sources, scale: float) -> Tensor:
+        """``depth`` [V, 1, h, w] blended with the monocular depth ``mono`` by `blend`, every
+        view with sources (``sources``: those the sweep compared it with); recorded into
+        ``blend_record`` instead when that is a list."""
+        cfg = self.fusion_sweep
+        hh, ww = cfg.height, 2 * cfg.height
+        mode = "area" if pixels.shape[-2] > hh else "bilinear"
+        img = F.interpolate(pixels, size=(hh, ww), mode=mode)
+        dirs = erp_directions(hh, ww, device=depth.device, dtype=depth.dtype)
+        d_range = (0.05, self.d_max)
+        logs = torch.log(torch.stack((self._clean(depth), self._clean(mono)), 1)[:, :, 0])
+        up = dict(size=(hh, ww), mode="bilinear", align_corners=False)
+        ends = {r: logs[r] for r, src in enumerate(sources) if src}
+        consistency = cross_view_consistency(ends, c2w, sources)
+        out = depth.clone()
+        for r, log_pair in ends.items():
+            fine = F.interpolate(log_pair[None], **up)[0]
+            cost = torch.stack(
+                [cost_at(img, c2w, r, sources[r], d, dirs, cfg, d_range) for d in fine]
+            )
+            rows = self.blend.config.rows if self.blend is not None else depth.shape[-2]
+            feats = blend_features(
+                img[r],
+                cost,
+                log_pair[0],
+                log_pair[1],
+                consistency[r],
+                parallax(log_pair[0], c2w, r, sources[r]),
+                rows,
+            )
+            if self.blend_record is not None:
+                self.blend_record.append(
+                    {"view": r, "features": feats, "logs": log_pair, "scale": scale}
+                )
+            else:
+                blended = self.blend.blend(feats[None], log_pair[:1], log_pair[1:])
+                out[r] = self._clean(torch.exp(blended))
+        return out
+
     def _chooser(self, pixels: Tensor, mono: Tensor, confidence: Tensor) -> _SelectorChooser:
         """`sweep_depth`'s ``chooser`` for the two fused hypotheses: the selector's choice
         (or, without one, the photometric rule), made once every view's search ends are
@@ -313,6 +361,8 @@ class DepthEstimator(nn.Module):
                 chooser=chooser,
             )
             depth = median_filter(depth, self.median)
+            if len(clean) == 1 and (self.blend is not None or self.blend_record is not None):
+                depth = self._blended(pixels, c2w, depth, mono.depth, nearest, scale)
             if chooser is not None and self.record is not None:
                 for entry in self.record:
                     entry.setdefault("scale", scale)

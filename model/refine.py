@@ -437,6 +437,13 @@ def _search(cost: Tensor, offsets: Tensor, centre: int, step: float, config: Swe
     return torch.where(gain > config.min_gain, off, torch.zeros_like(off))
 
 
+def cost_at(img, c2w, r, sources, log_depth, dirs, config, d_range) -> Tensor:
+    """The sweep's photometric cost [H, W] of view r at the log depth [H, W] itself (images,
+    directions and ``config`` as `sweep_depth` passes them to its search)."""
+    zero = torch.zeros(1, dtype=log_depth.dtype, device=log_depth.device)
+    return _sweep_costs(img, c2w, r, sources, log_depth, zero, dirs, config, d_range)[0]
+
+
 def _sweep_costs(img, c2w, r, sources, log_d0, offsets, dirs, config, d_range) -> Tensor:
     """Window-summed photometric cost [D, H, W] of view r at log depths log_d0 + offsets."""
     costs = []

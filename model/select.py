@@ -69,7 +69,7 @@ class SelectorConfig:
     one view reappears in the others, whatever the texture says."""
 
 
-def _local_std(gray: Tensor, k: int = 7) -> Tensor:
+def local_std(gray: Tensor, k: int = 7) -> Tensor:
     """Standard deviation of [1, 1, H, W] over a k x k window (wrapping in width)."""
     mean = box_mean(gray, k)
     return (box_mean(gray * gray, k) - mean * mean).clamp(min=0).sqrt()
@@ -103,7 +103,7 @@ def selection_features(
             (ends[1] - ends[0])[None],
             log_mono[None] - log_hyp,
             gray[0] - 0.5,
-            _local_std(gray)[0] * 4,
+            local_std(gray)[0] * 4,
             lat,
             confidence,
             log_hyp[:1] / 2.3,

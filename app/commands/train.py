@@ -145,34 +145,7 @@ def register(subparsers) -> None:
             "--out assets/depth_select.safetensors --log docs/training/depth_select.log"
         ),
     )
-    select.add_argument("--data", type=Path, required=True, help="train-split dataset folder")
-    select.add_argument("--out", type=Path, required=True, help="output weights (.safetensors)")
-    select.add_argument(
-        "--scenes", type=int, default=240, help="training scenes recorded (default 240)"
-    )
-    select.add_argument("--steps", type=int, default=1500, help="optimiser steps (default 1500)")
-    select.add_argument("--batch", type=int, default=8, help="views per step (default 8)")
-    select.add_argument("--lr", type=float, default=2e-3, help="initial learning rate")
-    select.add_argument(
-        "--mono-shift",
-        type=float,
-        default=0.3,
-        help="fraction of the scenes whose monocular network sees its input out of its "
-        "domain (default 0.3)",
-    )
-    select.add_argument(
-        "--mono-heights",
-        type=float,
-        default=0.0,
-        help="fraction of the scenes whose monocular depth puts the ceiling and the floor at "
-        "wrong heights (default 0)",
-    )
-    select.add_argument(
-        "--height",
-        type=int,
-        default=256,
-        help="rows the panoramas are loaded at (default 256: the fusion's own)",
-    )
+    _fusion_recording_args(select)
     select.add_argument(
         "--no-context",
         action="store_true",
@@ -183,13 +156,71 @@ def register(subparsers) -> None:
         action="store_true",
         help="the selector does not see the cross-view consistency of the search ends (round 15's)",
     )
-    select.add_argument("--seed", type=int, default=0, help="seed (default 0)")
-    select.add_argument(
+    _run_args(select)
+    select.set_defaults(func=run_select)
+
+    blend = sub.add_parser(
+        "blend",
+        help="train the blend of the fused depth with the monocular depth (all else frozen)",
+        description=(
+            "Train the per-pixel blend of mode full's fused depth with the monocular depth "
+            "(`panogrf.model.blend`). Mode full runs on a seeded sample of the training scenes "
+            "as at preparation (selector included), some with the monocular network out of its "
+            "domain, and what the blend sees is recorded once (cached beside the data); the "
+            "blend then learns the weight of the monocular depth that brings the depth nearest "
+            "the truth. Logs the L1 and writes safetensors weights with the command and final "
+            "figures."
+        ),
+        epilog=(
+            "example: panogrf train blend --data data/train_lit_wide "
+            "--out assets/depth_blend.safetensors --log docs/training/depth_blend.log"
+        ),
+    )
+    _fusion_recording_args(blend)
+    _run_args(blend)
+    blend.set_defaults(func=run_blend)
+
+
+def _fusion_recording_args(parser: argparse.ArgumentParser) -> None:
+    """Arguments of the trainings that record mode full's fusion (select, blend)."""
+    parser.add_argument("--data", type=Path, required=True, help="train-split dataset folder")
+    parser.add_argument("--out", type=Path, required=True, help="output weights (.safetensors)")
+    parser.add_argument(
+        "--scenes", type=int, default=240, help="training scenes recorded (default 240)"
+    )
+    parser.add_argument("--steps", type=int, default=1500, help="optimiser steps (default 1500)")
+    parser.add_argument("--batch", type=int, default=8, help="views per step (default 8)")
+    parser.add_argument("--lr", type=float, default=2e-3, help="initial learning rate")
+    parser.add_argument(
+        "--mono-shift",
+        type=float,
+        default=0.3,
+        help="fraction of the scenes whose monocular network sees its input out of its "
+        "domain (default 0.3)",
+    )
+    parser.add_argument(
+        "--mono-heights",
+        type=float,
+        default=0.0,
+        help="fraction of the scenes whose monocular depth puts the ceiling and the floor at "
+        "wrong heights (default 0)",
+    )
+    parser.add_argument(
+        "--height",
+        type=int,
+        default=256,
+        help="rows the panoramas are loaded at (default 256: the fusion's own)",
+    )
+
+
+def _run_args(parser: argparse.ArgumentParser) -> None:
+    """Seed, threads, log and scene limit of the fusion's trainings."""
+    parser.add_argument("--seed", type=int, default=0, help="seed (default 0)")
+    parser.add_argument(
         "--threads", type=thread_count, default=0, help="torch threads (default: all)"
     )
-    select.add_argument("--log", type=Path, default=None, help="also append log lines here")
-    select.add_argument("--limit-scenes", type=int, default=None, help="load only N scenes")
-    select.set_defaults(func=run_select)
+    parser.add_argument("--log", type=Path, default=None, help="also append log lines here")
+    parser.add_argument("--limit-scenes", type=int, default=None, help="load only N scenes")
 
 
 def _logger(path: Path | None):
@@ -300,11 +331,9 @@ def run_depth(args: argparse.Namespace) -> int:
     return 0
 
 
-def run_select(args: argparse.Namespace) -> int:
+def _check_fusion_args(args: argparse.Namespace) -> None:
+    """Refuse the fusion trainings' arguments out of range (`_fusion_recording_args`)."""
     import torch
-
-    from panogrf.app.train.select import TrainSelectConfig, train_selector
-    from panogrf.app.weights.networks import load_depth_estimator
 
     if args.out.suffix != ".safetensors":
         raise UserError(f"--out must end in .safetensors, got {args.out}")
@@ -320,6 +349,13 @@ def run_select(args: argparse.Namespace) -> int:
         raise UserError(f"--height must be a multiple of 32, got {args.height}")
     if args.threads:
         torch.set_num_threads(args.threads)
+
+
+def run_select(args: argparse.Namespace) -> int:
+    from panogrf.app.train.select import TrainSelectConfig, train_selector
+    from panogrf.app.weights.networks import load_depth_estimator
+
+    _check_fusion_args(args)
     log, close = _logger(args.log)
     cfg = TrainSelectConfig(
         data=args.data,
@@ -338,6 +374,32 @@ def run_select(args: argparse.Namespace) -> int:
     )
     try:
         train_selector(cfg, load_depth_estimator(("full", "mvs")), log=log)
+    finally:
+        close()
+    return 0
+
+
+def run_blend(args: argparse.Namespace) -> int:
+    from panogrf.app.train.blend import TrainBlendConfig, train_blend
+    from panogrf.app.weights.networks import load_depth_estimator
+
+    _check_fusion_args(args)
+    log, close = _logger(args.log)
+    cfg = TrainBlendConfig(
+        data=args.data,
+        out=args.out,
+        scenes=args.scenes,
+        steps=args.steps,
+        batch=args.batch,
+        lr=args.lr,
+        shift=args.mono_shift,
+        heights=args.mono_heights,
+        height=args.height,
+        seed=args.seed,
+        limit_scenes=args.limit_scenes,
+    )
+    try:
+        train_blend(cfg, load_depth_estimator(("full", "mvs")), log=log)
     finally:
         close()
     return 0

@@ -118,28 +118,8 @@ def record_scenes(
             log(f"selector cache {path.name} holds {sorted(cached)}: rebuilding")
         except Exception as exc:  # a broken cache is rebuilt, never trusted
             log(f"selector cache {path.name} unreadable ({exc}): rebuilding")
-    gen = torch.Generator().manual_seed(cfg.seed)
     feats, ends, truth, rules = [], [], [], []
-    for n, i in enumerate(tqdm(indices, desc="recording the fusion", unit="scene")):
-        images = data.images[i, [0, 2]].float() / 255.0
-        if float(torch.rand(1, generator=gen)) < cfg.photometric:
-            images = balance_exposure(photometric(images, gen))[0]
-        c2w = data.c2w[i, [0, 2]]
-        shifted = float(torch.rand(1, generator=gen)) < cfg.shift
-        # Drawn only when asked for, so that runs without it record what they always did.
-        heights = cfg.heights > 0 and float(torch.rand(1, generator=gen)) < cfg.heights
-        partner = data.images[indices[(n + 1) % len(indices)], [0, 2]].float() / 255.0
-        estimator.record = []
-        try:
-            with ExitStack() as stack:
-                if shifted:
-                    stack.enter_context(mono_out_of_domain(estimator, partner, gen))
-                if heights:
-                    stack.enter_context(mono_wrong_heights(estimator, gen))
-                estimator(images, c2w, "full")
-            records = estimator.record
-        finally:
-            estimator.record = None
+    for i, records in fusion_runs(estimator, data, indices, cfg, "record"):
         for entry in records:
             v = (0, 2)[entry["view"]]
             f = entry["features"]
@@ -160,6 +140,35 @@ def record_scenes(
     }
     save_tensors_atomic(path, out)
     return out
+
+
+def fusion_runs(estimator: DepthEstimator, data, indices: list[int], cfg, attr: str):
+    """Mode "full" on the first and last views of each scene of ``indices`` with the
+    estimator's recording list ``attr`` ("record": the selector's, "blend_record": the
+    blend's) set, under ``cfg``'s seeded conditions (``photometric``, ``shift`` and
+    ``heights`` fractions, ``seed``): yields (scene index, the records)."""
+    gen = torch.Generator().manual_seed(cfg.seed)
+    for n, i in enumerate(tqdm(indices, desc="recording the fusion", unit="scene")):
+        images = data.images[i, [0, 2]].float() / 255.0
+        if float(torch.rand(1, generator=gen)) < cfg.photometric:
+            images = balance_exposure(photometric(images, gen))[0]
+        c2w = data.c2w[i, [0, 2]]
+        shifted = float(torch.rand(1, generator=gen)) < cfg.shift
+        # Drawn only when asked for, so that runs without it record what they always did.
+        heights = cfg.heights > 0 and float(torch.rand(1, generator=gen)) < cfg.heights
+        partner = data.images[indices[(n + 1) % len(indices)], [0, 2]].float() / 255.0
+        setattr(estimator, attr, [])
+        try:
+            with ExitStack() as stack:
+                if shifted:
+                    stack.enter_context(mono_out_of_domain(estimator, partner, gen))
+                if heights:
+                    stack.enter_context(mono_wrong_heights(estimator, gen))
+                estimator(images, c2w, "full")
+            records = getattr(estimator, attr)
+        finally:
+            setattr(estimator, attr, None)
+        yield i, records
 
 
 def _labels(ends: Tensor, truth: Tensor, cap: float) -> tuple[Tensor, Tensor]:

@@ -18,6 +18,7 @@ from safetensors.torch import load_file
 
 from panogrf.app.errors import UserError
 from panogrf.assets import path as asset_path
+from panogrf.model.blend import BlendConfig, DepthBlend
 from panogrf.model.depth import DepthEstimator
 from panogrf.model.mono import MonoDepthConfig, MonoDepthNet
 from panogrf.model.mvs import PRESETS, MVSConfig, MVSNet
@@ -33,6 +34,10 @@ WEIGHTS = {
 
 #: The fusion's learned choice between the mono-guided and the unguided depth (mode "full").
 SELECTOR = "depth_select.safetensors"
+
+#: The learned blend of the fused depth with the monocular depth (mode "full"), used where the
+#: file is there (`panogrf.model.blend`; `panogrf train blend`).
+BLEND = "depth_blend.safetensors"
 
 
 #: The MVS networks each depth mode runs: "full" fuses the mono-guided network's depth with the
@@ -116,12 +121,26 @@ def load_selector(path: Path) -> HypothesisSelector:
     return selector
 
 
+def load_blend(path: Path) -> DepthBlend:
+    """The depth blend in ``path``, frozen, in eval mode."""
+    from dataclasses import asdict
+
+    stored = json.loads(_metadata(path).get("config", "{}")) if path.exists() else {}
+    try:
+        blend = DepthBlend(BlendConfig(**stored))
+    except TypeError as exc:
+        raise UserError(f"{path}: unknown blend config {stored}: {exc}") from None
+    _load(blend, path, asdict(blend.config))
+    return blend
+
+
 @lru_cache(maxsize=4)
 def load_depth_estimator(
     modes: tuple[str, ...] = ("full", "mvs"), device: str = "cpu"
 ) -> DepthEstimator:
     """The depth estimator with the monocular network and the MVS networks of ``modes`` (with
-    both "full" and "mvs", also the fusion's hypothesis selector)."""
+    both "full" and "mvs", also the fusion's hypothesis selector, and its blend with the
+    monocular depth where that file is there)."""
     from dataclasses import asdict
 
     mono = load_mono_weights(weights_path(WEIGHTS["mono"]))
@@ -135,6 +154,8 @@ def load_depth_estimator(
     estimator = DepthEstimator(mono, mvs)
     if _fuses(modes):
         estimator.selector = load_selector(weights_path(SELECTOR))
+        if weights_path(BLEND).exists():
+            estimator.blend = load_blend(weights_path(BLEND))
     return estimator.to(device).eval()
 
 
@@ -146,11 +167,14 @@ def _fuses(networks) -> bool:
 
 def depth_weight_files(mode: str) -> dict[str, str]:
     """The weights files depth mode ``mode`` reads, by role: the monocular network, every MVS
-    network it runs and, where two are fused (mode "full"), the selector ("select")."""
+    network it runs and, where two are fused (mode "full"), the selector ("select") and the
+    blend with the monocular depth ("blend") where its file is there."""
     networks = NETWORKS[mode]
     files = {"mono": WEIGHTS["mono"], **{net: WEIGHTS[net] for net in networks}}
     if _fuses(networks):
         files["select"] = SELECTOR
+        if weights_path(BLEND).exists():
+            files["blend"] = BLEND
     return files
 
 

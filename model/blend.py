@@ -1,0 +1,137 @@
+"""A learned blend of the fused MVS depth with the monocular depth, pixel by pixel.
+
+Mode "full" ends with the mono-guided and the unguided MVS depth fused by the photometric
+sweep (`panogrf.model.select`). With the views 2-5 m apart, as real homes are captured, that
+fused depth and the monocular network's fail in different places: the sources see a wall
+under very different angles or not at all, while one panorama alone still shows a plausible
+room. On the wide validation homes (6 scenes each, first and last view) the fused depth scores
+0.147 / 0.157 / 0.259 m, the monocular depth 0.153 / 0.222 / 0.228, and the better of the two
+per pixel 0.084 / 0.099 / 0.136 (`docs/analysis.md`, "Round 24").
+
+`DepthBlend` predicts, per pixel, a weight a in [0, 1] and the depth becomes
+exp((1 - a) log fused + a log mono). It sees what says which one to trust there
+(`blend_features`): how well the nearest sources match at each depth (the photometric cost),
+whether each depth reappears in the sources' own depths (`cross_view_consistency`), the
+parallax the sources give at that pixel (none towards the baseline's ends, little far away),
+how far apart the two depths are, and the image's brightness, texture and elevation, plus a
+summary of the whole panorama. It is trained on the training scenes (`panogrf train blend`)
+to the L1 of the blended depth, with the monocular network out of its domain on some of them,
+so that a wrong prior is among what it sees. It starts near a = 0 (the fused depth).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from panogrf.model.erp import erp_to_world, latitude_weights
+from panogrf.model.layers import CircularConv2d
+from panogrf.model.select import local_std
+
+#: Channels of `blend_features`.
+FEATURES = 11
+#: Parallax (radians) at which the feature saturates.
+PARALLAX_CAP = 0.5
+
+
+@dataclass(frozen=True)
+class BlendConfig:
+    """Size of the blend network."""
+
+    channels: int = 32
+    """Width of the hidden layers."""
+    rows: int = 128
+    """Rows at which the features are pooled and the weight is predicted."""
+
+
+def parallax(log_depth: Tensor, c2w: Tensor, r: int, sources: list[int]) -> Tensor:
+    """The largest angle [h, w] (radians, at most `PARALLAX_CAP`) under which view ``r`` and
+    one of its ``sources`` see the point that the depth [h, w] (log metres) puts at each pixel
+    of view r; c2w [V, 4, 4]. Small: the sources cannot tell its depth."""
+    h, w = log_depth.shape
+    points = erp_to_world(torch.exp(log_depth), c2w[r].to(log_depth))  # [h*w, 3]
+    to_ref = c2w[r, :3, 3].to(points) - points
+    best = torch.zeros(h * w, dtype=log_depth.dtype, device=log_depth.device)
+    for s in sources:
+        to_src = c2w[s, :3, 3].to(points) - points
+        cos = F.cosine_similarity(to_ref, to_src, dim=-1, eps=1e-6)
+        best = torch.maximum(best, torch.acos(cos.clamp(-1.0, 1.0)))
+    return best.clamp(max=PARALLAX_CAP).reshape(h, w)
+
+
+def blend_features(
+    image: Tensor,  # [3, H, W] the reference view in [0, 1], at the cost's resolution
+    cost: Tensor,  # [2, H, W] the photometric cost at the fused and at the monocular depth
+    log_fused: Tensor,  # [h, w] log metres
+    log_mono: Tensor,  # [h, w] log metres
+    consistency: Tensor,  # [2, h, w] `cross_view_consistency` of the fused and the mono depth
+    parallax_rad: Tensor,  # [h, w] `parallax` at the fused depth
+    rows: int = 128,
+) -> Tensor:
+    """`DepthBlend`'s input [FEATURES, rows, 2 rows]."""
+    h, w = log_fused.shape
+    gray = image.mean(0, keepdim=True)[None]
+    pixels = torch.cat([cost, gray[0] - 0.5, local_std(gray)[0] * 4])  # [4, H, W]
+    if pixels.shape[-2:] != (h, w):
+        pixels = F.interpolate(pixels[None], size=(h, w), mode="area")[0]
+    feats = torch.cat(
+        [
+            pixels[:2],
+            (pixels[1] - pixels[0])[None],
+            (log_mono - log_fused)[None],
+            log_fused[None] / 2.3,
+            consistency,
+            parallax_rad[None] / PARALLAX_CAP,
+            pixels[2:],
+            latitude_weights(h, w, dtype=log_fused.dtype, device=log_fused.device)[None],
+        ]
+    )
+    if h != rows:
+        feats = F.interpolate(feats[None], size=(rows, 2 * rows), mode="area")[0]
+    return feats
+
+
+class DepthBlend(nn.Module):
+    """Blend features [B, FEATURES, h, w] -> logit [B, 1, h, w] of the monocular depth's
+    weight."""
+
+    def __init__(self, config: BlendConfig = BlendConfig()) -> None:
+        super().__init__()
+        self.config = config
+        c = config.channels
+        self.net = nn.Sequential(
+            CircularConv2d(FEATURES, c, 3, padding=1),
+            nn.ReLU(inplace=True),
+            CircularConv2d(c, c, 3, padding=2, dilation=2),
+            nn.ReLU(inplace=True),
+            CircularConv2d(c, c, 3, padding=4, dilation=4),
+            nn.ReLU(inplace=True),
+            nn.Conv2d(c, 1, 1),
+        )
+        self.context = nn.Linear(c, c)
+        """A scene-wide summary (the latitude-weighted mean of the hidden features) added to
+        every pixel's: whether the prior holds is a property of the whole capture."""
+        with torch.no_grad():
+            self.net[-1].bias.fill_(-3.0)  # starts at the fused depth
+
+    def forward(self, features: Tensor) -> Tensor:
+        hidden = self.net[:4](features)
+        h, w = hidden.shape[-2:]
+        lat = latitude_weights(h, w, dtype=hidden.dtype, device=hidden.device)
+        scene = (hidden * lat).sum((-2, -1)) / lat.sum()  # [B, c]
+        hidden = hidden + self.context(scene)[..., None, None]
+        return self.net[4:](hidden)
+
+    def blend(self, features: Tensor, log_fused: Tensor, log_mono: Tensor) -> Tensor:
+        """The blended log depth [B, h, w] of log_fused, log_mono [B, h, w] (the weight made
+        at the features' rows, resized to the depth's)."""
+        logit = self(features)
+        if logit.shape[-2:] != log_fused.shape[-2:]:
+            logit = F.interpolate(
+                logit, size=log_fused.shape[-2:], mode="bilinear", align_corners=False
+            )
+        a = torch.sigmoid(logit[:, 0])
+        return log_fused + a * (log_mono - log_fused)
