@@ -19,7 +19,8 @@ depth (``DepthEstimator.fusion_sweep``), each with and without the monocular dep
 hypothesis; round 8's rows: the wide search with a stronger prior (far moves need more
 evidence), and a median after the sweep (``DepthEstimator.median``, in modes full and mvs);
 round 14's: the learned choice of each pixel's hypothesis (``DepthEstimator.selector``, when
-``depth_select.safetensors`` is among the weights).
+``depth_select.safetensors`` is among the weights); round 24's: the monocular depth blended
+back in (``DepthEstimator.blend``, when ``depth_blend.safetensors`` is).
 ``--mono-shape`` also measures every setting with the monocular depth made wrong in
 shape (`corrupt_mono`), as on real captures; ``--mono-shift`` with the monocular network out of
 its domain; ``--mono-heights`` with its ceiling and floor at wrong heights (`wrong_heights`).
@@ -45,7 +46,9 @@ from panogrf.app.train.augment import (
 )
 from panogrf.app.train.data import load_triplets
 from panogrf.app.weights.networks import (
+    BLEND,
     SELECTOR,
+    load_blend,
     load_depth_estimator,
     load_selector,
     weights_path,
@@ -118,6 +121,7 @@ def _reset(estimator) -> None:
     estimator.selector, estimator.select_margin = None, 0.0
     estimator.sweep, estimator.fusion_sweep = DEFAULT_SWEEP, DEFAULT_SWEEP
     estimator.median = 1
+    estimator.blend = None
 
 
 def main() -> None:
@@ -192,6 +196,13 @@ def main() -> None:
         for margin in (0.1, 0.2):
             name = f"full, fused, canonical world, median 7, selector, margin {margin:g}"
             attrs = {"median": 7, "selector": selector, "select_margin": margin}
+            settings.append((name, "full", wide | canonical | attrs))
+        # Round 24: the monocular depth blended back in (`panogrf.model.blend`), when its
+        # weights are there.
+        if weights_path(BLEND).exists():
+            attrs = {"median": 7, "selector": selector, "select_margin": 0.1}
+            attrs["blend"] = load_blend(weights_path(BLEND))
+            name = "full, fused, canonical world, median 7, selector, margin 0.1, blend"
             settings.append((name, "full", wide | canonical | attrs))
     for g in (float(x) for x in args.gains.split(",")):
         settings.append((f"full, fused, switch {g:g}", "full", {"fuse": True, "switch_gain": g}))

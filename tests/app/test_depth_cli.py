@@ -220,6 +220,38 @@ def test_mode_full_chooses_with_the_shipped_selector_and_needs_it(tmp_path, monk
         depth_weights.load_depth_estimator.cache_clear()
 
 
+@pytest.mark.skipif(bool(MISSING), reason=f"shipped weights missing ({', '.join(MISSING)})")
+def test_the_blend_is_used_and_keys_the_depth_where_its_file_is(tmp_path, monkeypatch):
+    """Mode full's estimator blends with the monocular depth where `depth_blend.safetensors` is
+    among the weights (and the file is then among those that key a scene's depth cache); a
+    folder without it gives the fused depth alone."""
+    from panogrf.app.train.loop import save_weights
+    from panogrf.model.blend import BlendConfig, DepthBlend
+
+    for path in SHIPPED:
+        if path.name != depth_weights.BLEND:
+            (tmp_path / path.name).symlink_to(path)
+    monkeypatch.setenv("PANOGRF_WEIGHTS", str(tmp_path))
+    depth_weights.load_depth_estimator.cache_clear()
+    try:
+        assert depth_weights.load_depth_estimator(("full", "mvs")).blend is None
+        assert "blend" not in depth_weights.depth_weight_files("full")
+        blend = DepthBlend(BlendConfig())
+        save_weights(
+            blend, tmp_path / depth_weights.BLEND, {"config": {"channels": 32, "rows": 128}}
+        )
+        depth_weights.load_depth_estimator.cache_clear()
+        loaded = depth_weights.load_depth_estimator(("full", "mvs")).blend
+        assert isinstance(loaded, DepthBlend)
+        assert depth_weights.depth_weight_files("full")["blend"] == depth_weights.BLEND
+        assert "blend" not in depth_weights.depth_weight_files("mvs")
+        assert depth_weights.load_depth_estimator(("mvs",)).blend is None
+        for name, t in blend.state_dict().items():
+            torch.testing.assert_close(loaded.state_dict()[name], t)
+    finally:
+        depth_weights.load_depth_estimator.cache_clear()
+
+
 def test_a_selector_saved_before_the_scene_summary_loads_as_a_local_one(tmp_path):
     """Round 14's selector file has no "context" in its config: it loads without the summary;
     the shipped one (round 15) has it."""

@@ -151,6 +151,47 @@ def test_train_select_smoke(tiny_train, tmp_path, capsys):
     assert load_depth_estimator(("full", "mvs")).selector is not None
 
 
+@pytest.mark.gl
+def test_train_blend_smoke(tiny_train, tmp_path, capsys):
+    """The blend records the shipped pipeline's fusion on a few scenes (cached beside the data,
+    the second run reading the cache), trains a few steps and writes weights that `load_blend`
+    reads back; the shared estimator keeps what it had."""
+    from panogrf.app.weights.networks import load_blend, load_depth_estimator
+
+    before = load_depth_estimator(("full", "mvs")).blend
+    out = tmp_path / "blend.safetensors"
+    args = ["train", "blend", "--data", str(tiny_train), "--out", str(out), "--height", "64"]
+    assert main([*args, "--scenes", "1", "--steps", "2", "--batch", "2"]) == 0
+    with safe_open(str(out), framework="pt") as f:
+        meta = f.metadata()
+        assert meta["network"] == "DepthBlend"
+        assert all(torch.isfinite(f.get_tensor(k)).all() for k in f.keys())
+    final = json.loads(meta["final"])
+    # The better depth per pixel is never worse than either depth alone.
+    assert final["l1_better_per_pixel"] <= min(final["l1_fused"], final["l1_mono"])
+    assert final["l1_blend"] > 0
+    caches = list(tiny_train.glob(".blend_*.safetensors"))
+    assert len(caches) == 2  # the training scenes and the held-back ones
+    load_blend(out)
+    stamp = [c.stat().st_mtime_ns for c in caches]
+    assert main([*args, "--scenes", "1", "--steps", "1", "--batch", "2"]) == 0
+    assert [c.stat().st_mtime_ns for c in caches] == stamp
+    caches[0].write_bytes(b"not safetensors")
+    assert main([*args, "--scenes", "1", "--steps", "1", "--batch", "2"]) == 0
+    assert "unreadable" in capsys.readouterr().out
+    assert load_depth_estimator(("full", "mvs")).blend is before
+
+
+def test_train_blend_errors(tmp_path, capsys):
+    base = ["train", "blend", "--data", str(tmp_path)]
+    assert main([*base, "--out", "x.pt"]) == 2
+    assert "safetensors" in capsys.readouterr().err
+    assert main([*base, "--out", str(tmp_path / "b.safetensors"), "--mono-shift", "2"]) == 2
+    assert "0-1" in capsys.readouterr().err
+    assert main([*base, "--out", str(tmp_path / "b.safetensors"), "--steps", "0"]) == 2
+    assert "at least 1" in capsys.readouterr().err
+
+
 def test_train_select_errors(tmp_path, capsys):
     base = ["train", "select", "--data", str(tmp_path)]
     assert main([*base, "--out", "x.pt"]) == 2

@@ -300,3 +300,40 @@ def test_the_selector_chooses_and_the_record_holds_its_input(estimator):
     assert torch.isfinite(chosen).all()
     assert not torch.allclose(chosen, plain)
     del mvs_alone
+
+
+def test_the_blend_records_its_input_and_moves_the_depth_towards_mono(estimator):
+    """Mode full fused: with ``blend_record`` a list, every reference view's blend input and the
+    two depths are appended (the depth unchanged); a blend saturated towards the monocular depth
+    returns it, brought to the poses' metric scale (the blend works in the canonical world, see
+    ``canonical``); mode mvs never blends."""
+    from panogrf.model.blend import FEATURES, BlendConfig, DepthBlend
+
+    images = _images(2, WORKING, seed=9)
+    c2w = _poses((0, 0, 0), (1.2, 0, 0.3))
+    plain = estimator(images, c2w, "full")
+    estimator.blend_record = []
+    try:
+        recorded = estimator(images, c2w, "full").depth
+        record = estimator.blend_record
+    finally:
+        estimator.blend_record = None
+    torch.testing.assert_close(recorded, plain.depth)
+    assert [e["view"] for e in record] == [0, 1]
+    for e in record:
+        assert e["features"].shape == (FEATURES, WORKING, 2 * WORKING)
+        assert bool(torch.isfinite(e["features"]).all())
+        assert e["logs"].shape == (2, WORKING, 2 * WORKING) and e["scale"] > 0
+    blend = DepthBlend(BlendConfig(channels=8, rows=WORKING)).eval()
+    torch.nn.init.zeros_(blend.net[-1].weight)
+    torch.nn.init.constant_(blend.net[-1].bias, 30.0)
+    estimator.blend = blend
+    try:
+        towards_mono = estimator(images, c2w, "full")
+        mvs = estimator(images, c2w, "mvs").depth
+    finally:
+        estimator.blend = None
+    _check_finite(towards_mono, 2, WORKING)
+    metric_mono = (plain.mono / record[0]["scale"]).clamp(0.05, estimator.d_max)
+    torch.testing.assert_close(towards_mono.depth, metric_mono, atol=1e-3, rtol=1e-3)
+    torch.testing.assert_close(mvs, estimator(images, c2w, "mvs").depth)
