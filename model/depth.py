@@ -14,8 +14,10 @@ twice the working resolution, where they clearly agree better than at the networ
 cost volume works at a quarter of 128 rows; the sweep puts back the detail a real capture has.
 Mode "full" fuses the mono-guided and the unguided network's depth there (each pixel keeps the
 one its sources agree with; ``fusion_sweep``). A median filter then takes out the sweep's
-speckle (``median``). ``sweep=None`` turns the sweep (and the median) off in every mode
-(training does, to keep its depth caches cheap).
+speckle (``median``). With a ``blend`` (mode "full" fused), a learned per-pixel blend with the
+monocular depth follows (`panogrf.model.blend`): at wide baselines the two fail in different
+places. ``sweep=None`` turns the sweep (and the median and blend) off in every mode (training
+does, to keep its depth caches cheap).
 """
 
 from __future__ import annotations
