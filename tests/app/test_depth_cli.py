@@ -116,6 +116,7 @@ def test_cli_prints_metrics_time_and_writes_the_scene(tmp_path, capsys, random_w
         "full": "depth_mvs_full.safetensors",
         "mvs": "depth_mvs_only.safetensors",  # fused with the mono-guided depth
         "select": "depth_select.safetensors",  # which of the two each pixel keeps
+        "blend": "depth_blend.safetensors",  # and how much of the mono depth it takes back
     }
     # Running again into its own output folder is allowed (it is ours to overwrite).
     assert cli.main(["depth", str(DEMO), "--out", str(out), "--mode", "mono"]) == 0

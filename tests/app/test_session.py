@@ -18,6 +18,7 @@ def test_weight_files_cover_every_network_a_method_prepares_with():
         dw.WEIGHTS["full"],
         dw.WEIGHTS["mvs"],
         dw.SELECTOR,
+        dw.BLEND,
         dw.RENDERER_WEIGHTS["panogrf"],
     ]
     assert names("no_mono") == [
@@ -30,6 +31,7 @@ def test_weight_files_cover_every_network_a_method_prepares_with():
         dw.WEIGHTS["full"],
         dw.WEIGHTS["mvs"],
         dw.SELECTOR,
+        dw.BLEND,
     ]
     assert names("nearest") == []
 
