@@ -17,6 +17,11 @@ how far apart the two depths are, and the image's brightness, texture and elevat
 summary of the whole panorama. It is trained on the training scenes (`panogrf train blend`)
 to the L1 of the blended depth, with the monocular network out of its domain on some of them,
 so that a wrong prior is among what it sees. It starts near a = 0 (the fused depth).
+
+Measured on the validation sets (`benchmarks/depth_fusion.py`, `depth_blend24_val.json`;
+each set clean and with the monocular network out of its domain): mean L1 over the three wide
+sets 0.1907 -> 0.1679 m, over five others 0.1535 -> 0.1388, every column lower, for 1.06 times
+the time per pair of views.
 """
 
 from __future__ import annotations
