@@ -33,8 +33,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from panogrf.model.erp import erp_to_world, latitude_weights
-from panogrf.model.layers import CircularConv2d
-from panogrf.model.select import local_std
+from panogrf.model.select import dilated_trunk, local_std, scene_summary
 
 #: Channels of `blend_features`.
 FEATURES = 11
@@ -107,15 +106,7 @@ class DepthBlend(nn.Module):
         super().__init__()
         self.config = config
         c = config.channels
-        self.net = nn.Sequential(
-            CircularConv2d(FEATURES, c, 3, padding=1),
-            nn.ReLU(inplace=True),
-            CircularConv2d(c, c, 3, padding=2, dilation=2),
-            nn.ReLU(inplace=True),
-            CircularConv2d(c, c, 3, padding=4, dilation=4),
-            nn.ReLU(inplace=True),
-            nn.Conv2d(c, 1, 1),
-        )
+        self.net = dilated_trunk(FEATURES, c)
         self.context = nn.Linear(c, c)
         """A scene-wide summary (the latitude-weighted mean of the hidden features) added to
         every pixel's: whether the prior holds is a property of the whole capture."""
@@ -124,10 +115,7 @@ class DepthBlend(nn.Module):
 
     def forward(self, features: Tensor) -> Tensor:
         hidden = self.net[:4](features)
-        h, w = hidden.shape[-2:]
-        lat = latitude_weights(h, w, dtype=hidden.dtype, device=hidden.device)
-        scene = (hidden * lat).sum((-2, -1)) / lat.sum()  # [B, c]
-        hidden = hidden + self.context(scene)[..., None, None]
+        hidden = hidden + self.context(scene_summary(hidden))[..., None, None]
         return self.net[4:](hidden)
 
     def blend(self, features: Tensor, log_fused: Tensor, log_mono: Tensor) -> Tensor:

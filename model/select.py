@@ -138,6 +138,28 @@ def cross_view_consistency(
     return out
 
 
+def dilated_trunk(inputs: int, channels: int) -> nn.Sequential:
+    """Three circular 3 x 3 convolutions (dilation 1, 2, 4: 15 pixels across) with ReLUs,
+    then a 1 x 1 to one logit: the selector's and the blend's (`panogrf.model.blend`) network.
+    Its first four modules make the hidden features (see `scene_summary`)."""
+    return nn.Sequential(
+        CircularConv2d(inputs, channels, 3, padding=1),
+        nn.ReLU(inplace=True),
+        CircularConv2d(channels, channels, 3, padding=2, dilation=2),
+        nn.ReLU(inplace=True),
+        CircularConv2d(channels, channels, 3, padding=4, dilation=4),
+        nn.ReLU(inplace=True),
+        nn.Conv2d(channels, 1, 1),
+    )
+
+
+def scene_summary(hidden: Tensor) -> Tensor:
+    """The latitude-weighted mean [B, C] of hidden features [B, C, h, w] over the panorama."""
+    h, w = hidden.shape[-2:]
+    lat = latitude_weights(h, w, dtype=hidden.dtype, device=hidden.device)
+    return (hidden * lat).sum((-2, -1)) / lat.sum()
+
+
 class HypothesisSelector(nn.Module):
     """Selection features [B, FEATURES, h, w] -> logit [B, 1, h, w] that the unguided depth's
     search ends nearer the truth than the mono-guided one's."""
@@ -147,15 +169,7 @@ class HypothesisSelector(nn.Module):
         self.config = config
         c = config.channels
         self.inputs = FEATURES + (CONSISTENCY if config.consistency else 0)
-        self.net = nn.Sequential(
-            CircularConv2d(self.inputs, c, 3, padding=1),
-            nn.ReLU(inplace=True),
-            CircularConv2d(c, c, 3, padding=2, dilation=2),
-            nn.ReLU(inplace=True),
-            CircularConv2d(c, c, 3, padding=4, dilation=4),
-            nn.ReLU(inplace=True),
-            nn.Conv2d(c, 1, 1),
-        )
+        self.net = dilated_trunk(self.inputs, c)
         self.context = nn.Linear(c, c) if config.context else None
 
     def forward(self, features: Tensor) -> Tensor:
@@ -163,10 +177,7 @@ class HypothesisSelector(nn.Module):
         consistency channels follow `selection_features`' when recorded)."""
         hidden = self.net[:4](features[:, : self.inputs])
         if self.context is not None:
-            h, w = hidden.shape[-2:]
-            lat = latitude_weights(h, w, dtype=hidden.dtype)
-            scene = (hidden * lat).sum((-2, -1)) / lat.sum()  # [B, c]
-            hidden = hidden + self.context(scene)[..., None, None]
+            hidden = hidden + self.context(scene_summary(hidden))[..., None, None]
         return self.net[4:](hidden)
 
     def choose(

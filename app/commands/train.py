@@ -351,13 +351,9 @@ def _check_fusion_args(args: argparse.Namespace) -> None:
         torch.set_num_threads(args.threads)
 
 
-def run_select(args: argparse.Namespace) -> int:
-    from panogrf.app.train.select import TrainSelectConfig, train_selector
-    from panogrf.app.weights.networks import load_depth_estimator
-
-    _check_fusion_args(args)
-    log, close = _logger(args.log)
-    cfg = TrainSelectConfig(
+def _fusion_config(args: argparse.Namespace) -> dict:
+    """The fields of `FusionRecordingConfig` from `_fusion_recording_args` and `_run_args`."""
+    return dict(
         data=args.data,
         out=args.out,
         scenes=args.scenes,
@@ -367,10 +363,21 @@ def run_select(args: argparse.Namespace) -> int:
         shift=args.mono_shift,
         heights=args.mono_heights,
         height=args.height,
-        context=not args.no_context,
-        consistency=not args.no_consistency,
         seed=args.seed,
         limit_scenes=args.limit_scenes,
+    )
+
+
+def run_select(args: argparse.Namespace) -> int:
+    from panogrf.app.train.select import TrainSelectConfig, train_selector
+    from panogrf.app.weights.networks import load_depth_estimator
+
+    _check_fusion_args(args)
+    log, close = _logger(args.log)
+    cfg = TrainSelectConfig(
+        **_fusion_config(args),
+        context=not args.no_context,
+        consistency=not args.no_consistency,
     )
     try:
         train_selector(cfg, load_depth_estimator(("full", "mvs")), log=log)
@@ -385,19 +392,7 @@ def run_blend(args: argparse.Namespace) -> int:
 
     _check_fusion_args(args)
     log, close = _logger(args.log)
-    cfg = TrainBlendConfig(
-        data=args.data,
-        out=args.out,
-        scenes=args.scenes,
-        steps=args.steps,
-        batch=args.batch,
-        lr=args.lr,
-        shift=args.mono_shift,
-        heights=args.mono_heights,
-        height=args.height,
-        seed=args.seed,
-        limit_scenes=args.limit_scenes,
-    )
+    cfg = TrainBlendConfig(**_fusion_config(args))
     try:
         train_blend(cfg, load_depth_estimator(("full", "mvs")), log=log)
     finally:

@@ -27,45 +27,16 @@ from torch import Tensor
 
 from panogrf.app.errors import UserError
 from panogrf.app.files.atomic import save_tensors_atomic
-from panogrf.app.train.data import load_triplets
-from panogrf.app.train.loop import Steps, held_back, save_trained
+from panogrf.app.train.loop import Steps, save_trained
 from panogrf.app.train.renderer import _weights_key
-from panogrf.app.train.select import fusion_runs
+from panogrf.app.train.select import FusionRecordingConfig, fusion_runs, recorded_split
 from panogrf.model.blend import FEATURES, BlendConfig, DepthBlend
 from panogrf.model.depth import DepthEstimator
 
 
 @dataclass
-class TrainBlendConfig:
-    """One training run of the blend."""
-
-    data: Path
-    """Train-split dataset folder."""
-    out: Path
-    """Where the weights go (safetensors)."""
-    scenes: int = 240
-    """Training scenes sampled (seeded) from the data, besides the held-back ones."""
-    val_scenes: int = 24
-    """The data's last scenes, held back for the log's validation figures."""
-    shift: float = 0.3
-    """Fraction of the scenes whose monocular network sees its input out of its domain."""
-    photometric: float = 0.5
-    """Fraction of the scenes whose views are put through the camera corruptions."""
-    heights: float = 0.0
-    """Fraction of the scenes whose monocular depth puts the ceiling and the floor at wrong
-    heights (`wrong_heights`), drawn independently of ``shift``."""
-    height: int = 256
-    """Rows the panoramas are loaded at (the sweep's resolution)."""
-    steps: int = 1500
-    """Optimiser steps."""
-    batch: int = 8
-    """Views per step."""
-    lr: float = 2e-3
-    """Adam learning rate at the start (cosine decay)."""
-    seed: int = 0
-    log_every: int = 100
-    limit_scenes: int | None = None
-    """Load only this many scenes (smoke tests)."""
+class TrainBlendConfig(FusionRecordingConfig):
+    """One training run of the blend (the fields are the selector's recording's)."""
 
 
 #: What `record_scenes` returns (and caches).
@@ -142,18 +113,8 @@ def _figures(net: DepthBlend, rec: dict[str, Tensor]) -> dict:
 
 def train_blend(cfg: TrainBlendConfig, estimator: DepthEstimator, log=print) -> dict:
     """Record the fusion on the sampled scenes, then train the blend on it."""
-    torch.manual_seed(cfg.seed)
-    data = load_triplets(cfg.data, cfg.height, cfg.limit_scenes)
-    train_idx, val_idx = held_back(len(data), cfg.val_scenes)
-    gen = torch.Generator().manual_seed(cfg.seed)
-    pick = train_idx[torch.randperm(len(train_idx), generator=gen)[: cfg.scenes]]
     # The unblended fusion is recorded; the estimator (shared, cached) gets its blend back.
-    blend, estimator.blend = estimator.blend, None
-    try:
-        train = record_scenes(estimator, data, sorted(pick.tolist()), cfg, log)
-        val = record_scenes(estimator, data, val_idx.tolist(), cfg, log)
-    finally:
-        estimator.blend = blend
+    train, val, gen = recorded_split(cfg, estimator, record_scenes, "blend", log)
     net = DepthBlend(BlendConfig(rows=train["features"].shape[-2]))
     log(
         f"blend ({sum(p.numel() for p in net.parameters())} parameters): "

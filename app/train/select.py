@@ -43,8 +43,8 @@ from panogrf.model.select import CONSISTENCY, FEATURES, HypothesisSelector, Sele
 
 
 @dataclass
-class TrainSelectConfig:
-    """One training run of the selector."""
+class FusionRecordingConfig:
+    """What the trainings that record mode full's fusion share (`fusion_runs`)."""
 
     data: Path
     """Train-split dataset folder."""
@@ -69,6 +69,16 @@ class TrainSelectConfig:
     """Views per step."""
     lr: float = 2e-3
     """Adam learning rate at the start (cosine decay)."""
+    seed: int = 0
+    log_every: int = 100
+    limit_scenes: int | None = None
+    """Load only this many scenes (smoke tests)."""
+
+
+@dataclass
+class TrainSelectConfig(FusionRecordingConfig):
+    """One training run of the selector."""
+
     cap: float = 0.5
     """Largest weight of a pixel (metres by which one search end is nearer the truth)."""
     context: bool = True
@@ -76,10 +86,6 @@ class TrainSelectConfig:
     consistency: bool = True
     """The selector sees the cross-view consistency of the search ends
     (`SelectorConfig.consistency`)."""
-    seed: int = 0
-    log_every: int = 100
-    limit_scenes: int | None = None
-    """Load only this many scenes (smoke tests)."""
 
 
 #: What `record_scenes` returns (and caches).
@@ -142,7 +148,9 @@ def record_scenes(
     return out
 
 
-def fusion_runs(estimator: DepthEstimator, data, indices: list[int], cfg, attr: str):
+def fusion_runs(
+    estimator: DepthEstimator, data, indices: list[int], cfg: FusionRecordingConfig, attr: str
+):
     """Mode "full" on the first and last views of each scene of ``indices`` with the
     estimator's recording list ``attr`` ("record": the selector's, "blend_record": the
     blend's) set, under ``cfg``'s seeded conditions (``photometric``, ``shift`` and
@@ -169,6 +177,28 @@ def fusion_runs(estimator: DepthEstimator, data, indices: list[int], cfg, attr: 
         finally:
             setattr(estimator, attr, None)
         yield i, records
+
+
+def recorded_split(
+    cfg: FusionRecordingConfig, estimator: DepthEstimator, record, without: str, log
+):
+    """(records of the seeded sample of ``cfg.scenes`` training scenes, records of the
+    held-back ones, the generator that drew the sample, to go on with): ``record(estimator,
+    data, indices, cfg, log)`` runs with the estimator's part ``without`` ("selector",
+    "blend") removed, and given back after."""
+    torch.manual_seed(cfg.seed)
+    data = load_triplets(cfg.data, cfg.height, cfg.limit_scenes)
+    train_idx, val_idx = held_back(len(data), cfg.val_scenes)
+    gen = torch.Generator().manual_seed(cfg.seed)
+    pick = train_idx[torch.randperm(len(train_idx), generator=gen)[: cfg.scenes]]
+    part = getattr(estimator, without)
+    setattr(estimator, without, None)
+    try:
+        train = record(estimator, data, sorted(pick.tolist()), cfg, log)
+        val = record(estimator, data, val_idx.tolist(), cfg, log)
+    finally:
+        setattr(estimator, without, part)
+    return train, val, gen
 
 
 def _labels(ends: Tensor, truth: Tensor, cap: float) -> tuple[Tensor, Tensor]:
@@ -205,18 +235,8 @@ def _figures(net: HypothesisSelector, rec: dict[str, Tensor]) -> dict:
 
 def train_selector(cfg: TrainSelectConfig, estimator: DepthEstimator, log=print) -> dict:
     """Record the fusion on the sampled scenes, then train the selector on it."""
-    torch.manual_seed(cfg.seed)
-    data = load_triplets(cfg.data, cfg.height, cfg.limit_scenes)
-    train_idx, val_idx = held_back(len(data), cfg.val_scenes)
-    gen = torch.Generator().manual_seed(cfg.seed)
-    pick = train_idx[torch.randperm(len(train_idx), generator=gen)[: cfg.scenes]]
     # The rule's fusion is recorded; the estimator (shared, cached) gets its selector back.
-    selector, estimator.selector = estimator.selector, None
-    try:
-        train = record_scenes(estimator, data, sorted(pick.tolist()), cfg, log)
-        val = record_scenes(estimator, data, val_idx.tolist(), cfg, log)
-    finally:
-        estimator.selector = selector
+    train, val, gen = recorded_split(cfg, estimator, record_scenes, "selector", log)
     net = HypothesisSelector(
         SelectorConfig(
             rows=train["features"].shape[-2], context=cfg.context, consistency=cfg.consistency

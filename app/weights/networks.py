@@ -108,30 +108,28 @@ def _stored_mvs_config(path: Path, mode: str) -> MVSConfig:
     return replace(PRESETS[mode], trunk=trunk)
 
 
-def load_selector(path: Path) -> HypothesisSelector:
-    """The fusion's hypothesis selector in ``path``, frozen, in eval mode."""
+def _load_fusion_part(module_class, config_class, path: Path, what: str):
+    """A small network of the fusion (``module_class(config_class(**stored config))``) in
+    ``path``, frozen, in eval mode."""
     from dataclasses import asdict
 
     stored = json.loads(_metadata(path).get("config", "{}")) if path.exists() else {}
     try:
-        selector = HypothesisSelector(SelectorConfig(**stored))
+        module = module_class(config_class(**stored))
     except TypeError as exc:
-        raise UserError(f"{path}: unknown selector config {stored}: {exc}") from None
-    _load(selector, path, asdict(selector.config))
-    return selector
+        raise UserError(f"{path}: unknown {what} config {stored}: {exc}") from None
+    _load(module, path, asdict(module.config))
+    return module
+
+
+def load_selector(path: Path) -> HypothesisSelector:
+    """The fusion's hypothesis selector in ``path``, frozen, in eval mode."""
+    return _load_fusion_part(HypothesisSelector, SelectorConfig, path, "selector")
 
 
 def load_blend(path: Path) -> DepthBlend:
     """The depth blend in ``path``, frozen, in eval mode."""
-    from dataclasses import asdict
-
-    stored = json.loads(_metadata(path).get("config", "{}")) if path.exists() else {}
-    try:
-        blend = DepthBlend(BlendConfig(**stored))
-    except TypeError as exc:
-        raise UserError(f"{path}: unknown blend config {stored}: {exc}") from None
-    _load(blend, path, asdict(blend.config))
-    return blend
+    return _load_fusion_part(DepthBlend, BlendConfig, path, "blend")
 
 
 @lru_cache(maxsize=4)
