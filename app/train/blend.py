@@ -21,15 +21,19 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import torch
-import torch.nn.functional as F
-from safetensors.torch import load_file
 from torch import Tensor
 
 from panogrf.app.errors import UserError
 from panogrf.app.files.atomic import save_tensors_atomic
 from panogrf.app.train.loop import Steps, save_trained
 from panogrf.app.train.renderer import _weights_key
-from panogrf.app.train.select import FusionRecordingConfig, fusion_runs, recorded_split
+from panogrf.app.train.select import (
+    FusionRecordingConfig,
+    cached_record,
+    canonical_truth,
+    fusion_runs,
+    recorded_split,
+)
 from panogrf.model.blend import FEATURES, BlendConfig, DepthBlend
 from panogrf.model.depth import DepthEstimator
 
@@ -64,25 +68,15 @@ def record_scenes(
     Cached in the data folder (written to a temporary file and renamed)."""
     path = Path(cfg.data) / f".blend_{_key(estimator, [data.names[i] for i in indices], cfg)}"
     path = path.with_suffix(".safetensors")
-    if path.exists():
-        try:
-            cached = load_file(str(path))
-            if set(cached) == set(RECORD_KEYS) and cached["features"].shape[1] == FEATURES:
-                return cached
-            log(f"blend cache {path.name} holds {sorted(cached)}: rebuilding")
-        except Exception as exc:  # a broken cache is rebuilt, never trusted
-            log(f"blend cache {path.name} unreadable ({exc}): rebuilding")
+    cached = cached_record(path, RECORD_KEYS, FEATURES, "blend", log)
+    if cached is not None:
+        return cached
     feats, logs, truth = [], [], []
     for i, records in fusion_runs(estimator, data, indices, cfg, "blend_record"):
         for entry in records:
-            v = (0, 2)[entry["view"]]
-            size = entry["logs"].shape[-2:]
-            gt = F.interpolate(data.depths[i, v][None, None], size=size, mode="nearest")
-            gt = gt[0, 0] * entry["scale"]
-            ok = (gt > 0) & (gt <= estimator.d_max * entry["scale"])
             feats.append(entry["features"].half())
             logs.append(entry["logs"])
-            truth.append(torch.where(ok, torch.log(gt.clamp(min=1e-3)), float("nan")))
+            truth.append(canonical_truth(estimator, data, i, entry, entry["logs"].shape[-2:]))
     if not feats:
         raise UserError(f"{cfg.data}: no scene has two views far enough apart to fuse")
     out = {"features": torch.stack(feats), "logs": torch.stack(logs), "truth": torch.stack(truth)}

@@ -116,26 +116,17 @@ def record_scenes(
     photometric rule gives the unguided depth}. Cached in the data folder."""
     path = Path(cfg.data) / f".select_{_key(estimator, [data.names[i] for i in indices], cfg)}"
     path = path.with_suffix(".safetensors")
-    if path.exists():
-        try:
-            cached = load_file(str(path))
-            if set(cached) == set(RECORD_KEYS) and cached["features"].shape[1] == RECORD_CHANNELS:
-                return cached
-            log(f"selector cache {path.name} holds {sorted(cached)}: rebuilding")
-        except Exception as exc:  # a broken cache is rebuilt, never trusted
-            log(f"selector cache {path.name} unreadable ({exc}): rebuilding")
+    cached = cached_record(path, RECORD_KEYS, RECORD_CHANNELS, "selector", log)
+    if cached is not None:
+        return cached
     feats, ends, truth, rules = [], [], [], []
     for i, records in fusion_runs(estimator, data, indices, cfg, "record"):
         for entry in records:
-            v = (0, 2)[entry["view"]]
             f = entry["features"]
-            gt = F.interpolate(data.depths[i, v][None, None], size=f.shape[-2:], mode="nearest")
-            gt = gt[0, 0] * entry["scale"]
-            ok = (gt > 0) & (gt <= estimator.d_max * entry["scale"])
             feats.append(f.half())
             ends.append(entry["ends"])
             rules.append(entry["rule"])
-            truth.append(torch.where(ok, torch.log(gt.clamp(min=1e-3)), float("nan")))
+            truth.append(canonical_truth(estimator, data, i, entry, f.shape[-2:]))
     if not feats:
         raise UserError(f"{cfg.data}: no scene has two views far enough apart to fuse")
     out = {
@@ -146,6 +137,33 @@ def record_scenes(
     }
     save_tensors_atomic(path, out)
     return out
+
+
+def cached_record(path: Path, keys, channels: int, what: str, log) -> dict[str, Tensor] | None:
+    """The recording cached in ``path`` when it holds exactly ``keys`` with features of
+    ``channels``; None (and a log line) when it is absent, of another format or unreadable:
+    a broken cache is rebuilt, never trusted."""
+    if not path.exists():
+        return None
+    try:
+        cached = load_file(str(path))
+        if set(cached) == set(keys) and cached["features"].shape[1] == channels:
+            return cached
+        log(f"{what} cache {path.name} holds {sorted(cached)}: rebuilding")
+    except Exception as exc:
+        log(f"{what} cache {path.name} unreadable ({exc}): rebuilding")
+    return None
+
+
+def canonical_truth(estimator: DepthEstimator, data, i: int, entry: dict, size) -> Tensor:
+    """The true depth [h, w] of the view of scene ``i`` that the record ``entry`` is of (its
+    "view": 0 the first, 1 the last), at ``size``, in log metres of the canonical world
+    (``entry["scale"]``); nan where unknown or beyond the depth range."""
+    v = (0, 2)[entry["view"]]
+    gt = F.interpolate(data.depths[i, v][None, None], size=size, mode="nearest")
+    gt = gt[0, 0] * entry["scale"]
+    ok = (gt > 0) & (gt <= estimator.d_max * entry["scale"])
+    return torch.where(ok, torch.log(gt.clamp(min=1e-3)), float("nan"))
 
 
 def fusion_runs(
