@@ -260,13 +260,13 @@ class DepthEstimator(nn.Module):
         up = dict(size=(hh, ww), mode="bilinear", align_corners=False)
         ends = {r: logs[r] for r, src in enumerate(sources) if src}
         consistency = cross_view_consistency(ends, c2w, sources)
+        rows = self.blend.config.rows if self.blend is not None else depth.shape[-2]
         out = depth.clone()
         for r, log_pair in ends.items():
             fine = F.interpolate(log_pair[None], **up)[0]
             cost = torch.stack(
                 [cost_at(img, c2w, r, sources[r], d, dirs, cfg, d_range) for d in fine]
             )
-            rows = self.blend.config.rows if self.blend is not None else depth.shape[-2]
             feats = blend_features(
                 img[r],
                 cost,

@@ -15,10 +15,8 @@ and of the better of the two per pixel.
 
 from __future__ import annotations
 
-import hashlib
 import json
 from dataclasses import dataclass
-from pathlib import Path
 
 import torch
 from torch import Tensor
@@ -26,13 +24,13 @@ from torch import Tensor
 from panogrf.app.errors import UserError
 from panogrf.app.files.atomic import save_tensors_atomic
 from panogrf.app.train.loop import Steps, save_trained
-from panogrf.app.train.renderer import _weights_key
 from panogrf.app.train.select import (
     FusionRecordingConfig,
     cached_record,
     canonical_truth,
     fusion_runs,
     recorded_split,
+    recording_path,
 )
 from panogrf.model.blend import FEATURES, BlendConfig, DepthBlend
 from panogrf.model.depth import DepthEstimator
@@ -47,17 +45,6 @@ class TrainBlendConfig(FusionRecordingConfig):
 RECORD_KEYS = ("features", "logs", "truth")
 
 
-def _key(estimator: DepthEstimator, names: list[str], cfg: TrainBlendConfig) -> str:
-    h = hashlib.sha256(_weights_key(estimator).encode())
-    h.update("\n".join(names).encode())
-    h.update(
-        json.dumps(
-            [cfg.shift, cfg.photometric, cfg.heights, cfg.height, cfg.seed, FEATURES]
-        ).encode()
-    )
-    return h.hexdigest()[:16]
-
-
 @torch.no_grad()
 def record_scenes(
     estimator: DepthEstimator, data, indices: list[int], cfg: TrainBlendConfig, log=print
@@ -66,8 +53,8 @@ def record_scenes(
     {"features": [N, FEATURES, h, w] float16, "logs": [N, 2, h, w] the fused and the mono
     depth, "truth": [N, h, w] (all log metres in the canonical world; truth nan: unknown)}.
     Cached in the data folder (written to a temporary file and renamed)."""
-    path = Path(cfg.data) / f".blend_{_key(estimator, [data.names[i] for i in indices], cfg)}"
-    path = path.with_suffix(".safetensors")
+    settings = [cfg.shift, cfg.photometric, cfg.heights, cfg.height, cfg.seed, FEATURES]
+    path = recording_path(cfg.data, "blend", estimator, [data.names[i] for i in indices], settings)
     cached = cached_record(path, RECORD_KEYS, FEATURES, "blend", log)
     if cached is not None:
         return cached

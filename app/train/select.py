@@ -94,16 +94,15 @@ RECORD_KEYS = ("features", "ends", "truth", "rule")
 RECORD_CHANNELS = FEATURES + CONSISTENCY
 
 
-def _key(estimator: DepthEstimator, names: list[str], cfg: TrainSelectConfig) -> str:
+def recording_path(
+    data_folder: Path, prefix: str, estimator: DepthEstimator, names: list[str], settings: list
+) -> Path:
+    """Where a recording of the fusion is cached in the data folder: ``.PREFIX_KEY.safetensors``,
+    KEY hashing the depth weights, the scenes ``names`` and the recording's ``settings``."""
     h = hashlib.sha256(_weights_key(estimator).encode())
     h.update("\n".join(names).encode())
-    h.update(
-        json.dumps(
-            [cfg.shift, cfg.photometric, cfg.height, cfg.seed, RECORD_CHANNELS]
-            + ([cfg.heights] if cfg.heights else [])
-        ).encode()
-    )
-    return h.hexdigest()[:16]
+    h.update(json.dumps(settings).encode())
+    return Path(data_folder) / f".{prefix}_{h.hexdigest()[:16]}.safetensors"
 
 
 @torch.no_grad()
@@ -114,8 +113,9 @@ def record_scenes(
     {"features": [N, C, h, w] float16, "ends": [N, 2, h, w], "truth": [N, h, w] log metres in
     the canonical world (nan: unknown), "rule": [N, h, w] the share of each pooled pixel the
     photometric rule gives the unguided depth}. Cached in the data folder."""
-    path = Path(cfg.data) / f".select_{_key(estimator, [data.names[i] for i in indices], cfg)}"
-    path = path.with_suffix(".safetensors")
+    settings = [cfg.shift, cfg.photometric, cfg.height, cfg.seed, RECORD_CHANNELS]
+    settings += [cfg.heights] if cfg.heights else []
+    path = recording_path(cfg.data, "select", estimator, [data.names[i] for i in indices], settings)
     cached = cached_record(path, RECORD_KEYS, RECORD_CHANNELS, "selector", log)
     if cached is not None:
         return cached
