@@ -150,6 +150,14 @@ def main() -> None:
             help=f"measure every scene (at scale 1) also / only with {what} "
             f"(column 'DATA mono-{name}')",
         )
+    parser.add_argument(
+        "--blend",
+        type=Path,
+        nargs="*",
+        default=[],
+        help="further blend weights (depth_blend.safetensors files), each a row of the shipped "
+        "setting with that blend, named after its folder",
+    )
     parser.add_argument("--threads", type=int, default=0)
     parser.add_argument("--out", type=Path, default=None)
     args = parser.parse_args()
@@ -199,10 +207,12 @@ def main() -> None:
             settings.append((name, "full", wide | canonical | attrs))
         # Round 24: the monocular depth blended back in (`panogrf.model.blend`), when its
         # weights are there.
-        if weights_path(BLEND).exists():
+        blends = [("", weights_path(BLEND))] if weights_path(BLEND).exists() else []
+        blends += [(f" {path.parent.name}", path) for path in args.blend]
+        for suffix, path in blends:
             attrs = {"median": 7, "selector": selector, "select_margin": 0.1}
-            attrs["blend"] = load_blend(weights_path(BLEND))
-            name = "full, fused, canonical world, median 7, selector, margin 0.1, blend"
+            attrs["blend"] = load_blend(path)
+            name = f"full, fused, canonical world, median 7, selector, margin 0.1, blend{suffix}"
             settings.append((name, "full", wide | canonical | attrs))
     for g in (float(x) for x in args.gains.split(",")):
         settings.append((f"full, fused, switch {g:g}", "full", {"fuse": True, "switch_gain": g}))
