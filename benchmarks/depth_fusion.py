@@ -23,7 +23,9 @@ round 14's: the learned choice of each pixel's hypothesis (``DepthEstimator.sele
 back in (``DepthEstimator.blend``, when ``depth_blend.safetensors`` is).
 ``--mono-shape`` also measures every setting with the monocular depth made wrong in
 shape (`corrupt_mono`), as on real captures; ``--mono-shift`` with the monocular network out of
-its domain; ``--mono-heights`` with its ceiling and floor at wrong heights (`wrong_heights`).
+its domain; ``--mono-heights`` with its ceiling and floor at wrong heights (`wrong_heights`),
+drawn per view; ``--mono-room`` the same with one draw for both views (they agree, as a real
+capture's views do).
 Prints a table of mean L1 (m) per dataset and overall, and the seconds per pair.
 """
 
@@ -62,6 +64,7 @@ MONO_CONDITIONS = {
     "shape": "its monocular depth wrong in shape, as on real captures",
     "shift": "the monocular network out of its domain, depth and features wrong together",
     "heights": "the monocular depth's ceiling and floor at wrong heights",
+    "room": "the monocular depth's ceiling and floor at wrong heights, the same in both views",
 }
 
 #: The monocular depth as a third hypothesis of the fusion.
@@ -73,7 +76,8 @@ def _pairs(
 ) -> tuple[list[float], list[float]]:
     """L1 of the first and last views and seconds per pair; ``mono``: "clean", "shape" (its
     depth wrong in shape), "shift" (the network out of its domain) or "heights" (its ceiling
-    and floor at wrong heights, `wrong_heights`, seeded per scene)."""
+    and floor at wrong heights, `wrong_heights`, seeded per scene) or "room" (the same, one draw
+    for both views)."""
     errors, seconds = [], []
     for i in range(len(data)):
         images = data.images[i, [0, 2]].float() / 255.0
@@ -87,6 +91,9 @@ def _pairs(
             context = _mono_out_of_domain(estimator, partner, seed=i)
         elif mono == "heights":
             context = mono_wrong_heights(estimator, torch.Generator().manual_seed(i))
+        elif mono == "room":
+            gen = torch.Generator().manual_seed(i)
+            context = mono_wrong_heights(estimator, gen, shared=True)
         else:
             context = nullcontext()
         with context:

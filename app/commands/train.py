@@ -206,6 +206,12 @@ def _fusion_recording_args(parser: argparse.ArgumentParser) -> None:
         "wrong heights (default 0)",
     )
     parser.add_argument(
+        "--mono-heights-shared",
+        action="store_true",
+        help="those scenes' wrong heights the same in both views (one wrong room per scene, "
+        "as a real capture's views read it) instead of drawn per view",
+    )
+    parser.add_argument(
         "--height",
         type=int,
         default=256,
@@ -345,6 +351,8 @@ def _check_fusion_args(args: argparse.Namespace) -> None:
         raise UserError(
             f"--mono-heights is a fraction of the scenes (0-1), got {args.mono_heights}"
         )
+    if args.mono_heights_shared and not args.mono_heights:
+        raise UserError("--mono-heights-shared needs --mono-heights above 0")
     if args.height < 32 or args.height % 32:
         raise UserError(f"--height must be a multiple of 32, got {args.height}")
     if args.threads:
@@ -362,6 +370,7 @@ def _fusion_config(args: argparse.Namespace) -> dict:
         lr=args.lr,
         shift=args.mono_shift,
         heights=args.mono_heights,
+        heights_shared=args.mono_heights_shared,
         height=args.height,
         seed=args.seed,
         limit_scenes=args.limit_scenes,

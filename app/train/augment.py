@@ -102,13 +102,20 @@ def wrong_heights(depth: Tensor, gen: torch.Generator, strength: float = 0.4) ->
     some heights puts a real room's ceiling where its rooms had theirs; the depth stays
     plausible, only the room's height is wrong, and a blank ceiling gives the cost volume
     nothing to correct it with."""
-    b, _, h, _ = depth.shape
+    b = depth.shape[0]
+    a = _u(gen, b, -strength, strength, 1, 1, 1).to(depth.dtype)
+    c = _u(gen, b, -strength, strength, 1, 1, 1).to(depth.dtype)
+    return _heights_scaled(depth, a, c)
+
+
+def _heights_scaled(depth: Tensor, up_log: Tensor, down_log: Tensor) -> Tensor:
+    """``depth`` [B, 1, h, w] looking up scaled by exp(``up_log``), looking down by
+    exp(``down_log``) ([B | 1, 1, 1, 1]), blended in between 12 and 44 degrees of elevation."""
+    h = depth.shape[-2]
     lat = math.pi * (0.5 - (torch.arange(h, dtype=depth.dtype) + 0.5) / h)
     sin = torch.sin(lat).view(1, 1, h, 1)
     up, down = _smoothstep((sin - 0.2) / 0.5), _smoothstep((-sin - 0.2) / 0.5)
-    a = _u(gen, b, -strength, strength, 1, 1, 1).to(depth.dtype)
-    c = _u(gen, b, -strength, strength, 1, 1, 1).to(depth.dtype)
-    return depth * torch.exp(a * up + c * down)
+    return depth * torch.exp(up_log.to(depth.dtype) * up + down_log.to(depth.dtype) * down)
 
 
 def out_of_domain(images: Tensor, gen: torch.Generator) -> Tensor:
@@ -172,7 +179,15 @@ def mono_depth_changed(estimator, change: Callable[[Tensor], Tensor]):
     return patched_mono(estimator, make)
 
 
-def mono_wrong_heights(estimator, gen: torch.Generator, strength: float = 0.4):
+def mono_wrong_heights(
+    estimator, gen: torch.Generator, strength: float = 0.4, shared: bool = False
+):
     """While inside, ``estimator``'s monocular depth has its ceiling and floor at wrong heights
-    (`wrong_heights`, one draw per call of the network); its features stay as computed."""
-    return mono_depth_changed(estimator, lambda depth: wrong_heights(depth, gen, strength))
+    (`wrong_heights`, one draw per call of the network); its features stay as computed.
+    ``shared``: one draw on entry for every view and call instead, so the views read the same
+    wrong room and agree with each other, as a real capture's views do (round 25: a per-view
+    draw makes the views disagree, which the fusion's cross-view check sees)."""
+    if not shared:
+        return mono_depth_changed(estimator, lambda depth: wrong_heights(depth, gen, strength))
+    a, c = _u(gen, 1, -strength, strength, 1, 1, 1), _u(gen, 1, -strength, strength, 1, 1, 1)
+    return mono_depth_changed(estimator, lambda depth: _heights_scaled(depth, a, c))

@@ -61,6 +61,9 @@ class FusionRecordingConfig:
     heights: float = 0.0
     """Fraction of the scenes whose monocular depth puts the ceiling and the floor at wrong
     heights (`wrong_heights`), drawn independently of ``shift``."""
+    heights_shared: bool = False
+    """Those scenes' wrong heights drawn once per scene, the same in both views
+    (`mono_wrong_heights` ``shared``), instead of once per view."""
     height: int = 256
     """Rows the panoramas are loaded at (the sweep's resolution)."""
     steps: int = 1500
@@ -115,6 +118,7 @@ def record_scenes(
     photometric rule gives the unguided depth}. Cached in the data folder."""
     settings = [cfg.shift, cfg.photometric, cfg.height, cfg.seed, RECORD_CHANNELS]
     settings += [cfg.heights] if cfg.heights else []
+    settings += ["shared"] if cfg.heights and cfg.heights_shared else []
     path = recording_path(cfg.data, "select", estimator, [data.names[i] for i in indices], settings)
     cached = cached_record(path, RECORD_KEYS, RECORD_CHANNELS, "selector", log)
     if cached is not None:
@@ -189,7 +193,9 @@ def fusion_runs(
                 if shifted:
                     stack.enter_context(mono_out_of_domain(estimator, partner, gen))
                 if heights:
-                    stack.enter_context(mono_wrong_heights(estimator, gen))
+                    stack.enter_context(
+                        mono_wrong_heights(estimator, gen, shared=cfg.heights_shared)
+                    )
                 estimator(images, c2w, "full")
             records = getattr(estimator, attr)
         finally:

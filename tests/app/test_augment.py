@@ -114,3 +114,26 @@ def test_mono_wrong_heights_changes_the_depth_not_the_features():
         once = est.mono(images)
     assert not torch.allclose(twice.depth, once.depth)
     assert torch.equal(est.mono(images).depth, plain.depth)
+
+
+def test_mono_wrong_heights_shared_is_one_room_for_every_view_and_call():
+    """``shared``: one draw on entry, the same factors for both views and for every call of
+    the network (the views agree); per view (the default), the views' factors differ."""
+    from panogrf.model.mono import MonoOutput
+
+    class Mono(torch.nn.Module):
+        def forward(self, images):
+            return MonoOutput(torch.ones_like(images[:, :1]) * 2.0, images)
+
+    class Estimator:
+        mono = Mono()
+
+    est, images = Estimator(), _images(2, 32, 64)
+    with mono_wrong_heights(est, torch.Generator().manual_seed(4), shared=True):
+        first, second = est.mono(images).depth, est.mono(images[:1]).depth
+    assert torch.equal(first[0], first[1]) and torch.equal(first[0], second[0])
+    assert not torch.allclose(first, torch.full_like(first, 2.0))  # the room did change
+    with mono_wrong_heights(est, torch.Generator().manual_seed(4)):
+        apart = est.mono(images).depth
+    assert not torch.allclose(apart[0], apart[1])
+    assert torch.equal(est.mono(images).depth, torch.full_like(first, 2.0))

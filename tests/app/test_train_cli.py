@@ -179,6 +179,12 @@ def test_train_blend_smoke(tiny_train, tmp_path, capsys):
     caches[0].write_bytes(b"not safetensors")
     assert main([*args, "--scenes", "1", "--steps", "1", "--batch", "2"]) == 0
     assert "unreadable" in capsys.readouterr().out
+    # Wrong heights per view and one wrong room per scene are two more recordings, each of
+    # the training scenes and of the held-back ones.
+    heights = [*args, "--scenes", "1", "--steps", "1", "--batch", "2", "--mono-heights", "1"]
+    assert main(heights) == 0
+    assert main([*heights, "--mono-heights-shared"]) == 0
+    assert len(list(tiny_train.glob(".blend_*.safetensors"))) == 6
     assert load_depth_estimator(("full", "mvs")).blend is before
 
 
@@ -200,6 +206,8 @@ def test_train_select_errors(tmp_path, capsys):
     assert "0-1" in capsys.readouterr().err
     assert main([*base, "--out", str(tmp_path / "s.safetensors"), "--mono-heights", "-1"]) == 2
     assert "0-1" in capsys.readouterr().err
+    assert main([*base, "--out", str(tmp_path / "s.safetensors"), "--mono-heights-shared"]) == 2
+    assert "--mono-heights above 0" in capsys.readouterr().err
     assert main([*base, "--out", str(tmp_path / "s.safetensors"), "--scenes", "0"]) == 2
     assert "at least 1" in capsys.readouterr().err
     assert main([*base, "--out", str(tmp_path / "s.safetensors"), "--height", "100"]) == 2
