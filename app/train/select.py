@@ -77,6 +77,12 @@ class FusionRecordingConfig:
     limit_scenes: int | None = None
     """Load only this many scenes (smoke tests)."""
 
+    @property
+    def shared_key(self) -> list[str]:
+        """What a recording's cache key adds for ``heights_shared`` (nothing without it, so
+        the recordings made before it keep their keys)."""
+        return ["shared"] if self.heights and self.heights_shared else []
+
 
 @dataclass
 class TrainSelectConfig(FusionRecordingConfig):
@@ -118,7 +124,7 @@ def record_scenes(
     photometric rule gives the unguided depth}. Cached in the data folder."""
     settings = [cfg.shift, cfg.photometric, cfg.height, cfg.seed, RECORD_CHANNELS]
     settings += [cfg.heights] if cfg.heights else []
-    settings += ["shared"] if cfg.heights and cfg.heights_shared else []
+    settings += cfg.shared_key
     path = recording_path(cfg.data, "select", estimator, [data.names[i] for i in indices], settings)
     cached = cached_record(path, RECORD_KEYS, RECORD_CHANNELS, "selector", log)
     if cached is not None:
