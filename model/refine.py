@@ -75,7 +75,8 @@ class RefineConfig:
     one before, upsampled to the depth's (`pyramid_correction`). With one grid each pixel
     moves on its own, and a correction made where the photometry speaks (the edges of a blank
     ceiling) reaches the blank pixels between them only through the smoothness, a few pixels
-    per step; a coarse grid moves a whole region at once."""
+    per step; a coarse grid moves a whole region at once. The free-space term moves the finest
+    grid only."""
 
 
 #: The refinement of a scene's cached depth at preparation (`SourceViews.refine`; on by
@@ -292,7 +293,12 @@ def refine_depth(
             if config.free_space > 0:
                 k = max(1, config.free_space_shrink)
                 log_fs = log_full
-                if k > 1:
+                if len(grids) > 1:
+                    # The views' agreement moves the finest grid only: through the coarse ones
+                    # it shrinks whole rooms at once (round 26).
+                    pinned = grids[0] + (delta - grids[0]).detach()
+                    log_d = log_d0 + pinned * moves
+                if k > 1 or len(grids) > 1:
                     size = (max(hh // k, 4), 2 * max(hh // k, 4))
                     log_fs = F.interpolate(log_d, size=size, mode="bilinear", align_corners=False)
                 loss = loss + config.free_space * free_space_violation(log_fs, c2w, sources)
