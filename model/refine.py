@@ -70,13 +70,6 @@ class RefineConfig:
     free_space_shrink: int = 1
     """The free-space term is computed at the stage's rows divided by this (its cost grows with
     the pixels; the corrections it makes are large and smooth)."""
-    levels: int = 1
-    """The correction is the sum of this many grids, each half the rows and columns of the
-    one before, upsampled to the depth's (`pyramid_correction`). With one grid each pixel
-    moves on its own, and a correction made where the photometry speaks (the edges of a blank
-    ceiling) reaches the blank pixels between them only through the smoothness, a few pixels
-    per step; a coarse grid moves a whole region at once. The free-space term moves the finest
-    grid only."""
 
 
 #: The refinement of a scene's cached depth at preparation (`SourceViews.refine`; on by
@@ -205,27 +198,6 @@ def free_space_violation(
     return total / max(pairs, 1)
 
 
-def _upsample_wrapped(x: Tensor, size: tuple[int, int]) -> Tensor:
-    """[N, 1, h, w] bilinearly to ``size``, wrapping in width (the ERP seam)."""
-    h, w = x.shape[-2:]
-    rows, cols = size
-    if cols % w:
-        return F.interpolate(x, size=size, mode="bilinear", align_corners=False)
-    f = cols // w
-    wide = torch.cat((x[..., -1:], x, x[..., :1]), -1)
-    up = F.interpolate(wide, size=(rows, cols + 2 * f), mode="bilinear", align_corners=False)
-    return up[..., f : f + cols]
-
-
-def pyramid_correction(grids: list[Tensor]) -> Tensor:
-    """The sum of ``grids`` [N, 1, h_l, w_l], the first at the output's size, the others
-    upsampled to it (`RefineConfig.levels`)."""
-    total = grids[0]
-    for grid in grids[1:]:
-        total = total + _upsample_wrapped(grid, tuple(grids[0].shape[-2:]))
-    return total
-
-
 def refine_depth(
     images: Tensor,  # [V, 3, H', W'] in [0, 1]
     c2w: Tensor,  # [V, 4, 4]
@@ -239,11 +211,8 @@ def refine_depth(
     ``should_stop`` (asked before every step) says so: a viewer closed before the end."""
     v, _, h, w = depth.shape
     log_d0 = torch.log(depth.clamp(*d_range)).detach()
-    grids = [torch.zeros_like(log_d0, requires_grad=True)]
-    for level in range(1, max(1, config.levels)):
-        size = (max(h >> level, 2), max(w >> level, 4))
-        grids.append(log_d0.new_zeros(v, 1, *size, requires_grad=True))
-    opt = torch.optim.Adam(grids, lr=config.lr)
+    delta = torch.zeros_like(log_d0, requires_grad=True)
+    opt = torch.optim.Adam([delta], lr=config.lr)
     refs = [r for r in range(v) if sources[r]]
     # Only views with sources move: the free-space term would otherwise also reach a view that
     # is only another's source.
@@ -271,7 +240,6 @@ def refine_depth(
         for _ in range(steps):
             if should_stop is not None and should_stop():
                 return None
-            delta = pyramid_correction(grids)
             log_d = log_d0 + delta * moves
             log_full = F.interpolate(log_d, size=(hh, 2 * hh), mode="bilinear", align_corners=False)
             full = torch.exp(log_full)
@@ -293,12 +261,7 @@ def refine_depth(
             if config.free_space > 0:
                 k = max(1, config.free_space_shrink)
                 log_fs = log_full
-                if len(grids) > 1:
-                    # The views' agreement moves the finest grid only: through the coarse ones
-                    # it shrinks whole rooms at once (round 26).
-                    pinned = grids[0] + (delta - grids[0]).detach()
-                    log_d = log_d0 + pinned * moves
-                if k > 1 or len(grids) > 1:
+                if k > 1:
                     size = (max(hh // k, 4), 2 * max(hh // k, 4))
                     log_fs = F.interpolate(log_d, size=size, mode="bilinear", align_corners=False)
                 loss = loss + config.free_space * free_space_violation(log_fs, c2w, sources)
@@ -306,7 +269,7 @@ def refine_depth(
             loss.backward()
             opt.step()
     with torch.no_grad():
-        return torch.exp(log_d0 + pyramid_correction(grids) * moves).clamp(*d_range)
+        return torch.exp(log_d0 + delta * moves).clamp(*d_range)
 
 
 @dataclass(frozen=True)

@@ -16,7 +16,6 @@ from panogrf.model.refine import (
     free_space_violation,
     median_filter,
     photometric_error,
-    pyramid_correction,
     refine_depth,
     sweep_depth,
     warp_from,
@@ -322,42 +321,3 @@ def test_photometric_choice_keeps_the_first_on_ties_and_within_the_gain():
     cost[1, 2, 0, 2] = -0.01  # better, but within a gain of 0.02
     assert photometric_choice(cost, offsets).tolist() == [[0, 1, 1]]
     assert photometric_choice(cost, offsets, switch_gain=0.02).tolist() == [[0, 1, 0]]
-
-
-def test_a_pyramid_of_one_grid_is_the_grid_and_coarse_grids_wrap_at_the_seam():
-    fine = torch.randn(2, 1, 8, 16)
-    torch.testing.assert_close(pyramid_correction([fine]), fine)
-    coarse = torch.zeros(2, 1, 4, 8)
-    coarse[..., 0] = 1.0  # the first column of the coarse grid
-    up = pyramid_correction([torch.zeros(2, 1, 8, 16), coarse])
-    # Bilinear across the seam: the last column is to the first coarse column what the third
-    # is, and the first what the second is.
-    torch.testing.assert_close(up[..., -1], up[..., 2])
-    torch.testing.assert_close(up[..., 0], up[..., 1])
-    assert float(up[..., -1].min()) > 0.2
-    level = pyramid_correction([torch.zeros(1, 1, 8, 16), torch.full((1, 1, 4, 8), 0.3)])
-    torch.testing.assert_close(level, torch.full((1, 1, 8, 16), 0.3))
-
-
-def test_coarse_grids_carry_the_correction_into_a_blank_cap(scene):
-    """The sphere blank above 15 degrees of elevation: the photometry speaks only below it. A
-    depth 10 % too far everywhere: one grid corrects the textured part and leaves the cap's
-    middle where it was; with coarse grids the correction made below reaches the cap."""
-    images, c2w, depth = scene
-    h, w = images.shape[-2:]
-    lat = (0.5 - (torch.arange(h) + 0.5) / h) * math.pi
-    cap = (lat > math.radians(15))[:, None].expand(h, w)
-    blank = images.clone()
-    blank[:, :, cap] = 0.5
-    small = torch.nn.functional.interpolate(depth, size=(32, 64), mode="area")
-    wrong = small * 1.1
-    top = slice(0, 6)  # the cap's rows nearest the pole at the depth's 32 rows
-    errors = {}
-    for levels in (1, 4):
-        config = RefineConfig(iterations=40, height=64, smooth=1.0, levels=levels)
-        out = refine_depth(blank, c2w, wrong, [[1], [0]], config)
-        errors[levels] = float((out[0, 0, top] - small[0, 0, top]).abs().mean())
-    before = float((wrong[0, 0, top] - small[0, 0, top]).abs().mean())
-    assert errors[1] > 0.8 * before
-    assert errors[4] < 0.5 * errors[1]
-    assert errors[4] < 0.5 * before
