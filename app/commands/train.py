@@ -69,6 +69,13 @@ def register(subparsers) -> None:
         "domain (blended with another panorama), depth and features wrong together (default 0)",
     )
     depth.add_argument(
+        "--mono-heights",
+        type=float,
+        default=0.0,
+        help="stage mvs, full: fraction of pairs whose mono depth has the ceiling and floor at "
+        "wrong heights (the room plausible but for its height; default 0)",
+    )
+    depth.add_argument(
         "--trunk",
         type=int,
         default=0,
@@ -300,7 +307,12 @@ def run_depth(args: argparse.Namespace) -> int:
     top = 3 if args.stage == "mono" else 2
     if not 0 <= args.trunk <= top:
         raise UserError(f"--trunk must be 0-{top} for stage {args.stage}, got {args.trunk}")
-    for flag, value in (("--mono-noise", args.mono_noise), ("--mono-shift", args.mono_shift)):
+    fractions = (
+        ("--mono-noise", args.mono_noise),
+        ("--mono-shift", args.mono_shift),
+        ("--mono-heights", args.mono_heights),
+    )
+    for flag, value in fractions:
         if not 0 <= value <= 1:
             raise UserError(f"{flag} is a fraction of the pairs (0-1), got {value}")
     if (
@@ -328,6 +340,7 @@ def run_depth(args: argparse.Namespace) -> int:
         augment=not args.no_augment,
         mono_noise=args.mono_noise,
         mono_shift=args.mono_shift,
+        mono_heights=args.mono_heights,
         trunk=args.trunk,
     )
     try:

@@ -17,7 +17,7 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
-from panogrf.app.train.augment import corrupt_mono, out_of_domain, photometric
+from panogrf.app.train.augment import corrupt_mono, out_of_domain, photometric, wrong_heights
 from panogrf.app.train.data import TripletSet, load_triplets, yaw_roll
 from panogrf.app.train.loop import Steps, held_back, init_from, save_trained
 from panogrf.model.erp import latitude_weights
@@ -67,6 +67,12 @@ class TrainDepthConfig:
     out of its domain (`out_of_domain`), so that its depth and its features are wrong
     together, as on real rooms; `corrupt_mono` only makes the depth wrong, and a network can
     tell that from the features it did not touch."""
+    mono_heights: float = 0.0
+    """Stage mvs, mono-guided: fraction of pairs whose monocular depth has the ceiling and the
+    floor at wrong heights (`wrong_heights`, after `corrupt_mono`): plausible but for the
+    room's height, and wrong exactly where a blank ceiling gives the cost volume nothing to
+    correct it with, as on a real room whose ceiling is higher or lower than the rooms the
+    monocular network learned."""
     trunk: int = 0
     """Frozen pretrained AlexNet convolutions feeding the network (`MonoDepthConfig.trunk`,
     `MVSConfig.trunk`), filled from the bundled LPIPS weights."""
@@ -254,6 +260,9 @@ def train_mvs(cfg: TrainDepthConfig, log=print) -> dict:
             with torch.no_grad():
                 m = mono(mono_in)
             mono_depth = corrupt_mono(m.depth, gen, cfg.mono_noise) if cfg.mono_noise else m.depth
+            if cfg.mono_heights:
+                hit = torch.rand(len(ref), 1, 1, 1, generator=gen) < cfg.mono_heights
+                mono_depth = torch.where(hit, wrong_heights(mono_depth, gen), mono_depth)
             kw = {"mono_depth": mono_depth, "mono_features": m.features}
         out = net(ref, src, ref_c2w, src_c2w, **kw)
         d_max = mvs_cfg.d_max

@@ -34,7 +34,8 @@ def test_train_mono_then_mvs_smoke(tiny_train, tmp_path, capsys):
     for preset in ("full", "mvs"):
         out = tmp_path / f"mvs_{preset}.safetensors"
         args = ["train", "depth", "--stage", "mvs", "--preset", preset, "--out", str(out)]
-        assert main([*args, "--mono", str(mono), "--mono-shift", "1", *common]) == 0
+        wrong = ["--mono-shift", "1", "--mono-heights", "1"]
+        assert main([*args, "--mono", str(mono), *wrong, *common]) == 0
         with safe_open(str(out), framework="pt") as f:
             assert f.metadata()["preset"] == preset
             assert all(torch.isfinite(f.get_tensor(k)).all() for k in f.keys())
@@ -79,7 +80,7 @@ def test_train_errors(tmp_path, capsys):
     args = ["train", "depth", "--data", str(tmp_path), "--stage", "mvs", "--out", out]
     assert main(args) == 2
     assert "--mono" in capsys.readouterr().err
-    for flag in ("--mono-noise", "--mono-shift"):
+    for flag in ("--mono-noise", "--mono-shift", "--mono-heights"):
         bad = ["train", "depth", "--data", str(tmp_path), "--stage", "mono", "--out", out]
         assert main([*bad, flag, "1.5"]) == 2
         assert f"{flag} is a fraction" in capsys.readouterr().err
