@@ -25,7 +25,8 @@ back in (``DepthEstimator.blend``, when ``depth_blend.safetensors`` is).
 shape (`corrupt_mono`), as on real captures; ``--mono-shift`` with the monocular network out of
 its domain; ``--mono-heights`` with its ceiling and floor at wrong heights (`wrong_heights`),
 drawn per view; ``--mono-room`` the same with one draw for both views (they agree, as a real
-capture's views do).
+capture's views do); ``--mono-warp`` with the monocular network seeing both views as a room of
+other heights (`mono_warped_room`: its depth and features wrong together, one draw per scene).
 Prints a table of mean L1 (m) per dataset and overall, and the seconds per pair.
 """
 
@@ -44,6 +45,7 @@ from panogrf.app.train.augment import (
     corrupt_mono,
     mono_depth_changed,
     mono_out_of_domain,
+    mono_warped_room,
     mono_wrong_heights,
 )
 from panogrf.app.train.data import load_triplets
@@ -65,6 +67,8 @@ MONO_CONDITIONS = {
     "shift": "the monocular network out of its domain, depth and features wrong together",
     "heights": "the monocular depth's ceiling and floor at wrong heights",
     "room": "the monocular depth's ceiling and floor at wrong heights, the same in both views",
+    "warp": "the monocular network seeing a room of other heights, depth and features wrong "
+    "together, the same in both views",
 }
 
 #: The monocular depth as a third hypothesis of the fusion.
@@ -77,7 +81,7 @@ def _pairs(
     """L1 of the first and last views and seconds per pair; ``mono``: "clean", "shape" (its
     depth wrong in shape), "shift" (the network out of its domain) or "heights" (its ceiling
     and floor at wrong heights, `wrong_heights`, seeded per scene) or "room" (the same, one draw
-    for both views)."""
+    for both views) or "warp" (the network sees a room of other heights, `mono_warped_room`)."""
     errors, seconds = [], []
     for i in range(len(data)):
         images = data.images[i, [0, 2]].float() / 255.0
@@ -94,6 +98,8 @@ def _pairs(
         elif mono == "room":
             gen = torch.Generator().manual_seed(i)
             context = mono_wrong_heights(estimator, gen, shared=True)
+        elif mono == "warp":
+            context = mono_warped_room(estimator, torch.Generator().manual_seed(i))
         else:
             context = nullcontext()
         with context:

@@ -76,6 +76,13 @@ def register(subparsers) -> None:
         "wrong heights (the room plausible but for its height; default 0)",
     )
     depth.add_argument(
+        "--mono-warp",
+        type=float,
+        default=0.0,
+        help="stage mvs, full: fraction of pairs whose mono network sees the reference as a "
+        "room of other heights, depth and features wrong together (default 0)",
+    )
+    depth.add_argument(
         "--trunk",
         type=int,
         default=0,
@@ -311,6 +318,7 @@ def run_depth(args: argparse.Namespace) -> int:
         ("--mono-noise", args.mono_noise),
         ("--mono-shift", args.mono_shift),
         ("--mono-heights", args.mono_heights),
+        ("--mono-warp", args.mono_warp),
     )
     for flag, value in fractions:
         if not 0 <= value <= 1:
@@ -341,6 +349,7 @@ def run_depth(args: argparse.Namespace) -> int:
         mono_noise=args.mono_noise,
         mono_shift=args.mono_shift,
         mono_heights=args.mono_heights,
+        mono_warp=args.mono_warp,
         trunk=args.trunk,
     )
     try:

@@ -13,6 +13,8 @@ the monocular network itself wrong, depth and features alike, the way a real roo
 learned makes it wrong: it sees a panorama blended with another one. `wrong_heights` makes
 the monocular depth plausible but for the room's height: the ceiling and the floor too near or
 too far, as on a real room whose ceiling is higher or lower than the rooms the network learned.
+`warped_room` goes further: the monocular network sees the panorama as a room of another
+height (`room_warp`), so its depth and its features are wrong together, as on a real room.
 
 All functions draw from a torch.Generator and work on batches [B, C, H, W].
 """
@@ -191,3 +193,68 @@ def mono_wrong_heights(
         return mono_depth_changed(estimator, lambda depth: wrong_heights(depth, gen, strength))
     a, c = _u(gen, 1, -strength, strength, 1, 1, 1), _u(gen, 1, -strength, strength, 1, 1, 1)
     return mono_depth_changed(estimator, lambda depth: _heights_scaled(depth, a, c))
+
+
+def _elevations(rows: int, dtype=torch.float32) -> Tensor:
+    """Elevation (radians) of the centres of ``rows`` ERP rows, top first."""
+    return math.pi * (0.5 - (torch.arange(rows, dtype=dtype) + 0.5) / rows)
+
+
+def _rows_read_at(x: Tensor, elevation: Tensor) -> Tensor:
+    """``x`` [B, C, H, W] (ERP) with each row read at ``elevation`` [B, H] (radians; bilinear
+    between rows, columns unchanged)."""
+    b, _, h, w = x.shape
+    gx = torch.linspace(-1 + 1 / w, 1 - 1 / w, w, dtype=x.dtype, device=x.device)
+    gy = (-2 / math.pi * elevation).to(x)  # a row centre's elevation e lies at y = -2 e / pi
+    grid = torch.stack((gx.view(1, 1, w).expand(b, h, w), gy.view(b, h, 1).expand(b, h, w)), -1)
+    return F.grid_sample(x, grid, mode="bilinear", padding_mode="border", align_corners=False)
+
+
+def _warped_elevation(elevation: Tensor, up_log: Tensor, down_log: Tensor) -> Tensor:
+    """atan(k tan e): where a point at elevation e [1 | B, H] appears when everything above the
+    camera is exp(``up_log``) times as high and everything below exp(``down_log``) ([B])."""
+    k = torch.where(elevation > 0, up_log[:, None].exp(), down_log[:, None].exp())
+    return torch.atan(k * torch.tan(elevation))
+
+
+def room_warp(images: Tensor, up_log: Tensor, down_log: Tensor, inverse: bool = False) -> Tensor:
+    """Panoramas [B, C, H, W] of level cameras as they would look with the room's heights
+    above the camera scaled by exp(``up_log``) and below by exp(``down_log``) ([B] each): a
+    point at elevation e moves to atan(k tan e), its horizontal distance kept. Walls stretch or
+    shrink vertically and the ceiling's corners move, as in a room of another height.
+    ``inverse``: back from such a panorama (each row read where it went)."""
+    h = images.shape[-2]
+    e = _elevations(h, torch.float64)[None].expand(len(images), h)
+    if inverse:
+        source = _warped_elevation(e, up_log.double(), down_log.double())
+    else:
+        source = _warped_elevation(e, -up_log.double(), -down_log.double())
+    return _rows_read_at(images, source)
+
+
+def mono_warped_room(estimator, gen: torch.Generator, strength: float = 0.3, shared: bool = True):
+    """While inside, ``estimator``'s monocular network sees every panorama as a room of other
+    heights (`room_warp`, log factors uniform in +-``strength`` above and below the camera) and
+    its depth and features are read back at the panorama's own rows: a plausible room of the
+    wrong height, depth and features wrong together, as on a real room whose proportions the
+    network did not learn (the triplet's ceiling, round 20). ``shared``: one draw on entry
+    for every view and call (the views see the same wrong room), else one per panorama."""
+    drawn = (_u(gen, 1, -strength, strength).view(1), _u(gen, 1, -strength, strength).view(1))
+
+    def make(forward):
+        def warped(images: Tensor):
+            b = len(images)
+            if shared:
+                up, down = drawn[0].expand(b), drawn[1].expand(b)
+            else:
+                up = _u(gen, b, -strength, strength).view(b)
+                down = _u(gen, b, -strength, strength).view(b)
+            out = forward(room_warp(images, up, down))
+            return MonoOutput(
+                room_warp(out.depth, up, down, inverse=True),
+                room_warp(out.features, up, down, inverse=True),
+            )
+
+        return warped
+
+    return patched_mono(estimator, make)

@@ -17,11 +17,17 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
-from panogrf.app.train.augment import corrupt_mono, out_of_domain, photometric, wrong_heights
+from panogrf.app.train.augment import (
+    corrupt_mono,
+    out_of_domain,
+    photometric,
+    room_warp,
+    wrong_heights,
+)
 from panogrf.app.train.data import TripletSet, load_triplets, yaw_roll
 from panogrf.app.train.loop import Steps, held_back, init_from, save_trained
 from panogrf.model.erp import latitude_weights
-from panogrf.model.mono import MonoDepthConfig, MonoDepthNet
+from panogrf.model.mono import MonoDepthConfig, MonoDepthNet, MonoOutput
 
 
 @dataclass(frozen=True)
@@ -73,6 +79,11 @@ class TrainDepthConfig:
     room's height, and wrong exactly where a blank ceiling gives the cost volume nothing to
     correct it with, as on a real room whose ceiling is higher or lower than the rooms the
     monocular network learned."""
+    mono_warp: float = 0.0
+    """Stage mvs, mono-guided: fraction of pairs whose monocular network sees the reference as
+    a room of other heights (`room_warp`, log factors in +-0.3 above and below the camera) and
+    whose depth and features are read back at the panorama's rows: a plausible room of the
+    wrong height, depth and features wrong together."""
     trunk: int = 0
     """Frozen pretrained AlexNet convolutions feeding the network (`MonoDepthConfig.trunk`,
     `MVSConfig.trunk`), filled from the bundled LPIPS weights."""
@@ -257,8 +268,18 @@ def train_mvs(cfg: TrainDepthConfig, log=print) -> dict:
             if cfg.mono_shift:
                 hit = torch.rand(len(ref), 1, 1, 1, generator=gen) < cfg.mono_shift
                 mono_in = torch.where(hit, out_of_domain(ref, gen), ref)
+            if cfg.mono_warp:
+                hit = (torch.rand(len(ref), generator=gen) < cfg.mono_warp).to(ref.dtype)
+                up = hit * (torch.rand(len(ref), generator=gen) * 0.6 - 0.3)
+                down = hit * (torch.rand(len(ref), generator=gen) * 0.6 - 0.3)
+                mono_in = room_warp(mono_in, up, down)
             with torch.no_grad():
                 m = mono(mono_in)
+                if cfg.mono_warp:
+                    m = MonoOutput(
+                        room_warp(m.depth, up, down, inverse=True),
+                        room_warp(m.features, up, down, inverse=True),
+                    )
             mono_depth = corrupt_mono(m.depth, gen, cfg.mono_noise) if cfg.mono_noise else m.depth
             if cfg.mono_heights:
                 hit = torch.rand(len(ref), 1, 1, 1, generator=gen) < cfg.mono_heights

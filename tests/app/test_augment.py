@@ -8,9 +8,11 @@ import torch
 
 from panogrf.app.train.augment import (
     corrupt_mono,
+    mono_warped_room,
     mono_wrong_heights,
     out_of_domain,
     photometric,
+    room_warp,
     wrong_heights,
 )
 
@@ -137,3 +139,81 @@ def test_mono_wrong_heights_shared_is_one_room_for_every_view_and_call():
         apart = est.mono(images).depth
     assert not torch.allclose(apart[0], apart[1])
     assert torch.equal(est.mono(images).depth, torch.full_like(first, 2.0))
+
+
+def _box_room_labels(h: int, up: float, down: float) -> torch.Tensor:
+    """[1, 1, h, 2h] which surface a level camera sees in a box room (x in -2..3, z in
+    -1.5..2.5 around it; the ceiling ``up`` m above, the floor ``down`` below): 1 ceiling,
+    0.5 walls, 0 floor."""
+    lat = math.pi * (0.5 - (torch.arange(h, dtype=torch.float64) + 0.5) / h)
+    lon = math.pi * (2 * (torch.arange(2 * h, dtype=torch.float64) + 0.5) / (2 * h) - 1)
+    dx, dz = torch.cos(lon), torch.sin(lon)
+    tx = torch.where(dx > 0, 3.0 / dx.clamp(min=1e-9), 2.0 / (-dx).clamp(min=1e-9))
+    tz = torch.where(dz > 0, 2.5 / dz.clamp(min=1e-9), 1.5 / (-dz).clamp(min=1e-9))
+    reach = torch.minimum(tx, tz)[None]  # horizontal distance to the walls per column
+    tan = torch.tan(lat)[:, None]
+    labels = torch.full((h, 2 * h), 0.5, dtype=torch.float64)
+    labels[tan * reach > up] = 1.0
+    labels[tan * reach < -down] = 0.0
+    return labels[None, None].float()
+
+
+def test_room_warp_shows_the_room_at_other_heights():
+    """A box room's panorama warped by factors (1.4 above, 0.75 below the camera) is the
+    panorama of the same room with its ceiling 1.4 times as high and its floor 0.75 times as
+    low, up to the rows a boundary crosses; the inverse warp takes it back."""
+    h = 128
+    room = _box_room_labels(h, 1.2, 1.5)
+    up, down = torch.tensor([math.log(1.4)]), torch.tensor([math.log(0.75)])
+    warped = room_warp(room, up, down)
+    other = _box_room_labels(h, 1.2 * 1.4, 1.5 * 0.75)
+    assert float(((warped - other).abs() > 0.25).float().mean()) < 0.02
+    assert float(((room - other).abs() > 0.25).float().mean()) > 0.08  # the rooms do differ
+    back = room_warp(warped, up, down, inverse=True)
+    assert float(((back - room).abs() > 0.25).float().mean()) < 0.02
+    zero = torch.zeros(1)
+    torch.testing.assert_close(room_warp(room, zero, zero), room, atol=1e-4, rtol=0)
+
+
+def test_mono_warped_room_changes_depth_and_features_the_same_for_both_views():
+    """The monocular network sees a room of other heights: what it returns (depth and
+    features alike) is read back at the panorama's rows, so a network that reports its input
+    returns the input's rows moved; one draw for both views and every call."""
+    from panogrf.model.mono import MonoOutput
+
+    class Mono(torch.nn.Module):
+        def forward(self, images):
+            return MonoOutput(images[:, :1] + 1.0, images * 2.0)
+
+    class Estimator:
+        mono = Mono()
+
+    est = Estimator()
+    room = _box_room_labels(64, 1.2, 1.5).expand(2, 3, -1, -1).contiguous()
+    plain = est.mono(room)
+    with mono_warped_room(est, torch.Generator().manual_seed(3)):
+        seen = est.mono(room)
+        again = est.mono(room[:1])
+    # A network that returns its input sees the warped room and its output is warped back:
+    # the round trip loses only the rows a boundary crosses.
+    assert float(((seen.depth - plain.depth).abs() > 0.25).float().mean()) < 0.03
+    torch.testing.assert_close(seen.depth[0], seen.depth[1])
+    torch.testing.assert_close(seen.depth[0], again.depth[0])
+    assert torch.equal(est.mono(room).depth, plain.depth)  # the patch is gone afterwards
+
+    class Fixed(torch.nn.Module):
+        """A network that always sees the same room, whatever it is shown."""
+
+        def forward(self, images):
+            labels = _box_room_labels(images.shape[-2], 1.2, 1.5).expand(len(images), 1, -1, -1)
+            return MonoOutput(labels + 1.0, labels.expand(-1, 4, -1, -1))
+
+    est.mono = Fixed()
+    fixed = est.mono(room)
+    with mono_warped_room(est, torch.Generator().manual_seed(3)):
+        moved = est.mono(room)
+    # Its answer, read back at the panorama's rows, is a room of other heights: depth and
+    # features moved alike.
+    changed = (moved.depth - fixed.depth).abs() > 0.25
+    assert float(changed.float().mean()) > 0.02
+    assert torch.equal(changed[:, 0], ((moved.features - fixed.features).abs() > 0.25)[:, 0])
