@@ -13,7 +13,7 @@ the monocular network itself wrong, depth and features alike, the way a real roo
 learned makes it wrong: it sees a panorama blended with another one. `wrong_heights` makes
 the monocular depth plausible but for the room's height: the ceiling and the floor too near or
 too far, as on a real room whose ceiling is higher or lower than the rooms the network learned.
-`warped_room` goes further: the monocular network sees the panorama as a room of another
+`seen_warped` goes further: the monocular network sees the panorama as a room of another
 height (`room_warp`), so its depth and its features are wrong together, as on a real room.
 
 All functions draw from a torch.Generator and work on batches [B, C, H, W].
@@ -232,14 +232,42 @@ def room_warp(images: Tensor, up_log: Tensor, down_log: Tensor, inverse: bool = 
     return _rows_read_at(images, source)
 
 
-def mono_warped_room(estimator, gen: torch.Generator, strength: float = 0.3, shared: bool = True):
+#: Largest |log| of the factors `room_factors` draws (a room 0.74-1.35 times as high).
+WARP_STRENGTH = 0.3
+
+
+def room_factors(
+    gen: torch.Generator, b: int, p: float = 1.0, strength: float = WARP_STRENGTH
+) -> tuple[Tensor, Tensor]:
+    """Log factors [b] above and below the camera for `room_warp`, uniform in +-``strength``,
+    on a fraction ``p`` of the batch (0 on the rest: the room as it is; with ``p`` 1 nothing
+    is drawn for it)."""
+    if p >= 1:
+        return _u(gen, b, -strength, strength), _u(gen, b, -strength, strength)
+    hit = (torch.rand(b, generator=gen) < p).float()
+    return hit * _u(gen, b, -strength, strength), hit * _u(gen, b, -strength, strength)
+
+
+def seen_warped(forward, images: Tensor, up_log: Tensor, down_log: Tensor) -> MonoOutput:
+    """What the monocular network ``forward`` returns for ``images`` shown as a room of other
+    heights (`room_warp`), its depth and features read back at the images' own rows: a
+    plausible room of the wrong height, depth and features wrong together."""
+    out = forward(room_warp(images, up_log, down_log))
+    return MonoOutput(
+        room_warp(out.depth, up_log, down_log, inverse=True),
+        room_warp(out.features, up_log, down_log, inverse=True),
+    )
+
+
+def mono_warped_room(
+    estimator, gen: torch.Generator, strength: float = WARP_STRENGTH, shared: bool = True
+):
     """While inside, ``estimator``'s monocular network sees every panorama as a room of other
-    heights (`room_warp`, log factors uniform in +-``strength`` above and below the camera) and
-    its depth and features are read back at the panorama's own rows: a plausible room of the
-    wrong height, depth and features wrong together, as on a real room whose proportions the
-    network did not learn (the triplet's ceiling, round 20). ``shared``: one draw on entry
-    for every view and call (the views see the same wrong room), else one per panorama."""
-    drawn = (_u(gen, 1, -strength, strength).view(1), _u(gen, 1, -strength, strength).view(1))
+    heights (`seen_warped`, log factors uniform in +-``strength`` above and below the camera),
+    as on a real room whose proportions the network did not learn (the triplet's ceiling,
+    round 20). ``shared``: one draw on entry for every view and call (the views see the same
+    wrong room), else one per panorama."""
+    drawn = room_factors(gen, 1, strength=strength)
 
     def make(forward):
         def warped(images: Tensor):
@@ -247,13 +275,8 @@ def mono_warped_room(estimator, gen: torch.Generator, strength: float = 0.3, sha
             if shared:
                 up, down = drawn[0].expand(b), drawn[1].expand(b)
             else:
-                up = _u(gen, b, -strength, strength).view(b)
-                down = _u(gen, b, -strength, strength).view(b)
-            out = forward(room_warp(images, up, down))
-            return MonoOutput(
-                room_warp(out.depth, up, down, inverse=True),
-                room_warp(out.features, up, down, inverse=True),
-            )
+                up, down = room_factors(gen, b, strength=strength)
+            return seen_warped(forward, images, up, down)
 
         return warped
 

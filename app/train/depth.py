@@ -21,13 +21,14 @@ from panogrf.app.train.augment import (
     corrupt_mono,
     out_of_domain,
     photometric,
-    room_warp,
+    room_factors,
+    seen_warped,
     wrong_heights,
 )
 from panogrf.app.train.data import TripletSet, load_triplets, yaw_roll
 from panogrf.app.train.loop import Steps, held_back, init_from, save_trained
 from panogrf.model.erp import latitude_weights
-from panogrf.model.mono import MonoDepthConfig, MonoDepthNet, MonoOutput
+from panogrf.model.mono import MonoDepthConfig, MonoDepthNet
 
 
 @dataclass(frozen=True)
@@ -81,9 +82,9 @@ class TrainDepthConfig:
     monocular network learned."""
     mono_warp: float = 0.0
     """Stage mvs, mono-guided: fraction of pairs whose monocular network sees the reference as
-    a room of other heights (`room_warp`, log factors in +-0.3 above and below the camera) and
-    whose depth and features are read back at the panorama's rows: a plausible room of the
-    wrong height, depth and features wrong together."""
+    a room of other heights (`seen_warped`, `room_factors`: log factors in +-0.3 above and
+    below the camera): a plausible room of the wrong height, depth and features wrong
+    together."""
     trunk: int = 0
     """Frozen pretrained AlexNet convolutions feeding the network (`MonoDepthConfig.trunk`,
     `MVSConfig.trunk`), filled from the bundled LPIPS weights."""
@@ -268,18 +269,12 @@ def train_mvs(cfg: TrainDepthConfig, log=print) -> dict:
             if cfg.mono_shift:
                 hit = torch.rand(len(ref), 1, 1, 1, generator=gen) < cfg.mono_shift
                 mono_in = torch.where(hit, out_of_domain(ref, gen), ref)
-            if cfg.mono_warp:
-                hit = (torch.rand(len(ref), generator=gen) < cfg.mono_warp).to(ref.dtype)
-                up = hit * (torch.rand(len(ref), generator=gen) * 0.6 - 0.3)
-                down = hit * (torch.rand(len(ref), generator=gen) * 0.6 - 0.3)
-                mono_in = room_warp(mono_in, up, down)
             with torch.no_grad():
-                m = mono(mono_in)
                 if cfg.mono_warp:
-                    m = MonoOutput(
-                        room_warp(m.depth, up, down, inverse=True),
-                        room_warp(m.features, up, down, inverse=True),
-                    )
+                    up, down = room_factors(gen, len(ref), cfg.mono_warp)
+                    m = seen_warped(mono, mono_in, up, down)
+                else:
+                    m = mono(mono_in)
             mono_depth = corrupt_mono(m.depth, gen, cfg.mono_noise) if cfg.mono_noise else m.depth
             if cfg.mono_heights:
                 hit = torch.rand(len(ref), 1, 1, 1, generator=gen) < cfg.mono_heights

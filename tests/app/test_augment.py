@@ -12,6 +12,7 @@ from panogrf.app.train.augment import (
     mono_wrong_heights,
     out_of_domain,
     photometric,
+    room_factors,
     room_warp,
     wrong_heights,
 )
@@ -217,3 +218,14 @@ def test_mono_warped_room_changes_depth_and_features_the_same_for_both_views():
     changed = (moved.depth - fixed.depth).abs() > 0.25
     assert float(changed.float().mean()) > 0.02
     assert torch.equal(changed[:, 0], ((moved.features - fixed.features).abs() > 0.25)[:, 0])
+
+
+def test_room_factors_leave_the_rest_of_the_batch_as_it_is():
+    up, down = room_factors(torch.Generator().manual_seed(0), 64, p=0.5, strength=0.3)
+    hit = (up != 0) | (down != 0)
+    assert 10 < int(hit.sum()) < 54
+    assert float(up.abs().max()) <= 0.3 and float(down.abs().max()) <= 0.3
+    none = room_factors(torch.Generator().manual_seed(0), 8, p=0.0)
+    assert not none[0].any() and not none[1].any()
+    every = room_factors(torch.Generator().manual_seed(0), 8)
+    assert every[0].all() and every[1].all()
