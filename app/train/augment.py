@@ -32,6 +32,11 @@ from torch import Tensor
 from panogrf.model.mono import MonoOutput
 
 
+def _elevations(rows: int, dtype=torch.float32) -> Tensor:
+    """Elevation (radians) of the centres of ``rows`` ERP rows, top first."""
+    return math.pi * (0.5 - (torch.arange(rows, dtype=dtype) + 0.5) / rows)
+
+
 def _u(gen: torch.Generator, b: int, lo: float, hi: float, *shape: int) -> Tensor:
     return lo + (hi - lo) * torch.rand(b, *shape, generator=gen)
 
@@ -54,7 +59,7 @@ def photometric(images: Tensor, gen: torch.Generator, strength: float = 1.0) -> 
     x = x * gain * wb
     # Fisheye falloff: darker towards the stitching seam at longitude +-90 degrees.
     lon = (torch.arange(w) + 0.5) / w * 2 * math.pi - math.pi
-    lat = math.pi * (0.5 - (torch.arange(h) + 0.5) / h)
+    lat = _elevations(h)
     off_axis = torch.acos((torch.cos(lat)[:, None] * torch.cos(lon)[None]).abs().clamp(max=1))
     vignette = _u(gen, b, 0.0, 0.35 * strength, 1, 1, 1)
     x = x * (1 - vignette * (off_axis / (math.pi / 2)) ** 2)
@@ -114,7 +119,7 @@ def _heights_scaled(depth: Tensor, up_log: Tensor, down_log: Tensor) -> Tensor:
     """``depth`` [B, 1, h, w] looking up scaled by exp(``up_log``), looking down by
     exp(``down_log``) ([B | 1, 1, 1, 1]), blended in between 12 and 44 degrees of elevation."""
     h = depth.shape[-2]
-    lat = math.pi * (0.5 - (torch.arange(h, dtype=depth.dtype) + 0.5) / h)
+    lat = _elevations(h, depth.dtype)
     sin = torch.sin(lat).view(1, 1, h, 1)
     up, down = _smoothstep((sin - 0.2) / 0.5), _smoothstep((-sin - 0.2) / 0.5)
     return depth * torch.exp(up_log.to(depth.dtype) * up + down_log.to(depth.dtype) * down)
@@ -195,11 +200,6 @@ def mono_wrong_heights(
     return mono_depth_changed(estimator, lambda depth: _heights_scaled(depth, a, c))
 
 
-def _elevations(rows: int, dtype=torch.float32) -> Tensor:
-    """Elevation (radians) of the centres of ``rows`` ERP rows, top first."""
-    return math.pi * (0.5 - (torch.arange(rows, dtype=dtype) + 0.5) / rows)
-
-
 def _rows_read_at(x: Tensor, elevation: Tensor) -> Tensor:
     """``x`` [B, C, H, W] (ERP) with each row read at ``elevation`` [B, H] (radians; bilinear
     between rows, columns unchanged)."""
@@ -259,24 +259,18 @@ def seen_warped(forward, images: Tensor, up_log: Tensor, down_log: Tensor) -> Mo
     )
 
 
-def mono_warped_room(
-    estimator, gen: torch.Generator, strength: float = WARP_STRENGTH, shared: bool = True
-):
+def mono_warped_room(estimator, gen: torch.Generator, strength: float = WARP_STRENGTH):
     """While inside, ``estimator``'s monocular network sees every panorama as a room of other
     heights (`seen_warped`, log factors uniform in +-``strength`` above and below the camera),
     as on a real room whose proportions the network did not learn (the triplet's ceiling,
-    round 20). ``shared``: one draw on entry for every view and call (the views see the same
-    wrong room), else one per panorama."""
-    drawn = room_factors(gen, 1, strength=strength)
+    round 20): one draw on entry for every view and call, so the views see the same wrong
+    room."""
+    up, down = room_factors(gen, 1, strength=strength)
 
     def make(forward):
         def warped(images: Tensor):
             b = len(images)
-            if shared:
-                up, down = drawn[0].expand(b), drawn[1].expand(b)
-            else:
-                up, down = room_factors(gen, b, strength=strength)
-            return seen_warped(forward, images, up, down)
+            return seen_warped(forward, images, up.expand(b), down.expand(b))
 
         return warped
 
