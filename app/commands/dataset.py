@@ -89,6 +89,28 @@ def register(subparsers) -> None:
     make.add_argument("--json", action="store_true", help="print the summary as JSON")
     make.add_argument("--no-progress", action="store_true", help="no progress bar")
     make.set_defaults(func=run_make)
+    pack = sub.add_parser(
+        "pack",
+        help="pack scenes at a working height into one small file (training elsewhere)",
+        description=(
+            "Pack the scenes of dataset folders at the training's working height into one "
+            "safetensors file: JPEG panoramas, 16-bit depth in 5 mm steps, poses. `panogrf "
+            "train depth --data` reads a pack, or a folder of packs, as it reads a dataset "
+            "folder; about 60 kB a scene at 128 rows, so thousands travel where the folders "
+            "cannot."
+        ),
+        epilog="example: panogrf dataset pack --out packs/lit.safetensors data/train_pbr "
+        "data/train_mix:600:200",
+    )
+    pack.add_argument("--out", type=Path, required=True, help="the pack (.safetensors)")
+    pack.add_argument("--height", type=int, default=128, help="working height (default 128)")
+    pack.add_argument(
+        "sources",
+        type=_pack_source,
+        nargs="+",
+        help="dataset folders, each FOLDER (every scene) or FOLDER:FIRST:COUNT",
+    )
+    pack.set_defaults(func=run_pack)
     merge = sub.add_parser(
         "merge",
         help="one training folder from several datasets (scene folders linked, not copied)",
@@ -153,6 +175,33 @@ def run_make(args: argparse.Namespace) -> int:
             f"to {args.out} in {summary['seconds']:.1f} s: {summary['panoramas_per_s']:.1f} "
             f"panoramas/s end to end (render {summary['render_panoramas_per_s']:.1f}/s)"
         )
+    return 0
+
+
+def _pack_source(text: str) -> tuple[Path, int, int]:
+    folder, _, span = text.partition(":")
+    if not span:
+        return Path(folder), 0, -1
+    try:
+        first, count = (int(x) for x in span.split(":"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected FOLDER or FOLDER:FIRST:COUNT, got {text!r}"
+        ) from None
+    if first < 0 or count < 1:
+        raise argparse.ArgumentTypeError(f"FIRST must be >= 0 and COUNT >= 1, got {text!r}")
+    return Path(folder), first, count
+
+
+def run_pack(args: argparse.Namespace) -> int:
+    from panogrf.app.train.pack import pack_scenes
+
+    if args.out.suffix != ".safetensors":
+        raise UserError(f"--out must end in .safetensors, got {args.out}")
+    if args.height % 32:
+        raise UserError(f"--height must be a multiple of 32, got {args.height}")
+    summary = pack_scenes(args.sources, args.out, args.height)
+    print(f"{args.out}: {summary['scenes']} scenes, {summary['bytes'] / 1e6:.1f} MB")
     return 0
 
 

@@ -89,6 +89,12 @@ def register(subparsers) -> None:
         help="frozen ImageNet AlexNet convolutions feeding the network: 0-3 for mono, 0-2 for "
         "mvs (default 0: none)",
     )
+    depth.add_argument(
+        "--device",
+        default="cpu",
+        help="stage mono: torch device to train on, e.g. cuda (default cpu); the batches are "
+        "drawn and corrupted on the CPU as before, so a run is the same run on any device",
+    )
     depth.set_defaults(func=run_depth)
 
     renderer = sub.add_parser(
@@ -329,6 +335,13 @@ def run_depth(args: argparse.Namespace) -> int:
         and (args.mono is None or not args.mono.exists())
     ):
         raise UserError("--stage mvs --preset full needs --mono PATH to trained mono weights")
+    if args.device != "cpu":
+        if args.stage != "mono":
+            raise UserError("--device applies to --stage mono only (the MVS stage trains on CPU)")
+        try:
+            torch.empty(1, device=args.device)
+        except (RuntimeError, AssertionError) as exc:
+            raise UserError(f"--device {args.device}: not available here ({exc})") from None
     if args.threads:
         torch.set_num_threads(args.threads)
     log, close = _logger(args.log)
@@ -351,6 +364,7 @@ def run_depth(args: argparse.Namespace) -> int:
         mono_heights=args.mono_heights,
         mono_warp=args.mono_warp,
         trunk=args.trunk,
+        device=args.device,
     )
     try:
         (train_mono if args.stage == "mono" else train_mvs)(cfg, log=log)

@@ -58,13 +58,23 @@ class TripletSet:
         )
 
 
-def load_triplets(root: str | Path, height: int, limit: int | None = None) -> TripletSet:
-    """Load every scene folder listed in ``root/dataset.json`` at ``height`` x ``2 height``."""
+def load_triplets(
+    root: str | Path, height: int, limit: int | None = None, start: int = 0
+) -> TripletSet:
+    """Load every scene folder listed in ``root/dataset.json`` at ``height`` x ``2 height``, or
+    the scenes of a pack file or a folder of packs (`panogrf.app.train.pack`). ``start`` and
+    ``limit``: the scenes from index ``start`` on, at most ``limit`` of them."""
     root = Path(root)
+    from panogrf.app.train.pack import is_pack, read_packs
+
+    if is_pack(root):
+        if start:
+            raise UserError(f"{root}: a pack is read from its first scene")
+        return read_packs(root, height, limit)
     index_path = root / "dataset.json"
     if not index_path.exists():
         raise UserError(f"{root}: no dataset.json (make one with `panogrf dataset make`)")
-    entries = json.loads(index_path.read_text())["scenes"][:limit]
+    entries = json.loads(index_path.read_text())["scenes"][start:][:limit]
     if not entries:
         raise UserError(f"{index_path}: lists no scenes")
     imgs, deps, poses, base, names = [], [], [], [], []

@@ -88,6 +88,9 @@ class TrainDepthConfig:
     trunk: int = 0
     """Frozen pretrained AlexNet convolutions feeding the network (`MonoDepthConfig.trunk`,
     `MVSConfig.trunk`), filled from the bundled LPIPS weights."""
+    device: str = "cpu"
+    """Stage mono: the torch device the network trains on. Batches are drawn and corrupted on
+    the CPU with the same generator, so the data a run sees does not depend on it."""
     extra: dict = field(default_factory=dict)
     """Free-form notes stored with the weights."""
 
@@ -137,11 +140,12 @@ class _DepthErrors:
 
 
 @torch.no_grad()
-def _validate_mono(net: MonoDepthNet, val: TripletSet) -> dict:
+def _validate_mono(net: MonoDepthNet, val: TripletSet, device: str = "cpu") -> dict:
     net.eval()
     errors = _DepthErrors(net.config.d_max)
     for i in range(len(val)):
-        errors.add(net(val.images[i].float() / 255.0).depth, val.depths[i][:, None])
+        pred = net(val.images[i].to(device).float() / 255.0).depth.cpu()
+        errors.add(pred, val.depths[i][:, None])
     net.train()
     return errors.figures()
 
@@ -157,13 +161,17 @@ def train_mono(cfg: TrainDepthConfig, log=print) -> dict:
     init_from(net, cfg.init, log, new=("trunk.", "from_trunk."))
     if cfg.trunk:
         _fill_trunk(net, log)
+    net.to(cfg.device)
+    if cfg.device != "cpu":
+        log(f"training on {cfg.device}")
     opt = torch.optim.Adam([p for p in net.parameters() if p.requires_grad], lr=cfg.lr)
     gen = torch.Generator().manual_seed(cfg.seed)
     steps = Steps(opt, cfg.steps, cfg.lr, cfg.log_every, log)
     for _ in steps:
         img, gt = _mono_batch(train, gen, cfg.batch, cfg.augment)
+        img, gt = img.to(cfg.device), gt.to(cfg.device)
         steps.update(weighted_l1(net(img).depth, gt, net.config.d_max))
-    figures = _validate_mono(net, val)
+    figures = _validate_mono(net, val, cfg.device)
     figures.update({"steps": cfg.steps, "seconds": steps.seconds})
     log(f"final (validation scenes of the train split): {json.dumps(figures)}")
     save_trained(net, cfg, figures)
