@@ -51,7 +51,10 @@ def pack_scenes(sources: list[tuple[Path, int, int]], out: Path, height: int) ->
     blobs: dict[str, list[np.ndarray]] = {"jpeg": [], "depth": []}
     c2w, names = [], []
     for folder, first, count in sources:
-        entries = json.loads((Path(folder) / "dataset.json").read_text())["scenes"]
+        index = Path(folder) / "dataset.json"
+        if not index.exists():
+            raise UserError(f"{folder}: no dataset.json (make one with `panogrf dataset make`)")
+        entries = json.loads(index.read_text())["scenes"]
         stop = len(entries) if count < 0 else first + count
         if first < 0 or stop > len(entries) or first >= stop:
             raise UserError(f"{folder}: has {len(entries)} scenes; cannot take [{first}, {stop})")

@@ -67,6 +67,9 @@ def test_pack_refuses_bad_input_and_keeps_what_was_there(two_sets, tmp_path, cap
     assert pack.read_bytes() == b"an earlier pack"  # nothing written over it
     with pytest.raises(SystemExit):
         main(["dataset", "pack", "--out", str(pack), f"{a}:x:1"])
+    assert main(["dataset", "pack", "--out", str(pack), str(tmp_path / "none")]) == 2
+    assert "no dataset.json" in capsys.readouterr().err
+    assert pack.read_bytes() == b"an earlier pack"
     assert main(["dataset", "pack", "--out", str(tmp_path / "p.npz"), str(a)]) == 2
     assert "--out must end in .safetensors" in capsys.readouterr().err
     with pytest.raises(UserError, match="not a readable pack"):
