@@ -20,6 +20,7 @@ from tqdm import tqdm
 
 from panogrf.app.errors import UserError
 from panogrf.app.files.images import read_depth, read_rgb
+from panogrf.app.train.pack import is_pack, read_packs
 
 
 def downsample_depth(depth: np.ndarray, factor: int) -> np.ndarray:
@@ -65,8 +66,6 @@ def load_triplets(
     the scenes of a pack file or a folder of packs (`panogrf.app.train.pack`). ``start`` and
     ``limit``: the scenes from index ``start`` on, at most ``limit`` of them."""
     root = Path(root)
-    from panogrf.app.train.pack import is_pack, read_packs
-
     if is_pack(root):
         if start:
             raise UserError(f"{root}: a pack is read from its first scene")
