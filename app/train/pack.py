@@ -112,6 +112,8 @@ def read_packs(path: Path, height: int, limit: int | None = None):
 
     images, depths, c2w, names = [], [], [], []
     for file in _pack_files(Path(path)):
+        if limit is not None and len(names) >= limit:
+            break  # the packs after the limit are not read at all
         try:
             with safe_open(str(file), "pt") as f:
                 meta = f.metadata() or {}
