@@ -27,7 +27,9 @@ its domain; ``--mono-heights`` with its ceiling and floor at wrong heights (`wro
 drawn per view; ``--mono-room`` the same with one draw for both views (they agree, as a real
 capture's views do); ``--mono-warp`` with the monocular network seeing both views as a room of
 other heights (`mono_warped_room`: its depth and features wrong together, one draw per scene).
-Prints a table of mean L1 (m) per dataset and overall, and the seconds per pair.
+Prints a table of mean L1 (m) per dataset and overall, and the seconds per pair; ``--bands``
+first a table of each setting's L1 by band of elevation (where it is wrong: the ceiling, the
+walls, the floor), pooled over every column's pixels (always in the ``--out`` file).
 """
 
 from __future__ import annotations
@@ -58,7 +60,7 @@ from panogrf.app.weights.networks import (
     weights_path,
 )
 from panogrf.model.depth import DEFAULT_SWEEP
-from panogrf.model.metrics import depth_metrics
+from panogrf.model.metrics import ELEVATION_BANDS, band_key, depth_l1_by_band, depth_metrics
 from panogrf.model.refine import SweepConfig
 
 #: The monocular prior's conditions besides "clean" (`_pairs`'s ``mono``): what each does.
@@ -77,12 +79,15 @@ MONO = {"mono_hypothesis": True}
 
 def _pairs(
     estimator, data, mode: str, scale: float = 1.0, mono: str = "clean"
-) -> tuple[list[float], list[float]]:
-    """L1 of the first and last views and seconds per pair; ``mono``: "clean", "shape" (its
-    depth wrong in shape), "shift" (the network out of its domain) or "heights" (its ceiling
-    and floor at wrong heights, `wrong_heights`, seeded per scene) or "room" (the same, one draw
-    for both views) or "warp" (the network sees a room of other heights, `mono_warped_room`)."""
+) -> tuple[list[float], list[float], dict[str, list[float]]]:
+    """L1 of the first and last views, seconds per pair, and the error summed by band of
+    elevation with its pixel count ({band: [sum, count]}, `depth_l1_by_band`). ``mono``:
+    "clean", "shape" (its depth wrong in shape), "shift" (the network out of its domain) or
+    "heights" (its ceiling and floor at wrong heights, `wrong_heights`, seeded per scene) or
+    "room" (the same, one draw for both views) or "warp" (the network sees a room of other
+    heights, `mono_warped_room`)."""
     errors, seconds = [], []
+    bands = {band_key(band): [0.0, 0] for band in ELEVATION_BANDS}
     for i in range(len(data)):
         images = data.images[i, [0, 2]].float() / 255.0
         c2w = data.c2w[i, [0, 2]].clone()
@@ -109,7 +114,10 @@ def _pairs(
             gt = data.depths[i, v] * scale
             mask = (gt > 0) & (gt <= estimator.d_max)
             errors.append(float(depth_metrics(est.depth[k, 0], gt, mask).l1))
-    return errors, seconds
+            for key, (total, count) in depth_l1_by_band(est.depth[k, 0], gt, mask).items():
+                bands[key][0] += total
+                bands[key][1] += count
+    return errors, seconds, bands
 
 
 def _mono_wrong_in_shape(estimator, seed: int):
@@ -170,6 +178,12 @@ def main() -> None:
         default=[],
         help="further blend weights (depth_blend.safetensors files), each a row of the shipped "
         "setting with that blend, named after its folder",
+    )
+    parser.add_argument(
+        "--bands",
+        action="store_true",
+        help="also print each setting's L1 by band of elevation (the ceiling, walls, floor), "
+        "pooled over the pixels of every column (always written to --out)",
     )
     parser.add_argument("--threads", type=int, default=0)
     parser.add_argument("--out", type=Path, default=None)
@@ -252,10 +266,11 @@ def main() -> None:
             _reset(estimator)
             for key, value in attrs.items():
                 setattr(estimator, key, value)
-            errors, seconds = _pairs(estimator, data, mode, scale, mono)
-            row = results.setdefault(name, {"l1": {}, "seconds": []})
+            errors, seconds, bands = _pairs(estimator, data, mode, scale, mono)
+            row = results.setdefault(name, {"l1": {}, "seconds": [], "bands": {}})
             row["l1"][column] = statistics.fmean(errors)
             row["seconds"] += seconds
+            row["bands"][column] = bands
             print(f"{column} {name}: L1 {statistics.fmean(errors):.4f}", flush=True)
         _reset(estimator)
     names = columns
@@ -263,14 +278,30 @@ def main() -> None:
         "| setting | " + " | ".join(names) + " | mean | s / pair |",
         "|---" * (len(names) + 3) + "|",
     ]
+    band_lines = [
+        "| setting (L1 by band of elevation, pixels of every column pooled) | "
+        + " | ".join(f"{hi}..{lo}" for hi, lo in ELEVATION_BANDS)
+        + " |",
+        "|---" * (len(ELEVATION_BANDS) + 1) + "|",
+    ]
     for name, row in results.items():
         row["mean_l1"] = statistics.fmean(row["l1"].values())
         row["median_seconds"] = statistics.median(row.pop("seconds"))
         cells = " | ".join(f"{row['l1'][n]:.4f}" for n in names)
         lines.append(f"| {name} | {cells} | {row['mean_l1']:.4f} | {row['median_seconds']:.2f} |")
+        sums = row.pop("bands")
+        row["bands"] = {
+            c: {k: t / n if n else None for k, (t, n) in b.items()} for c, b in sums.items()
+        }
+        pooled = {k: [sum(b[k][i] for b in sums.values()) for i in (0, 1)] for k in sums[names[0]]}
+        row["bands_pooled"] = {k: t / n if n else None for k, (t, n) in pooled.items()}
+        cells = " | ".join("-" if v is None else f"{v:.4f}" for v in row["bands_pooled"].values())
+        band_lines.append(f"| {name} | {cells} |")
     if args.out:
         args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text(json.dumps({"data": names, "results": results}, indent=2) + "\n")
+    if args.bands:
+        print("\n".join(band_lines) + "\n")
     print("\n".join(lines))
 
 

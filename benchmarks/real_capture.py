@@ -45,14 +45,16 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from panogrf.model.metrics import ELEVATION_BANDS, band_key
+
 METHODS = ("panogrf", "no_mono", "no_mvs", "meshwarp", "nearest")
 DEPTH_MODES = ("mono", "mvs", "full")
 IMAGE_KEYS = ("psnr", "ws_psnr", "ssim", "lpips")
 DEPTH_KEYS = ("l1", "rmse", "ws_l1", "ws_rmse")
 #: Bands of elevation (degrees, camera frame) of the depth's L1 by band: where a depth is wrong
 #: (the ceiling, the walls, the floor).
-BANDS = ((90, 60), (60, 30), (30, 0), (0, -30), (-30, -60), (-60, -90))
-BAND_KEYS = tuple(f"l1_{hi}_{lo}" for hi, lo in BANDS)
+BANDS = ELEVATION_BANDS
+BAND_KEYS = tuple(band_key(band) for band in BANDS)
 
 
 def triplets(root: Path) -> list[Path]:
@@ -62,7 +64,7 @@ def triplets(root: Path) -> list[Path]:
 
 def depth_scores(models, views, data, mode: str) -> dict[str, float]:
     """Depth metrics of the first and last views (each the other's source), averaged."""
-    from panogrf.model.metrics import depth_metrics
+    from panogrf.model.metrics import depth_l1_by_band, depth_metrics
 
     est_net = models.estimator(mode)
     depth = views.depth_for(mode, models)  # working resolution
@@ -78,14 +80,9 @@ def depth_scores(models, views, data, mode: str) -> dict[str, float]:
     scores = dict(zip(DEPTH_KEYS, np.mean(rows, axis=0).tolist(), strict=True))
     # L1 by band of elevation, over the pixels of both views in the band.
     gt = data.depths[[0, 2], 0].to(depth.dtype)
-    error = (depth[:, 0] - gt).abs()
     ok = (gt > 0) & (gt <= est_net.d_max)
-    h = gt.shape[-2]
-    lat = 90.0 - (torch.arange(h, dtype=torch.float64) + 0.5) / h * 180.0
-    for (hi, lo), key in zip(BANDS, BAND_KEYS, strict=True):
-        rows_in = (lat <= hi) & (lat > lo)
-        m = ok[:, rows_in]
-        scores[key] = float(error[:, rows_in][m].mean()) if bool(m.any()) else float("nan")
+    for key, (total, count) in depth_l1_by_band(depth[:, 0], gt, ok).items():
+        scores[key] = total / count if count else float("nan")
     return scores
 
 

@@ -218,7 +218,44 @@ def depth_metrics(pred: Tensor, gt: Tensor, mask: Tensor | None = None) -> Depth
     return depth_metrics_batch(pred, gt, mask)[0]
 
 
+#: Bands of elevation (degrees, camera frame, top to bottom) of `depth_l1_by_band`: where a
+#: depth is wrong (the ceiling, the walls, the floor).
+ELEVATION_BANDS = ((90, 60), (60, 30), (30, 0), (0, -30), (-30, -60), (-60, -90))
+
+
+def band_key(band: tuple[int, int]) -> str:
+    """The name of an elevation band's L1, e.g. "l1_90_60"."""
+    return f"l1_{band[0]}_{band[1]}"
+
+
+def depth_l1_by_band(
+    pred: Tensor, gt: Tensor, mask: Tensor, bands=ELEVATION_BANDS
+) -> dict[str, tuple[float, int]]:
+    """The absolute depth error summed over each band of elevation, with its pixel count:
+    {`band_key`: (sum, count)}, so that bands can be pooled over views and scenes (the mean is
+    sum / count). pred, gt, mask: [..., H, W] equirectangular maps (rows top to bottom from
+    +90 to -90 degrees); a pixel counts where mask is true."""
+    if pred.shape != gt.shape or mask.shape != gt.shape:
+        raise ValueError(
+            f"depth_l1_by_band: shapes differ: pred {tuple(pred.shape)}, gt {tuple(gt.shape)}, "
+            f"mask {tuple(mask.shape)}"
+        )
+    h = gt.shape[-2]
+    lat = 90.0 - (torch.arange(h, dtype=torch.float64, device=gt.device) + 0.5) / h * 180.0
+    error = torch.where(
+        mask, (pred.double() - gt.double()).abs(), torch.zeros((), dtype=torch.float64)
+    )
+    out = {}
+    for hi, lo in bands:
+        rows = (lat <= hi) & (lat > lo)
+        out[band_key((hi, lo))] = (float(error[..., rows, :].sum()), int(mask[..., rows, :].sum()))
+    return out
+
+
 __all__ = [
+    "ELEVATION_BANDS",
+    "band_key",
+    "depth_l1_by_band",
     "DepthMetrics",
     "check_image_pair",
     "depth_metrics",

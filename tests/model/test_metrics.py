@@ -11,7 +11,10 @@ from skimage.metrics import structural_similarity
 
 from panogrf.model.erp import latitude_weights
 from panogrf.model.metrics import (
+    ELEVATION_BANDS,
     DepthMetrics,
+    band_key,
+    depth_l1_by_band,
     depth_metrics,
     depth_metrics_batch,
     psnr,
@@ -181,6 +184,26 @@ def test_depth_metrics_batch_is_per_image_and_dataclass_frozen():
     assert set(ms[0].as_dict()) == {"l1", "l2", "rmse", "ws_l1", "ws_l2", "ws_rmse", "valid"}
     with pytest.raises(AttributeError):
         ms[0].l1 = 1.0  # type: ignore[misc]
+
+
+def test_depth_l1_by_band_hand_values():
+    """Six rows, one per 30-degree band: each band's sum and count are its own row's, masked
+    pixels left out; two views pool by adding."""
+    gt = torch.full((2, 6, 4), 2.0)
+    pred = gt + torch.arange(6.0)[None, :, None]  # row r off by r metres
+    mask = torch.ones_like(gt, dtype=torch.bool)
+    mask[1, 0] = False  # the second view's top row is not counted
+    out = depth_l1_by_band(pred, gt, mask)
+    assert list(out) == [band_key(b) for b in ELEVATION_BANDS]
+    assert out["l1_90_60"] == (0.0, 4)
+    for r, band in enumerate(ELEVATION_BANDS[1:], start=1):
+        total, count = out[band_key(band)]
+        assert count == 8 and total == pytest.approx(8 * r)
+    # At 12 rows each band holds two rows.
+    out = depth_l1_by_band(torch.ones(12, 2), torch.zeros(12, 2), torch.ones(12, 2, dtype=bool))
+    assert all(v == (4.0, 4) for v in out.values())
+    with pytest.raises(ValueError, match="shapes differ"):
+        depth_l1_by_band(pred, gt[:1], mask)
 
 
 def test_depth_metrics_errors():
