@@ -241,6 +241,10 @@ def main() -> None:
             attrs["blend"] = load_blend(path)
             name = f"full, fused, canonical world, median 7, selector, margin 0.1, blend{suffix}"
             settings.append((name, "full", wide | canonical | attrs))
+            if not suffix:
+                # Round 28: the prior put right band by band of elevation before it guides.
+                name = f"{name}, banded guide"
+                settings.append((name, "full", wide | canonical | attrs | {"guide": "banded"}))
     for g in (float(x) for x in args.gains.split(",")):
         settings.append((f"full, fused, switch {g:g}", "full", {"fuse": True, "switch_gain": g}))
     if args.settings:

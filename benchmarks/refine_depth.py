@@ -32,6 +32,8 @@ from pathlib import Path
 
 import torch
 
+from panogrf.model.depth import GUIDES
+
 KEYS = ("ws_psnr", "ssim", "lpips", "depth_l1")
 
 
@@ -86,6 +88,13 @@ def main() -> int:
         action="store_true",
         help="estimate the depth with the monocular network out of its domain",
     )
+    parser.add_argument(
+        "--guide",
+        choices=GUIDES,
+        default=None,
+        help="the prior that places the mono-guided network's candidates "
+        "(`DepthEstimator.guide`; default: as shipped)",
+    )
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/refine_depth.json"))
     args = parser.parse_args()
     if args.threads:
@@ -101,6 +110,8 @@ def main() -> int:
     names = [s.strip() for s in args.settings.split("|") if s.strip()]
     settings = {name: parse_setting(name) for name in names}
     models = default_models()
+    if args.guide is not None:
+        models.estimator("full").guide = args.guide
     d_max = models.estimator("full").d_max
     rows: dict[str, list[dict]] = {name: [] for name in names}
     start = time.perf_counter()
@@ -155,6 +166,7 @@ def main() -> int:
         "data": [str(p) for p in args.data],
         "height": args.height,
         "mono_shift": args.mono_shift,
+        "guide": models.estimator("full").guide,
         "settings": {name: repr(config) for name, config in settings.items()},
         "table": table,
         "by_data": by_data,

@@ -47,7 +47,9 @@ from panogrf.model.select import (
 )
 
 MODES = ("full", "mono", "mvs")
-GUIDES = ("mono", "aligned", "mvs")
+GUIDES = ("mono", "aligned", "banded", "mvs")
+#: Bands of elevation of the "banded" guide (`DepthEstimator._banded`), equal in degrees.
+GUIDE_BANDS = 6
 DEFAULT_SWEEP = SweepConfig()
 #: A short search (0.86x to 1.16x) for mode "full"'s sweep: measured, not the default (see
 #: `DepthEstimator.fusion_sweep`).
@@ -112,9 +114,13 @@ class DepthEstimator(nn.Module):
         """Mode "full" with the unguided network loaded: the depth that places the mono-guided
         network's candidates: "mono" (the paper), "aligned" (mono scaled per view by its median
         ratio to the unguided MVS depth: a metric scale from the known poses, not from the room
-        sizes the monocular network learned) or "mvs" (the unguided MVS depth itself; the
-        monocular features still go in). Measured on the validation scenes
-        (`benchmarks/depth_fusion.py`): neither alternative helps, so "mono" stays."""
+        sizes the monocular network learned), "banded" (mono scaled per view by a profile over
+        elevation: the median ratio to the unguided MVS depth in each of `GUIDE_BANDS` bands,
+        interpolated between their centres, `_banded`: a room of the wrong proportions, its
+        floor too far for the ceiling it sees, is put right before it places the candidates)
+        or "mvs" (the unguided MVS depth itself; the monocular features still go in).
+        Measured on the validation scenes (`benchmarks/depth_fusion.py`): neither "aligned" nor
+        "mvs" helps, so "mono" stays ("banded": round 28, `docs/analysis.md`)."""
         self.mono_hypothesis = False
         """Mode "full" fused: the monocular depth enters the sweep as a third hypothesis, kept
         where the sources agree with it better than with both MVS depths. Off: it pays on the
@@ -234,6 +240,32 @@ class DepthEstimator(nn.Module):
                 out[v] = (mono[v] * scale).clamp(0.05, self.d_max)
         return out
 
+    def _banded(self, mono: Tensor, mvs: Tensor, sources: list[list[int]]) -> Tensor:
+        """``mono`` [V, 1, h, w] scaled per view with sources by a profile over elevation: the
+        median of mvs / mono over the pixels inside the depth range in each of `GUIDE_BANDS`
+        equal bands of elevation (a band with fewer than 1 % of its pixels inside: the view's
+        median), linearly interpolated in elevation between the band centres (constant beyond
+        the outer ones), kept within 0.5-2."""
+        out = mono.clone()
+        h = mono.shape[-2]
+        band = (torch.arange(h, device=mono.device) * GUIDE_BANDS) // h  # band of each row
+        centres = (torch.arange(GUIDE_BANDS, dtype=mono.dtype) + 0.5) * h / GUIDE_BANDS - 0.5
+        rows = torch.arange(h, dtype=mono.dtype)
+        for v, src in enumerate(sources):
+            ok = (mvs[v, 0] < 0.98 * self.d_max) & (mono[v, 0] > 0.05)
+            if not src or int(ok.sum()) == 0:
+                continue
+            ratio = mvs[v, 0] / mono[v, 0].clamp(min=0.05)
+            overall = ratio[ok].median()
+            scales = []
+            for b in range(GUIDE_BANDS):
+                inside = ok & (band == b)[:, None]
+                enough = int(inside.sum()) >= 0.01 * int((band == b).sum()) * mono.shape[-1]
+                scales.append(ratio[inside].median() if enough and bool(inside.any()) else overall)
+            profile = _interp(rows, centres, torch.stack(scales).cpu()).clamp(0.5, 2.0)
+            out[v] = (mono[v] * profile.to(mono)[:, None]).clamp(0.05, self.d_max)
+        return out
+
     def _world_scale(self, mono: Tensor, mvs: Tensor, sources: list[list[int]]) -> float:
         """k = median(mono / mvs) over the pixels of views with sources that are inside the
         depth range in both (1 when there are none), kept within 0.25-4."""
@@ -338,6 +370,8 @@ class DepthEstimator(nn.Module):
                     others = (unguided, mono.depth) if self.mono_hypothesis else (unguided,)
                 if self.guide == "aligned":
                     guide = MonoOutput(self._aligned(mono.depth, unguided, sources), mono.features)
+                elif self.guide == "banded":
+                    guide = MonoOutput(self._banded(mono.depth, unguided, sources), mono.features)
                 elif self.guide == "mvs":
                     guide = MonoOutput(self._clean(unguided), mono.features)
             depth, conf = self._mvs_confidence(mode, small, c2w, guide, sources, depth)
@@ -385,6 +419,15 @@ class DepthEstimator(nn.Module):
         if canonical_far is not None:
             out_of_range |= canonical_far
         return DepthEstimate(depth, mono_depth, out_of_range, sources, warnings)
+
+
+def _interp(x: Tensor, xp: Tensor, fp: Tensor) -> Tensor:
+    """Piecewise-linear interpolation of (xp, fp) at x (xp increasing; constant beyond its
+    ends), as numpy's interp."""
+    i = torch.searchsorted(xp, x).clamp(1, len(xp) - 1)
+    x0, x1 = xp[i - 1], xp[i]
+    t = ((x - x0) / (x1 - x0)).clamp(0.0, 1.0)
+    return fp[i - 1] + t * (fp[i] - fp[i - 1])
 
 
 class _SelectorChooser:

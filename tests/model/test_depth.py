@@ -188,7 +188,31 @@ def test_aligned_guide_scales_the_prior_by_the_mvs_ratio(estimator):
     assert torch.allclose(far, torch.full_like(mono, 4.0))  # the scale stays within 0.5-2
 
 
-@pytest.mark.parametrize("guide", ["aligned", "mvs"])
+def test_banded_guide_puts_a_room_of_wrong_proportions_right(estimator):
+    """The prior's floor 1.5x too far and its ceiling right, the MVS depth right: the banded
+    guide scales each band by its own ratio (the aligned one cannot: one ratio per view)."""
+    h, w = 12, 24
+    truth = torch.full((2, 1, h, w), 2.0)
+    mono = truth.clone()
+    mono[:, :, h // 2 :] *= 1.5  # the lower half (below the horizon) too far
+    mvs = truth.clone()
+    mvs[0, 0, 0, :3] = 10.0  # at the top of the range: not counted
+    out = estimator._banded(mono, mvs, [[1], []])
+    assert torch.allclose(out[0, 0, :2], truth[0, 0, :2])  # the top band's centre and above
+    assert torch.allclose(out[0, 0, -2:], truth[0, 0, -2:])  # the bottom band's
+    assert torch.allclose(out[0], truth[0], rtol=0.2)  # between the centres: interpolated
+    assert (out[0] - truth[0]).abs().mean() < (mono[0] - truth[0]).abs().mean() / 4
+    assert torch.equal(out[1], mono[1])  # no sources: left as it is
+    aligned = estimator._aligned(mono, mvs, [[1], []])
+    assert (aligned[0] - truth[0]).abs().mean() > (out[0] - truth[0]).abs().mean()
+    # A band with no pixel in range takes the view's median; the scale stays within 0.5-2.
+    mvs_far = torch.full_like(mono, 9.0)
+    mvs_far[:, :, :2] = 20.0  # the top band out of range
+    far = estimator._banded(torch.full_like(mono, 2.0), mvs_far, [[1], [0]])
+    assert torch.allclose(far, torch.full_like(mono, 4.0))
+
+
+@pytest.mark.parametrize("guide", ["aligned", "banded", "mvs"])
 def test_other_guides_change_the_full_depth_and_stay_finite(estimator, guide):
     images, c2w = _images(2, 64, seed=3), _poses((0, 0, 0), (1.0, 0, 0))
     base = estimator(images, c2w, "full").depth
