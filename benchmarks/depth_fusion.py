@@ -243,8 +243,11 @@ def main() -> None:
             settings.append((name, "full", wide | canonical | attrs))
             if not suffix:
                 # Round 28: the prior put right band by band of elevation before it guides.
-                name = f"{name}, banded guide"
-                settings.append((name, "full", wide | canonical | attrs | {"guide": "banded"}))
+                banded = f"{name}, banded guide"
+                settings.append((banded, "full", wide | canonical | attrs | {"guide": "banded"}))
+                # Round 28: the shipped chain in the metric world (no canonical world).
+                metric = name.replace("canonical world", "metric world")
+                settings.append((metric, "full", wide | attrs))
     for g in (float(x) for x in args.gains.split(",")):
         settings.append((f"full, fused, switch {g:g}", "full", {"fuse": True, "switch_gain": g}))
     if args.settings:
