@@ -95,6 +95,12 @@ def main() -> int:
         help="the prior that places the mono-guided network's candidates "
         "(`DepthEstimator.guide`; default: as shipped)",
     )
+    parser.add_argument(
+        "--metric-world",
+        action="store_true",
+        help="the MVS networks and the sweep in the metric world, not the canonical one "
+        "(`DepthEstimator.canonical` off)",
+    )
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/refine_depth.json"))
     args = parser.parse_args()
     if args.threads:
@@ -112,6 +118,8 @@ def main() -> int:
     models = default_models()
     if args.guide is not None:
         models.estimator("full").guide = args.guide
+    if args.metric_world:
+        models.estimator("full").canonical = False
     d_max = models.estimator("full").d_max
     rows: dict[str, list[dict]] = {name: [] for name in names}
     start = time.perf_counter()
@@ -167,6 +175,7 @@ def main() -> int:
         "height": args.height,
         "mono_shift": args.mono_shift,
         "guide": models.estimator("full").guide,
+        "canonical": models.estimator("full").canonical,
         "settings": {name: repr(config) for name, config in settings.items()},
         "table": table,
         "by_data": by_data,
