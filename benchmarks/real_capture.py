@@ -45,7 +45,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from panogrf.model.metrics import ELEVATION_BANDS, band_key
+from panogrf.model.metrics import ELEVATION_BANDS, band_key, depth_l1_by_band, depth_metrics
 
 METHODS = ("panogrf", "no_mono", "no_mvs", "meshwarp", "nearest")
 DEPTH_MODES = ("mono", "mvs", "full")
@@ -64,8 +64,6 @@ def triplets(root: Path) -> list[Path]:
 
 def depth_scores(models, views, data, mode: str) -> dict[str, float]:
     """Depth metrics of the first and last views (each the other's source), averaged."""
-    from panogrf.model.metrics import depth_l1_by_band, depth_metrics
-
     est_net = models.estimator(mode)
     depth = views.depth_for(mode, models)  # working resolution
     depth = torch.nn.functional.interpolate(

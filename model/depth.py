@@ -231,25 +231,21 @@ class DepthEstimator(nn.Module):
 
     def _aligned(self, mono: Tensor, mvs: Tensor, sources: list[list[int]]) -> Tensor:
         """``mono`` [V, 1, h, w] scaled per view with sources by median(mvs / mono) over the
-        pixels inside the depth range (the scale kept within 0.5-2)."""
-        out = mono.clone()
-        for v, src in enumerate(sources):
-            ok = (mvs[v] < 0.98 * self.d_max) & (mono[v] > 0.05)
-            if src and int(ok.sum()) > 0:
-                scale = (mvs[v][ok] / mono[v][ok]).median().clamp(0.5, 2.0)
-                out[v] = (mono[v] * scale).clamp(0.05, self.d_max)
-        return out
+        pixels inside the depth range (the scale kept within 0.5-2): `_banded` with one band."""
+        return self._banded(mono, mvs, sources, bands=1)
 
-    def _banded(self, mono: Tensor, mvs: Tensor, sources: list[list[int]]) -> Tensor:
+    def _banded(
+        self, mono: Tensor, mvs: Tensor, sources: list[list[int]], bands: int = GUIDE_BANDS
+    ) -> Tensor:
         """``mono`` [V, 1, h, w] scaled per view with sources by a profile over elevation: the
-        median of mvs / mono over the pixels inside the depth range in each of `GUIDE_BANDS`
+        median of mvs / mono over the pixels inside the depth range in each of ``bands``
         equal bands of elevation (a band with fewer than 1 % of its pixels inside: the view's
         median), linearly interpolated in elevation between the band centres (constant beyond
         the outer ones), kept within 0.5-2."""
         out = mono.clone()
         h = mono.shape[-2]
-        band = (torch.arange(h, device=mono.device) * GUIDE_BANDS) // h  # band of each row
-        centres = (torch.arange(GUIDE_BANDS, dtype=mono.dtype) + 0.5) * h / GUIDE_BANDS - 0.5
+        band = (torch.arange(h, device=mono.device) * bands) // h  # band of each row
+        centres = (torch.arange(bands, dtype=mono.dtype) + 0.5) * h / bands - 0.5
         rows = torch.arange(h, dtype=mono.dtype)
         for v, src in enumerate(sources):
             ok = (mvs[v, 0] < 0.98 * self.d_max) & (mono[v, 0] > 0.05)
@@ -258,10 +254,10 @@ class DepthEstimator(nn.Module):
             ratio = mvs[v, 0] / mono[v, 0].clamp(min=0.05)
             overall = ratio[ok].median()
             scales = []
-            for b in range(GUIDE_BANDS):
+            for b in range(bands):
                 inside = ok & (band == b)[:, None]
-                enough = int(inside.sum()) >= 0.01 * int((band == b).sum()) * mono.shape[-1]
-                scales.append(ratio[inside].median() if enough and bool(inside.any()) else overall)
+                needed = max(1.0, 0.01 * int((band == b).sum()) * mono.shape[-1])
+                scales.append(ratio[inside].median() if int(inside.sum()) >= needed else overall)
             profile = _interp(rows, centres, torch.stack(scales).cpu()).clamp(0.5, 2.0)
             out[v] = (mono[v] * profile.to(mono)[:, None]).clamp(0.05, self.d_max)
         return out
@@ -424,6 +420,8 @@ class DepthEstimator(nn.Module):
 def _interp(x: Tensor, xp: Tensor, fp: Tensor) -> Tensor:
     """Piecewise-linear interpolation of (xp, fp) at x (xp increasing; constant beyond its
     ends), as numpy's interp."""
+    if len(xp) == 1:
+        return fp[0].expand(x.shape)
     i = torch.searchsorted(xp, x).clamp(1, len(xp) - 1)
     x0, x1 = xp[i - 1], xp[i]
     t = ((x - x0) / (x1 - x0)).clamp(0.0, 1.0)
