@@ -92,8 +92,8 @@ def register(subparsers) -> None:
     depth.add_argument(
         "--device",
         default="cpu",
-        help="stage mono: torch device to train on, e.g. cuda (default cpu); the batches are "
-        "drawn and corrupted on the CPU as before, so a run is the same run on any device",
+        help="torch device to train on, e.g. cuda (default cpu); the batches are drawn and "
+        "corrupted on the CPU as before, so a run is the same run on any device",
     )
     depth.set_defaults(func=run_depth)
 
@@ -336,8 +336,6 @@ def run_depth(args: argparse.Namespace) -> int:
     ):
         raise UserError("--stage mvs --preset full needs --mono PATH to trained mono weights")
     if args.device != "cpu":
-        if args.stage != "mono":
-            raise UserError("--device applies to --stage mono only (the MVS stage trains on CPU)")
         try:
             torch.empty(1, device=args.device)
         except (RuntimeError, AssertionError) as exc:

@@ -9,6 +9,7 @@ line and the final figures in the metadata.
 
 from __future__ import annotations
 
+import copy
 import json
 import math
 from dataclasses import dataclass, field, replace
@@ -28,7 +29,7 @@ from panogrf.app.train.augment import (
 from panogrf.app.train.data import TripletSet, load_triplets, yaw_roll
 from panogrf.app.train.loop import Steps, held_back, init_from, save_trained
 from panogrf.model.erp import latitude_weights
-from panogrf.model.mono import MonoDepthConfig, MonoDepthNet
+from panogrf.model.mono import MonoDepthConfig, MonoDepthNet, MonoOutput
 
 
 @dataclass(frozen=True)
@@ -89,8 +90,9 @@ class TrainDepthConfig:
     """Frozen pretrained AlexNet convolutions feeding the network (`MonoDepthConfig.trunk`,
     `MVSConfig.trunk`), filled from the bundled LPIPS weights."""
     device: str = "cpu"
-    """Stage mono: the torch device the network trains on. Batches are drawn and corrupted on
-    the CPU with the same generator, so the data a run sees does not depend on it."""
+    """The torch device the network trains on (stage mvs: the frozen monocular network runs
+    there too). Batches are drawn and corrupted on the CPU with the same generator, so the
+    data a run sees does not depend on it; the held-back figures are measured on the CPU."""
     extra: dict = field(default_factory=dict)
     """Free-form notes stored with the weights."""
 
@@ -221,6 +223,19 @@ def _mvs_batch(data: TripletSet, gen: torch.Generator, batch: int, augment: bool
     return imgs[0], imgs[1][:, None], poses[0], poses[1][:, None], deps[0]
 
 
+class _OnDevice:
+    """The frozen monocular network run on ``device`` for CPU inputs, its outputs back on the
+    CPU, where the batches are corrupted (a copy of it; the network itself stays put)."""
+
+    def __init__(self, mono: MonoDepthNet, device: str) -> None:
+        self.device = device
+        self.net = mono if device == "cpu" else copy.deepcopy(mono).to(device)
+
+    def __call__(self, images: Tensor) -> MonoOutput:
+        out = self.net(images.to(self.device))
+        return MonoOutput(out.depth.cpu(), out.features.cpu())
+
+
 def load_mono(path: Path) -> MonoDepthNet:
     """The trained monocular network from safetensors, frozen, in eval mode."""
     from panogrf.app.weights.networks import load_mono_weights
@@ -266,13 +281,17 @@ def train_mvs(cfg: TrainDepthConfig, log=print) -> dict:
     init_from(net, cfg.init, log, new=("trunk.", "from_trunk."))
     if cfg.trunk:
         _fill_trunk(net, log)
+    net.to(cfg.device)
+    if cfg.device != "cpu":
+        log(f"training on {cfg.device}")
+    mono_on = _OnDevice(mono, cfg.device) if mono is not None else None
     opt = torch.optim.Adam([p for p in net.parameters() if p.requires_grad], lr=cfg.lr)
     gen = torch.Generator().manual_seed(cfg.seed)
     steps = Steps(opt, cfg.steps, cfg.lr, cfg.log_every, log)
     for _ in steps:
         ref, src, ref_c2w, src_c2w, gt = _mvs_batch(train, gen, cfg.batch, cfg.augment)
         kw = {}
-        if mono is not None:
+        if mono_on is not None:
             mono_in = ref
             if cfg.mono_shift:
                 hit = torch.rand(len(ref), 1, 1, 1, generator=gen) < cfg.mono_shift
@@ -280,17 +299,20 @@ def train_mvs(cfg: TrainDepthConfig, log=print) -> dict:
             with torch.no_grad():
                 if cfg.mono_warp:
                     up, down = room_factors(gen, len(ref), cfg.mono_warp)
-                    m = seen_warped(mono, mono_in, up, down)
+                    m = seen_warped(mono_on, mono_in, up, down)
                 else:
-                    m = mono(mono_in)
+                    m = mono_on(mono_in)
             mono_depth = corrupt_mono(m.depth, gen, cfg.mono_noise) if cfg.mono_noise else m.depth
             if cfg.mono_heights:
                 hit = torch.rand(len(ref), 1, 1, 1, generator=gen) < cfg.mono_heights
                 mono_depth = torch.where(hit, wrong_heights(mono_depth, gen), mono_depth)
             kw = {"mono_depth": mono_depth, "mono_features": m.features}
-        out = net(ref, src, ref_c2w, src_c2w, **kw)
-        d_max = mvs_cfg.d_max
+        dev = cfg.device
+        kw = {k: t.to(dev) for k, t in kw.items()}
+        out = net(ref.to(dev), src.to(dev), ref_c2w.to(dev), src_c2w.to(dev), **kw)
+        d_max, gt = mvs_cfg.d_max, gt.to(dev)
         steps.update(weighted_l1(out.depth, gt, d_max) + 0.5 * weighted_l1(out.expected, gt, d_max))
+    net.cpu()
     figures = _validate_mvs(net, mono, val)
     figures.update({"steps": cfg.steps, "seconds": steps.seconds})
     log(f"final (validation scenes of the train split): {json.dumps(figures)}")

@@ -100,11 +100,19 @@ def test_training_reads_a_pack_and_refuses_a_device_it_lacks(two_sets, tmp_path,
     assert main([*mono, "--device", "cpu"]) == 0
     with safe_open(str(out), framework="pt") as f:
         assert json.loads(f.metadata()["train"])["device"] == "cpu"
-    mvs = ["train", "depth", "--stage", "mvs", "--preset", "mvs", *small]
-    assert main([*mvs, "--device", "cuda"]) == 2
-    assert "--device applies to --stage mono" in capsys.readouterr().err
+    # the MVS stage on a device: the frozen monocular network runs there too
+    guided = ["train", "depth", "--stage", "mvs", "--preset", "full", "--mono", str(out)]
+    guided += ["--mono-warp", "0.5", "--mono-shift", "0.5"]
+    mvs_out = tmp_path / "mvs.safetensors"
+    small[3] = str(mvs_out)
+    assert main([*guided, *small, "--device", "cpu"]) == 0
+    with safe_open(str(mvs_out), framework="pt") as f:
+        assert json.loads(f.metadata()["train"])["device"] == "cpu"
+        assert json.loads(f.metadata()["final"])["val_l1"] > 0
     if not torch.cuda.is_available():
         assert main([*mono, "--device", "cuda"]) == 2
+        assert "not available here" in capsys.readouterr().err
+        assert main([*guided, *small, "--device", "cuda"]) == 2
         assert "not available here" in capsys.readouterr().err
 
 
