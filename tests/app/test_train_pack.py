@@ -104,16 +104,35 @@ def test_training_reads_a_pack_and_refuses_a_device_it_lacks(two_sets, tmp_path,
     guided = ["train", "depth", "--stage", "mvs", "--preset", "full", "--mono", str(out)]
     guided += ["--mono-warp", "0.5", "--mono-shift", "0.5"]
     mvs_out = tmp_path / "mvs.safetensors"
-    small[3] = str(mvs_out)
-    assert main([*guided, *small, "--device", "cpu"]) == 0
+    guided += ["--data", str(pack), "--out", str(mvs_out), "--steps", "2", "--batch", "2"]
+    guided += ["--height", "32"]
+    assert main([*guided, "--device", "cpu"]) == 0
     with safe_open(str(mvs_out), framework="pt") as f:
         assert json.loads(f.metadata()["train"])["device"] == "cpu"
         assert json.loads(f.metadata()["final"])["val_l1"] > 0
     if not torch.cuda.is_available():
         assert main([*mono, "--device", "cuda"]) == 2
         assert "not available here" in capsys.readouterr().err
-        assert main([*guided, *small, "--device", "cuda"]) == 2
+        assert main([*guided, "--device", "cuda"]) == 2
         assert "not available here" in capsys.readouterr().err
+
+
+@pytest.mark.gl
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
+def test_the_mvs_stage_trains_on_a_gpu(two_sets, tmp_path):
+    a, _ = two_sets
+    pack = tmp_path / "p.safetensors"
+    main(["dataset", "pack", "--out", str(pack), "--height", "32", str(a)])
+    mono = tmp_path / "mono.safetensors"
+    small = ["--data", str(pack), "--steps", "2", "--batch", "2", "--height", "32"]
+    assert main(["train", "depth", "--stage", "mono", *small, "--out", str(mono)]) == 0
+    out = tmp_path / "mvs.safetensors"
+    guided = ["train", "depth", "--stage", "mvs", "--preset", "full", "--mono", str(mono)]
+    guided += ["--mono-warp", "0.5", "--mono-shift", "0.5", "--device", "cuda"]
+    assert main([*guided, *small, "--out", str(out)]) == 0
+    with safe_open(str(out), framework="pt") as f:
+        assert json.loads(f.metadata()["train"])["device"] == "cuda"
+        assert json.loads(f.metadata()["final"])["val_l1"] > 0  # measured on the CPU
 
 
 def test_train_elsewhere_runs_panogrf_train_alone(tmp_path):
