@@ -281,10 +281,11 @@ def train_mvs(cfg: TrainDepthConfig, log=print) -> dict:
     init_from(net, cfg.init, log, new=("trunk.", "from_trunk."))
     if cfg.trunk:
         _fill_trunk(net, log)
-    net.to(cfg.device)
-    if cfg.device != "cpu":
-        log(f"training on {cfg.device}")
-    mono_on = _OnDevice(mono, cfg.device) if mono is not None else None
+    dev = cfg.device
+    net.to(dev)
+    if dev != "cpu":
+        log(f"training on {dev}")
+    mono_on = _OnDevice(mono, dev) if mono is not None else None
     opt = torch.optim.Adam([p for p in net.parameters() if p.requires_grad], lr=cfg.lr)
     gen = torch.Generator().manual_seed(cfg.seed)
     steps = Steps(opt, cfg.steps, cfg.lr, cfg.log_every, log)
@@ -307,7 +308,6 @@ def train_mvs(cfg: TrainDepthConfig, log=print) -> dict:
                 hit = torch.rand(len(ref), 1, 1, 1, generator=gen) < cfg.mono_heights
                 mono_depth = torch.where(hit, wrong_heights(mono_depth, gen), mono_depth)
             kw = {"mono_depth": mono_depth, "mono_features": m.features}
-        dev = cfg.device
         kw = {k: t.to(dev) for k, t in kw.items()}
         out = net(ref.to(dev), src.to(dev), ref_c2w.to(dev), src_c2w.to(dev), **kw)
         d_max, gt = mvs_cfg.d_max, gt.to(dev)
