@@ -26,7 +26,10 @@ shape (`corrupt_mono`), as on real captures; ``--mono-shift`` with the monocular
 its domain; ``--mono-heights`` with its ceiling and floor at wrong heights (`wrong_heights`),
 drawn per view; ``--mono-room`` the same with one draw for both views (they agree, as a real
 capture's views do); ``--mono-warp`` with the monocular network seeing both views as a room of
-other heights (`mono_warped_room`: its depth and features wrong together, one draw per scene).
+other heights (`mono_warped_room`: its depth and features wrong together, one draw per scene);
+``--mono-true`` with the monocular depth replaced by the true depth and its features left as
+computed (what the mono-guided network does with a right prior and the features of this
+image: where it is still wrong, the features lead it).
 Prints a table of mean L1 (m) per dataset and overall, and the seconds per pair; ``--bands``
 first a table of each setting's L1 by band of elevation (where it is wrong: the ceiling, the
 walls, the floor), pooled over every column's pixels (always in the ``--out`` file).
@@ -42,6 +45,8 @@ from contextlib import nullcontext
 from pathlib import Path
 
 import torch
+import torch.nn.functional as F
+from torch import Tensor
 
 from panogrf.app.train.augment import (
     corrupt_mono,
@@ -71,6 +76,7 @@ MONO_CONDITIONS = {
     "room": "the monocular depth's ceiling and floor at wrong heights, the same in both views",
     "warp": "the monocular network seeing a room of other heights, depth and features wrong "
     "together, the same in both views",
+    "true": "the monocular depth replaced by the true depth, its features as computed",
 }
 
 #: The monocular depth as a third hypothesis of the fusion.
@@ -85,7 +91,8 @@ def _pairs(
     "clean", "shape" (its depth wrong in shape), "shift" (the network out of its domain) or
     "heights" (its ceiling and floor at wrong heights, `wrong_heights`, seeded per scene) or
     "room" (the same, one draw for both views) or "warp" (the network sees a room of other
-    heights, `mono_warped_room`)."""
+    heights, `mono_warped_room`) or "true" (the true depth for the monocular depth, its
+    features kept, `_mono_true`)."""
     errors, seconds = [], []
     bands = {band_key(band): [0.0, 0] for band in ELEVATION_BANDS}
     for i in range(len(data)):
@@ -105,6 +112,8 @@ def _pairs(
             context = mono_wrong_heights(estimator, gen, shared=True)
         elif mono == "warp":
             context = mono_warped_room(estimator, torch.Generator().manual_seed(i))
+        elif mono == "true":
+            context = _mono_true(estimator, data.depths[i, [0, 2]] * scale)
         else:
             context = nullcontext()
         with context:
@@ -118,6 +127,23 @@ def _pairs(
                 bands[key][0] += total
                 bands[key][1] += count
     return errors, seconds, bands
+
+
+def _mono_true(estimator, truth: Tensor):
+    """While inside, the monocular depth of the views is ``truth`` [V, H, W] (metres) resized
+    to the network's rows (nearest), its own value kept where the truth is missing or beyond
+    ``d_max``; the features stay as computed."""
+
+    def change(depth: Tensor) -> Tensor:
+        if depth.shape[0] != truth.shape[0]:
+            raise ValueError(
+                f"the true depth has {truth.shape[0]} views, the call {depth.shape[0]}"
+            )
+        gt = F.interpolate(truth[:, None].float(), size=depth.shape[-2:], mode="nearest")
+        ok = (gt > 0) & (gt <= estimator.d_max)
+        return torch.where(ok, gt, depth)
+
+    return mono_depth_changed(estimator, change)
 
 
 def _mono_wrong_in_shape(estimator, seed: int):

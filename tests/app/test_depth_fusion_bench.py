@@ -1,0 +1,47 @@
+"""`benchmarks/depth_fusion.py`'s "true" condition: the monocular depth replaced by the truth
+(resized, the network's own value kept where the truth is missing), its features as computed."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import pytest
+import torch
+
+from panogrf.app.weights.networks import load_depth_estimator
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _bench():
+    spec = importlib.util.spec_from_file_location(
+        "depth_fusion_bench", ROOT / "benchmarks" / "depth_fusion.py"
+    )
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_the_true_condition_puts_the_truth_in_and_keeps_the_features():
+    bench = _bench()
+    est = load_depth_estimator(("full", "mvs"))
+    images = torch.rand(2, 3, 64, 128, generator=torch.Generator().manual_seed(0))
+    truth = torch.full((2, 128, 256), 2.5)
+    truth[0, :10] = 0.0  # missing: the network's own value stays
+    truth[1, -10:] = 1e4  # beyond d_max: the same
+    with torch.no_grad():
+        before = est.mono(images)
+        with bench._mono_true(est, truth):
+            inside = est.mono(images)
+        after = est.mono(images)
+    h = before.depth.shape[-2]
+    top, bottom = max(1, h * 10 // 128), max(1, h * 10 // 128)
+    assert torch.equal(inside.features, before.features)
+    assert torch.allclose(inside.depth[0, :, top + 1 :], torch.tensor(2.5))
+    assert torch.equal(inside.depth[0, :, :top], before.depth[0, :, :top])
+    assert torch.equal(inside.depth[1, :, -bottom:], before.depth[1, :, -bottom:])
+    assert not torch.allclose(before.depth, inside.depth)
+    assert torch.equal(after.depth, before.depth)  # the patch is gone on the way out
+    with bench._mono_true(est, truth[:1]), pytest.raises(ValueError, match="views"):
+        est.mono(images)
