@@ -29,7 +29,8 @@ capture's views do); ``--mono-warp`` with the monocular network seeing both view
 other heights (`mono_warped_room`: its depth and features wrong together, one draw per scene);
 ``--mono-true`` with the monocular depth replaced by the true depth and its features left as
 computed (what the mono-guided network does with a right prior and the features of this
-image: where it is still wrong, the features lead it).
+image: where it is still wrong, the features lead it); ``--mono-features`` with only the
+features out of the network's domain (as ``--mono-shift`` draws them), its depth as computed.
 Prints a table of mean L1 (m) per dataset and overall, and the seconds per pair; ``--bands``
 first a table of each setting's L1 by band of elevation (where it is wrong: the ceiling, the
 walls, the floor), pooled over every column's pixels (always in the ``--out`` file).
@@ -77,6 +78,7 @@ MONO_CONDITIONS = {
     "warp": "the monocular network seeing a room of other heights, depth and features wrong "
     "together, the same in both views",
     "true": "the monocular depth replaced by the true depth, its features as computed",
+    "features": "the monocular features of the view out of its domain, its depth as computed",
 }
 
 #: The monocular depth as a third hypothesis of the fusion.
@@ -92,7 +94,8 @@ def _pairs(
     "heights" (its ceiling and floor at wrong heights, `wrong_heights`, seeded per scene) or
     "room" (the same, one draw for both views) or "warp" (the network sees a room of other
     heights, `mono_warped_room`) or "true" (the true depth for the monocular depth, its
-    features kept, `_mono_true`)."""
+    features kept, `_mono_true`) or "features" (the features of the view out of its domain,
+    the depth as computed)."""
     errors, seconds = [], []
     bands = {band_key(band): [0.0, 0] for band in ELEVATION_BANDS}
     for i in range(len(data)):
@@ -112,6 +115,10 @@ def _pairs(
             context = mono_wrong_heights(estimator, gen, shared=True)
         elif mono == "warp":
             context = mono_warped_room(estimator, torch.Generator().manual_seed(i))
+        elif mono == "features":
+            partner = data.images[(i + 1) % len(data), [0, 2]].float() / 255.0
+            gen = torch.Generator().manual_seed(i)
+            context = mono_out_of_domain(estimator, partner, gen, features_only=True)
         elif mono == "true":
             context = _mono_true(estimator, data.depths[i, [0, 2]] * scale)
         else:

@@ -69,6 +69,13 @@ def register(subparsers) -> None:
         "domain (blended with another panorama), depth and features wrong together (default 0)",
     )
     depth.add_argument(
+        "--mono-features-shift",
+        type=float,
+        default=0.0,
+        help="stage mvs, full: fraction of pairs whose mono features come from its input seen "
+        "out of its domain while the mono depth stays its own (default 0)",
+    )
+    depth.add_argument(
         "--mono-heights",
         type=float,
         default=0.0,
@@ -323,6 +330,7 @@ def run_depth(args: argparse.Namespace) -> int:
     fractions = (
         ("--mono-noise", args.mono_noise),
         ("--mono-shift", args.mono_shift),
+        ("--mono-features-shift", args.mono_features_shift),
         ("--mono-heights", args.mono_heights),
         ("--mono-warp", args.mono_warp),
     )
@@ -359,6 +367,7 @@ def run_depth(args: argparse.Namespace) -> int:
         augment=not args.no_augment,
         mono_noise=args.mono_noise,
         mono_shift=args.mono_shift,
+        mono_features_shift=args.mono_features_shift,
         mono_heights=args.mono_heights,
         mono_warp=args.mono_warp,
         trunk=args.trunk,

@@ -156,16 +156,22 @@ def patched_mono(estimator, make) -> Iterator[None]:
             net.forward = outer
 
 
-def mono_out_of_domain(estimator, partner: Tensor, gen: torch.Generator):
+def mono_out_of_domain(
+    estimator, partner: Tensor, gen: torch.Generator, features_only: bool = False
+):
     """While inside, ``estimator``'s monocular network sees every view blended with
     ``partner``'s panoramas [V', 3, H, W] (another scene; the first V of them are used, resized
-    to the input) by `out_of_domain`: its depth and features wrong together."""
+    to the input) by `out_of_domain`: its depth and features wrong together. ``features_only``:
+    only its features are those of the blended view, its depth that of the view as it is."""
 
     def make(forward):
         def shifted(images: Tensor):
             other = F.interpolate(partner[: len(images)], size=images.shape[-2:], mode="area")
             both = out_of_domain(torch.stack((images, other), 1).flatten(0, 1), gen)
-            return forward(both[0::2])
+            out = forward(both[0::2])
+            if features_only:
+                return MonoOutput(forward(images).depth, out.features)
+            return out
 
         return shifted
 

@@ -86,6 +86,13 @@ class TrainDepthConfig:
     a room of other heights (`seen_warped`, `room_factors`: log factors in +-0.3 above and
     below the camera): a plausible room of the wrong height, depth and features wrong
     together."""
+    mono_features_shift: float = 0.0
+    """Stage mvs, mono-guided: fraction of pairs whose monocular *features* come from the
+    reference seen out of its domain (`out_of_domain`) while the monocular depth stays the one
+    of the reference as it is (then corrupted as the other options say). Round 30 found the
+    guided network reads the features more than its prior: given the true depth as the prior,
+    it was still behind the unguided network on the real triplet, led by the features of a
+    real image (`benchmarks/depth_fusion.py --mono-true`)."""
     trunk: int = 0
     """Frozen pretrained AlexNet convolutions feeding the network (`MonoDepthConfig.trunk`,
     `MVSConfig.trunk`), filled from the bundled LPIPS weights."""
@@ -303,11 +310,17 @@ def train_mvs(cfg: TrainDepthConfig, log=print) -> dict:
                     m = seen_warped(mono_on, mono_in, up, down)
                 else:
                     m = mono_on(mono_in)
+            features = m.features
+            if cfg.mono_features_shift:
+                hit = torch.rand(len(ref), 1, 1, 1, generator=gen) < cfg.mono_features_shift
+                with torch.no_grad():
+                    other = mono_on(out_of_domain(mono_in, gen)).features
+                features = torch.where(hit, other, features)
             mono_depth = corrupt_mono(m.depth, gen, cfg.mono_noise) if cfg.mono_noise else m.depth
             if cfg.mono_heights:
                 hit = torch.rand(len(ref), 1, 1, 1, generator=gen) < cfg.mono_heights
                 mono_depth = torch.where(hit, wrong_heights(mono_depth, gen), mono_depth)
-            kw = {"mono_depth": mono_depth, "mono_features": m.features}
+            kw = {"mono_depth": mono_depth, "mono_features": features}
         kw = {k: t.to(dev) for k, t in kw.items()}
         out = net(ref.to(dev), src.to(dev), ref_c2w.to(dev), src_c2w.to(dev), **kw)
         d_max, gt = mvs_cfg.d_max, gt.to(dev)
