@@ -8,6 +8,7 @@ import torch
 
 from panogrf.app.train.augment import (
     corrupt_mono,
+    mono_out_of_domain,
     mono_warped_room,
     mono_wrong_heights,
     out_of_domain,
@@ -229,3 +230,29 @@ def test_room_factors_leave_the_rest_of_the_batch_as_it_is():
     assert not none[0].any() and not none[1].any()
     every = room_factors(torch.Generator().manual_seed(0), 8)
     assert every[0].all() and every[1].all()
+
+
+def test_mono_out_of_domain_features_only_keeps_the_depth_of_the_view_as_it_is():
+    """``features_only``: the features are those of the view blended with the partner (as
+    without it), the depth that of the view itself."""
+    from panogrf.model.mono import MonoOutput
+
+    class Mono(torch.nn.Module):
+        def forward(self, images):
+            return MonoOutput(images[:, :1] + 1.0, images * 2.0)
+
+    class Estimator:
+        mono = Mono()
+
+    est = Estimator()
+    views, partner = _images(2), _images(2).flip(-1)
+    plain = est.mono(views)
+    with mono_out_of_domain(est, partner, torch.Generator().manual_seed(5)):
+        both = est.mono(views)
+    with mono_out_of_domain(est, partner, torch.Generator().manual_seed(5), features_only=True):
+        feats = est.mono(views)
+    assert not torch.allclose(both.features, plain.features)
+    torch.testing.assert_close(feats.features, both.features)
+    torch.testing.assert_close(feats.depth, plain.depth)
+    assert not torch.allclose(both.depth, plain.depth)
+    assert torch.equal(est.mono(views).depth, plain.depth)  # the patch is gone afterwards

@@ -35,6 +35,7 @@ def test_train_mono_then_mvs_smoke(tiny_train, tmp_path, capsys):
         out = tmp_path / f"mvs_{preset}.safetensors"
         args = ["train", "depth", "--stage", "mvs", "--preset", preset, "--out", str(out)]
         wrong = ["--mono-shift", "1", "--mono-heights", "1", "--mono-warp", "1"]
+        wrong += ["--mono-features-shift", "1"]
         assert main([*args, "--mono", str(mono), *wrong, *common]) == 0
         with safe_open(str(out), framework="pt") as f:
             assert f.metadata()["preset"] == preset
@@ -80,7 +81,8 @@ def test_train_errors(tmp_path, capsys):
     args = ["train", "depth", "--data", str(tmp_path), "--stage", "mvs", "--out", out]
     assert main(args) == 2
     assert "--mono" in capsys.readouterr().err
-    for flag in ("--mono-noise", "--mono-shift", "--mono-heights", "--mono-warp"):
+    flags = ("--mono-noise", "--mono-shift", "--mono-features-shift", "--mono-heights")
+    for flag in (*flags, "--mono-warp"):
         bad = ["train", "depth", "--data", str(tmp_path), "--stage", "mono", "--out", out]
         assert main([*bad, flag, "1.5"]) == 2
         assert f"{flag} is a fraction" in capsys.readouterr().err
