@@ -7,7 +7,9 @@
 #
 #   bash scripts/train_mvs_gpu.sh DATA OUT SECONDS
 #
-# (BATCH=2 DEVICE=cpu: a smoke run of the script here.)
+# (BATCH=2 DEVICE=cpu: a smoke run of the script here. FEATURES=0.5: the mono-guided network
+# also gets out-of-domain monocular features for half its pairs, `--mono-features-shift`,
+# round 30's lever; default 0, round 29's recipe.)
 set -euo pipefail
 data=$1 out=$2 seconds=$3
 py=${PYTHON:-python3}
@@ -15,7 +17,7 @@ train=(scripts/train_elsewhere.py train depth --data "$data" --stage mvs --trunk
        --batch "${BATCH:-16}" --lr 3e-4 --device "${DEVICE:-cuda}" --threads 7)
 u=(--preset mvs --init assets/depth_mvs_only.safetensors)
 g=(--preset full --init assets/depth_mvs_full.safetensors --mono assets/depth_mono.safetensors
-   --mono-noise 0.8 --mono-shift 0.3 --mono-warp 0.3)
+   --mono-noise 0.8 --mono-shift 0.3 --mono-warp 0.3 --mono-features-shift "${FEATURES:-0}")
 mkdir -p "$out/u" "$out/g" "$out/timing"
 
 # Timing: both at once, as in the real run; seconds per step from step 50 to 100.
