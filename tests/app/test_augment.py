@@ -19,6 +19,21 @@ from panogrf.app.train.augment import (
 )
 
 
+def _echo_estimator():
+    """An estimator whose monocular network reports its input: depth = first channel + 1,
+    features = the input doubled."""
+    from panogrf.model.mono import MonoOutput
+
+    class Mono(torch.nn.Module):
+        def forward(self, images):
+            return MonoOutput(images[:, :1] + 1.0, images * 2.0)
+
+    class Estimator:
+        mono = Mono()
+
+    return Estimator()
+
+
 def _images(n=4, h=16, w=32):
     return torch.rand(n, 3, h, w, generator=torch.Generator().manual_seed(0))
 
@@ -183,14 +198,7 @@ def test_mono_warped_room_changes_depth_and_features_the_same_for_both_views():
     returns the input's rows moved; one draw for both views and every call."""
     from panogrf.model.mono import MonoOutput
 
-    class Mono(torch.nn.Module):
-        def forward(self, images):
-            return MonoOutput(images[:, :1] + 1.0, images * 2.0)
-
-    class Estimator:
-        mono = Mono()
-
-    est = Estimator()
+    est = _echo_estimator()
     room = _box_room_labels(64, 1.2, 1.5).expand(2, 3, -1, -1).contiguous()
     plain = est.mono(room)
     with mono_warped_room(est, torch.Generator().manual_seed(3)):
@@ -235,16 +243,7 @@ def test_room_factors_leave_the_rest_of_the_batch_as_it_is():
 def test_mono_out_of_domain_features_only_keeps_the_depth_of_the_view_as_it_is():
     """``features_only``: the features are those of the view blended with the partner (as
     without it), the depth that of the view itself."""
-    from panogrf.model.mono import MonoOutput
-
-    class Mono(torch.nn.Module):
-        def forward(self, images):
-            return MonoOutput(images[:, :1] + 1.0, images * 2.0)
-
-    class Estimator:
-        mono = Mono()
-
-    est = Estimator()
+    est = _echo_estimator()
     views, partner = _images(2), _images(2).flip(-1)
     plain = est.mono(views)
     with mono_out_of_domain(est, partner, torch.Generator().manual_seed(5)):
