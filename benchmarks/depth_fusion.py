@@ -105,9 +105,9 @@ def _pairs(
         t0 = time.perf_counter()
         if mono == "shape":
             context = _mono_wrong_in_shape(estimator, seed=i)
-        elif mono == "shift":
+        elif mono in ("shift", "features"):
             partner = data.images[(i + 1) % len(data), [0, 2]].float() / 255.0
-            context = _mono_out_of_domain(estimator, partner, seed=i)
+            context = _mono_out_of_domain(estimator, partner, i, mono == "features")
         elif mono == "heights":
             context = mono_wrong_heights(estimator, torch.Generator().manual_seed(i))
         elif mono == "room":
@@ -115,10 +115,6 @@ def _pairs(
             context = mono_wrong_heights(estimator, gen, shared=True)
         elif mono == "warp":
             context = mono_warped_room(estimator, torch.Generator().manual_seed(i))
-        elif mono == "features":
-            partner = data.images[(i + 1) % len(data), [0, 2]].float() / 255.0
-            gen = torch.Generator().manual_seed(i)
-            context = mono_out_of_domain(estimator, partner, gen, features_only=True)
         elif mono == "true":
             context = _mono_true(estimator, data.depths[i, [0, 2]] * scale)
         else:
@@ -160,11 +156,13 @@ def _mono_wrong_in_shape(estimator, seed: int):
     return mono_depth_changed(estimator, lambda depth: corrupt_mono(depth, gen, p=1.0))
 
 
-def _mono_out_of_domain(estimator, partner, seed: int):
+def _mono_out_of_domain(estimator, partner, seed: int, features_only: bool = False):
     """The monocular network sees every view blended (weight 0.35-0.55) with ``partner``'s
     panoramas [V, 3, H, W] (another scene), turned by a seeded random yaw, while inside: its
-    depth and features are wrong together (`out_of_domain`, training's ``--mono-shift``)."""
-    return mono_out_of_domain(estimator, partner, torch.Generator().manual_seed(seed))
+    depth and features are wrong together (`out_of_domain`, training's ``--mono-shift``), or
+    only its features (``features_only``, training's ``--mono-features-shift``)."""
+    gen = torch.Generator().manual_seed(seed)
+    return mono_out_of_domain(estimator, partner, gen, features_only)
 
 
 def _reset(estimator) -> None:
