@@ -7,35 +7,51 @@
 #
 #   bash scripts/train_mvs_gpu.sh DATA OUT SECONDS
 #
-# (BATCH=2 DEVICE=cpu: a smoke run of the script here. FEATURES=0.5: the mono-guided network
-# also gets out-of-domain monocular features for half its pairs, `--mono-features-shift`,
-# round 30's lever; default 0, round 29's recipe.)
+# BATCH=2 DEVICE=cpu: a smoke run of the script here. FEATURES=P: the mono-guided network also
+# gets out-of-domain monocular features for a fraction P of its pairs, `--mono-features-shift`,
+# round 30's lever (default 0, round 29's recipe). RUNS="g gf" (round 31): instead of the two
+# networks, two mono-guided runs side by side, OUT/g as round 29's recipe (the control) and
+# OUT/gf with FEATURES (default 0.5 there; the candidate).
 set -euo pipefail
 data=$1 out=$2 seconds=$3
 py=${PYTHON:-python3}
+runs=(${RUNS:-u g})
 train=(scripts/train_elsewhere.py train depth --data "$data" --stage mvs --trunk 2
        --batch "${BATCH:-16}" --lr 3e-4 --device "${DEVICE:-cuda}" --threads 7)
-u=(--preset mvs --init assets/depth_mvs_only.safetensors)
-g=(--preset full --init assets/depth_mvs_full.safetensors --mono assets/depth_mono.safetensors
-   --mono-noise 0.8 --mono-shift 0.3 --mono-warp 0.3 --mono-features-shift "${FEATURES:-0}")
-mkdir -p "$out/u" "$out/g" "$out/timing"
+guided=(--preset full --init assets/depth_mvs_full.safetensors --mono assets/depth_mono.safetensors
+        --mono-noise 0.8 --mono-shift 0.3 --mono-warp 0.3)
+[[ ${runs[*]} == "u g" || ${runs[*]} == "g gf" ]] || { echo "RUNS is 'u g' or 'g gf'" >&2; exit 2; }
+if [[ ${runs[*]} == "g gf" ]]; then features_g=0; else features_g=${FEATURES:-0}; fi
+declare -A weights=([u]=depth_mvs_only [g]=depth_mvs_full [gf]=depth_mvs_full)
+run_args() {  # the arguments of one run, by name
+    case $1 in
+        u) echo --preset mvs --init assets/depth_mvs_only.safetensors ;;
+        g) echo "${guided[@]}" --mono-features-shift "$features_g" ;;
+        gf) echo "${guided[@]}" --mono-features-shift "${FEATURES:-0.5}" ;;
+    esac
+}
+mkdir -p "$out/timing"
 
 # Timing: both at once, as in the real run; seconds per step from step 50 to 100.
-"$py" "${train[@]}" "${u[@]}" --steps 110 --limit-scenes 200 --out "$out/timing/u.safetensors" \
-    --log "$out/timing/u.log" >/dev/null &
-"$py" "${train[@]}" "${g[@]}" --steps 110 --limit-scenes 200 --out "$out/timing/g.safetensors" \
-    --log "$out/timing/g.log" >/dev/null &
+for r in "${runs[@]}"; do
+    # shellcheck disable=SC2046
+    "$py" "${train[@]}" $(run_args "$r") --steps 110 --limit-scenes 200 \
+        --out "$out/timing/$r.safetensors" --log "$out/timing/$r.log" >/dev/null &
+done
 wait
 steps_for() {
     awk -v s="$seconds" '$1 == "step" && $2 == 50 {a = $(NF-1)} $1 == "step" && $2 == 100 {b = $(NF-1)}
         END {n = int(s / ((b - a) / 50)); print (n > 200 ? n : 200)}' "$1"
 }
-nu=$(steps_for "$out/timing/u.log") ng=$(steps_for "$out/timing/g.log")
-echo "steps: unguided $nu, mono-guided $ng"
-
-"$py" "${train[@]}" "${u[@]}" --steps "$nu" --out "$out/u/depth_mvs_only.safetensors" \
-    --log "$out/u/depth_mvs_only_gpu.log" >/dev/null &
-"$py" "${train[@]}" "${g[@]}" --steps "$ng" --out "$out/g/depth_mvs_full.safetensors" \
-    --log "$out/g/depth_mvs_full_gpu.log" >/dev/null &
+logs=()
+for r in "${runs[@]}"; do
+    n=$(steps_for "$out/timing/$r.log")
+    echo "steps: $r $n"
+    mkdir -p "$out/$r"
+    logs+=("$out/$r/${weights[$r]}_gpu.log")
+    # shellcheck disable=SC2046
+    "$py" "${train[@]}" $(run_args "$r") --steps "$n" --out "$out/$r/${weights[$r]}.safetensors" \
+        --log "$out/$r/${weights[$r]}_gpu.log" >/dev/null &
+done
 wait
-tail -n 3 "$out/u/depth_mvs_only_gpu.log" "$out/g/depth_mvs_full_gpu.log"
+tail -n 3 "${logs[@]}"
