@@ -36,11 +36,11 @@ def test_the_true_condition_puts_the_truth_in_and_keeps_the_features():
             inside = est.mono(images)
         after = est.mono(images)
     h = before.depth.shape[-2]
-    top, bottom = max(1, h * 10 // 128), max(1, h * 10 // 128)
+    edge = max(1, h * 10 // 128)  # the rows the 10 changed rows of the truth become
     assert torch.equal(inside.features, before.features)
-    assert torch.allclose(inside.depth[0, :, top + 1 :], torch.tensor(2.5))
-    assert torch.equal(inside.depth[0, :, :top], before.depth[0, :, :top])
-    assert torch.equal(inside.depth[1, :, -bottom:], before.depth[1, :, -bottom:])
+    assert torch.allclose(inside.depth[0, :, edge + 1 :], torch.tensor(2.5))
+    assert torch.equal(inside.depth[0, :, :edge], before.depth[0, :, :edge])
+    assert torch.equal(inside.depth[1, :, -edge:], before.depth[1, :, -edge:])
     assert not torch.allclose(before.depth, inside.depth)
     assert torch.equal(after.depth, before.depth)  # the patch is gone on the way out
     with bench._mono_true(est, truth[:1]), pytest.raises(ValueError, match="views"):

@@ -81,8 +81,14 @@ def test_train_errors(tmp_path, capsys):
     args = ["train", "depth", "--data", str(tmp_path), "--stage", "mvs", "--out", out]
     assert main(args) == 2
     assert "--mono" in capsys.readouterr().err
-    flags = ("--mono-noise", "--mono-shift", "--mono-features-shift", "--mono-heights")
-    for flag in (*flags, "--mono-warp"):
+    fractions = (
+        "--mono-noise",
+        "--mono-shift",
+        "--mono-features-shift",
+        "--mono-heights",
+        "--mono-warp",
+    )
+    for flag in fractions:
         bad = ["train", "depth", "--data", str(tmp_path), "--stage", "mono", "--out", out]
         assert main([*bad, flag, "1.5"]) == 2
         assert f"{flag} is a fraction" in capsys.readouterr().err
