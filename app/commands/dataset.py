@@ -105,6 +105,12 @@ def register(subparsers) -> None:
     pack.add_argument("--out", type=Path, required=True, help="the pack (.safetensors)")
     pack.add_argument("--height", type=int, default=128, help="working height (default 128)")
     pack.add_argument(
+        "--colour-only",
+        action="store_true",
+        help="leave the true depth out (a third of the size): for `panogrf train renderer`, "
+        "which never reads it; a depth training refuses such a pack",
+    )
+    pack.add_argument(
         "sources",
         type=_pack_source,
         nargs="+",
@@ -200,7 +206,7 @@ def run_pack(args: argparse.Namespace) -> int:
         raise UserError(f"--out must end in .safetensors, got {args.out}")
     if args.height % 32:
         raise UserError(f"--height must be a multiple of 32, got {args.height}")
-    summary = pack_scenes(args.sources, args.out, args.height)
+    summary = pack_scenes(args.sources, args.out, args.height, depth=not args.colour_only)
     print(f"{args.out}: {summary['scenes']} scenes, {summary['bytes'] / 1e6:.1f} MB")
     return 0
 

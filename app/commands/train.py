@@ -150,6 +150,12 @@ def register(subparsers) -> None:
         "refinement, a few seconds per scene, so the outer pair only)",
     )
     renderer.add_argument(
+        "--device",
+        default="cpu",
+        help="torch device to train on, e.g. cuda (default cpu); the samples and rays are "
+        "drawn on the CPU as before, so a run draws the same samples on any device",
+    )
+    renderer.add_argument(
         "--no-surface-loss",
         action="store_true",
         help="train only the composited colours (not the surface colour; round 1's behaviour)",
@@ -272,6 +278,17 @@ def _logger(path: Path | None):
     return log, (log_file.close if log_file else lambda: None)
 
 
+def _check_device(device: str) -> None:
+    """A clear error for a ``--device`` this machine does not have."""
+    import torch
+
+    if device != "cpu":
+        try:
+            torch.empty(1, device=device)
+        except (RuntimeError, AssertionError) as exc:
+            raise UserError(f"--device {device}: not available here ({exc})") from None
+
+
 def run_renderer(args: argparse.Namespace) -> int:
     import torch
 
@@ -284,6 +301,7 @@ def run_renderer(args: argparse.Namespace) -> int:
         raise UserError("--steps, --scenes and --rays must be at least 1")
     if args.height % 64:
         raise UserError(f"--height must be a multiple of 64, got {args.height}")
+    _check_device(args.device)
     if args.threads:
         torch.set_num_threads(args.threads)
     log, close = _logger(args.log)
@@ -302,6 +320,7 @@ def run_renderer(args: argparse.Namespace) -> int:
         init=args.init,
         surface_loss=not args.no_surface_loss,
         depth=args.depth,
+        device=args.device,
     )
     try:
         if args.depth == "shipped":
@@ -343,11 +362,7 @@ def run_depth(args: argparse.Namespace) -> int:
         and (args.mono is None or not args.mono.exists())
     ):
         raise UserError("--stage mvs --preset full needs --mono PATH to trained mono weights")
-    if args.device != "cpu":
-        try:
-            torch.empty(1, device=args.device)
-        except (RuntimeError, AssertionError) as exc:
-            raise UserError(f"--device {args.device}: not available here ({exc})") from None
+    _check_device(args.device)
     if args.threads:
         torch.set_num_threads(args.threads)
     log, close = _logger(args.log)

@@ -60,16 +60,22 @@ class TripletSet:
 
 
 def load_triplets(
-    root: str | Path, height: int, limit: int | None = None, start: int = 0
+    root: str | Path,
+    height: int,
+    limit: int | None = None,
+    start: int = 0,
+    depth: bool = True,
 ) -> TripletSet:
     """Load every scene folder listed in ``root/dataset.json`` at ``height`` x ``2 height``, or
     the scenes of a pack file or a folder of packs (`panogrf.app.train.pack`). ``start`` and
-    ``limit``: the scenes from index ``start`` on, at most ``limit`` of them."""
+    ``limit``: the scenes from index ``start`` on, at most ``limit`` of them. ``depth`` False:
+    the caller never reads the true depth, so colour-only packs are accepted (their depth is
+    zeros, unknown)."""
     root = Path(root)
     if is_pack(root):
         if start:
             raise UserError(f"{root}: a pack is read from its first scene")
-        return read_packs(root, height, limit)
+        return read_packs(root, height, limit, depth)
     index_path = root / "dataset.json"
     if not index_path.exists():
         raise UserError(f"{root}: no dataset.json (make one with `panogrf dataset make`)")

@@ -9,6 +9,12 @@ same way (`downsample_depth`). `load_triplets` reads a pack, or a folder of pack
 reads a dataset folder.
 
     panogrf dataset pack --out packs/lit.safetensors --height 128 data/train_pbr data/train_trim_pbr
+
+A colour-only pack (``depth=False``, `panogrf dataset pack --colour-only`) leaves the true
+depth out, about two thirds of a pack: the renderer's training never reads it (it renders from
+the depth networks' estimates), so at its 256 rows three times the scenes travel in the same
+bytes. Read with ``depth=False`` its scenes have no depth (zeros: unknown); a depth training
+asks for depth and gets a clear error.
 """
 
 from __future__ import annotations
@@ -43,12 +49,15 @@ def _decode(buf: np.ndarray, flags: int, what: str) -> np.ndarray:
     return pixels
 
 
-def pack_scenes(sources: list[tuple[Path, int, int]], out: Path, height: int) -> dict:
+def pack_scenes(
+    sources: list[tuple[Path, int, int]], out: Path, height: int, depth: bool = True
+) -> dict:
     """Pack scenes of dataset folders into ``out``. ``sources``: (folder, first, count) with
-    count -1 for all from first on. Returns a summary (scenes, bytes)."""
+    count -1 for all from first on; ``depth`` False: colour and poses only. Returns a summary
+    (scenes, bytes)."""
     from panogrf.app.train.data import load_triplets
 
-    blobs: dict[str, list[np.ndarray]] = {"jpeg": [], "depth": []}
+    blobs: dict[str, list[np.ndarray]] = {"jpeg": [], "depth": []} if depth else {"jpeg": []}
     c2w, names = [], []
     for folder, first, count in sources:
         index = Path(folder) / "dataset.json"
@@ -65,6 +74,8 @@ def pack_scenes(sources: list[tuple[Path, int, int]], out: Path, height: int) ->
                 blobs["jpeg"].append(
                     _encode(".jpg", rgb[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
                 )
+                if not depth:
+                    continue
                 steps = np.round(data.depths[i, v].numpy() / DEPTH_STEP_M)
                 blobs["depth"].append(
                     _encode(
@@ -86,8 +97,10 @@ def pack_scenes(sources: list[tuple[Path, int, int]], out: Path, height: int) ->
         "height": str(height),
         "depth_step_m": str(DEPTH_STEP_M),
         "jpeg_quality": str(JPEG_QUALITY),
+        "depth": "yes" if depth else "none",
         "names": json.dumps(names),
     }
+    out.parent.mkdir(parents=True, exist_ok=True)
     save_tensors_atomic(out, tensors, meta)
     return {"scenes": len(names), "bytes": out.stat().st_size}
 
@@ -97,17 +110,20 @@ def is_pack(path: Path) -> bool:
     path = Path(path)
     if path.is_file():
         return path.suffix == ".safetensors"
-    return (
-        path.is_dir() and not (path / "dataset.json").exists() and any(path.glob("*.safetensors"))
-    )
+    return path.is_dir() and not (path / "dataset.json").exists() and bool(_pack_files(path))
 
 
 def _pack_files(path: Path) -> list[Path]:
-    return [path] if path.is_file() else sorted(path.glob("*.safetensors"))
+    """The packs of a pack file or folder. Hidden files are not packs: the trainings cache
+    what they compute from the data beside it (e.g. ``.depth_full_*.safetensors``)."""
+    if path.is_file():
+        return [path]
+    return sorted(p for p in path.glob("*.safetensors") if not p.name.startswith("."))
 
 
-def read_packs(path: Path, height: int, limit: int | None = None):
-    """A pack file or a folder of packs as a `TripletSet` (packs in name order)."""
+def read_packs(path: Path, height: int, limit: int | None = None, depth: bool = True):
+    """A pack file or a folder of packs as a `TripletSet` (packs in name order). ``depth``
+    False: the depth is not read (zeros, unknown), and colour-only packs are accepted."""
     from panogrf.app.train.data import TripletSet
 
     images, depths, c2w, names = [], [], [], []
@@ -127,8 +143,14 @@ def read_packs(path: Path, height: int, limit: int | None = None):
         step = float(meta["depth_step_m"])
         file_names = json.loads(meta["names"])
         n = len(file_names)
+        has_depth = meta.get("depth", "yes") != "none"
+        if depth and not has_depth:
+            raise UserError(
+                f"{file}: a colour-only pack (--colour-only), without the true depth this "
+                "training needs"
+            )
         blobs = {}
-        for key in ("jpeg", "depth"):
+        for key in ("jpeg", "depth") if depth else ("jpeg",):
             ends = tensors[f"{key}_ends"].tolist()
             if len(ends) != 3 * n:
                 raise UserError(f"{file}: {len(ends)} {key} images for {n} scenes")
@@ -141,23 +163,30 @@ def read_packs(path: Path, height: int, limit: int | None = None):
             for v in range(3):
                 what = f"{file} scene {file_names[i]} view {v}"
                 bgr = _decode(blobs["jpeg"][3 * i + v], cv2.IMREAD_COLOR, what)
-                dep = _decode(blobs["depth"][3 * i + v], cv2.IMREAD_UNCHANGED, what)
+                dep = np.zeros((height, 2 * height), np.uint16)
+                if depth:
+                    dep = _decode(blobs["depth"][3 * i + v], cv2.IMREAD_UNCHANGED, what)
                 if bgr.shape[:2] != (height, 2 * height) or dep.shape != (height, 2 * height):
                     raise UserError(
                         f"{what}: size {bgr.shape[:2]} / {dep.shape}, not {height} rows"
                     )
                 views_rgb.append(bgr[..., ::-1].transpose(2, 0, 1))
-                views_depth.append(dep.astype(np.float32) * step)
+                if depth:
+                    views_depth.append(dep.astype(np.float32) * step)
             images.append(np.stack(views_rgb))
-            depths.append(np.stack(views_depth))
+            if depth:
+                depths.append(np.stack(views_depth))
             c2w.append(tensors["c2w"][i])
             names.append(file_names[i])
     if not names:
         raise UserError(f"{path}: holds no packed scenes")
     poses = torch.stack(c2w)
+    n = len(names)
+    # Without depth, zeros (unknown) that take no memory: one value seen at every index.
+    no_depth = torch.zeros(()).expand(n, 3, height, 2 * height)
     return TripletSet(
         torch.from_numpy(np.ascontiguousarray(np.stack(images))),
-        torch.from_numpy(np.stack(depths)),
+        torch.from_numpy(np.stack(depths)) if depth else no_depth,
         poses,
         torch.linalg.norm(poses[:, 2, :3, 3] - poses[:, 0, :3, 3], dim=-1),
         names,

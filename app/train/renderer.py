@@ -15,6 +15,11 @@ pair (``depth="networks"``, fast, every configuration above) or the depth the ap
 with (``depth="shipped"``: mode full with the sweep, the canonical world, the selector and the
 preparation's per-scene refinement, `shipped_depths`), a few seconds per scene, so only of the
 outer pair: every sample then renders from the outer two views.
+
+On a GPU (``device``) the renderer trains there and the networks' depth is estimated there;
+the scenes are drawn, turned and their rays chosen on the CPU with the same generator, so a
+run draws the same samples on any device. The data may be a folder of colour-only packs
+(`panogrf.app.train.pack`): the true depth is never read.
 """
 
 from __future__ import annotations
@@ -89,6 +94,9 @@ class TrainRendererConfig:
     depth: str = "networks"
     """The sources' depth: "networks" (the depth networks alone, every ordered pair) or
     "shipped" (what the app renders with, outer pair only; `shipped_depths`)."""
+    device: str = "cpu"
+    """The torch device the renderer trains on (and, with ``depth="networks"``, where the
+    depth networks estimate the training pairs' depth)."""
     extra: dict = field(default_factory=dict)
     """Free-form notes stored with the weights."""
 
@@ -103,11 +111,12 @@ def _weights_key(estimator: DepthEstimator) -> str:
 
 @torch.no_grad()
 def pair_depths(
-    estimator: DepthEstimator, data: TripletSet, root: Path, log=print
+    estimator: DepthEstimator, data: TripletSet, root: Path, log=print, device: str = "cpu"
 ) -> dict[str, Tensor]:
     """Estimated depth of view r with view s as its only source, for every scene and ordered
-    pair: {"r{r}s{s}": [N, 1, h, w] float16}. Cached in ``root`` keyed by the depth weights and
-    the scenes; the cache is written to a temporary file and renamed."""
+    pair: {"r{r}s{s}": [N, 1, h, w] float16, on the CPU}, estimated on ``device``. Cached in
+    ``root`` keyed by the depth weights and the scenes; the cache is written to a temporary
+    file and renamed."""
     # The sweep costs seconds per pair: the renderer trains on the networks' depth alone, in
     # the world as given (the depth its shipped weights were trained on).
     estimator.sweep, estimator.canonical = None, False
@@ -119,12 +128,15 @@ def pair_depths(
         return cached
     out: dict[str, list[Tensor]] = {}
     n = len(data)
+    estimator.to(device)
     for i in tqdm(range(n), desc="estimating depth of the training pairs", unit="scene"):
-        imgs = data.images[i].float() / 255.0
+        imgs = data.images[i].to(device).float() / 255.0
+        c2w = data.c2w[i].to(device)
         for a, b in PAIRS:
-            est = estimator(imgs[[a, b]], data.c2w[i, [a, b]], "full")
-            out.setdefault(f"r{a}s{b}", []).append(est.depth[0:1].half())
-            out.setdefault(f"r{b}s{a}", []).append(est.depth[1:2].half())
+            depth = estimator(imgs[[a, b]], c2w[[a, b]], "full").depth.half().cpu()
+            out.setdefault(f"r{a}s{b}", []).append(depth[0:1])
+            out.setdefault(f"r{b}s{a}", []).append(depth[1:2])
+    estimator.to("cpu")
     result = {k: torch.cat(v) for k, v in out.items()}
     save_tensors_atomic(path, result)
     return result
@@ -230,17 +242,24 @@ def _scene_sample(data: TripletSet, depths: dict[str, Tensor], i: int, gen: torc
 
 
 @torch.no_grad()
-def validate(net: RendererNet, data: TripletSet, depths: dict[str, Tensor], height: int) -> dict:
+def validate(
+    net: RendererNet,
+    data: TripletSet,
+    depths: dict[str, Tensor],
+    height: int,
+    device: str = "cpu",
+) -> dict:
     """WS-PSNR of the middle view rendered from the outer two: depth-guided sampling on every
-    scene, 64 + 64 samples on the first four (slow on a CPU)."""
+    scene, 64 + 64 samples on the first four (slow on a CPU). ``net`` is on ``device``."""
     net.eval()
     scores: dict[str, list[float]] = {"fast": [], "paper": []}
     for i in range(len(data)):
-        imgs = data.images[i].float() / 255.0
-        dep = torch.stack((depths["r0s2"][i], depths["r2s0"][i])).float()
-        cache = build_cache(net, imgs[[0, 2]], data.c2w[i, [0, 2]], dep)
+        imgs = data.images[i].to(device).float() / 255.0
+        c2w = data.c2w[i].to(device)
+        dep = torch.stack((depths["r0s2"][i], depths["r2s0"][i])).to(device).float()
+        cache = build_cache(net, imgs[[0, 2]], c2w[[0, 2]], dep)
         for q in scores if i < 4 else ("fast",):
-            out = render_panorama(net, cache, data.c2w[i, 1], height, q)
+            out = render_panorama(net, cache, c2w[1], height, q)
             gt = torch.nn.functional.interpolate(imgs[1:2], size=(height, 2 * height), mode="area")
             scores[q].append(float(ws_psnr(out.rgb[None], gt)))
     net.train()
@@ -269,7 +288,8 @@ def train_renderer(
     if cfg.depth not in DEPTHS:
         raise ValueError(f"depth must be one of {DEPTHS}, got {cfg.depth!r}")
     torch.manual_seed(cfg.seed)
-    data = load_triplets(cfg.data, cfg.height, cfg.limit_scenes)
+    # The true depth is never read: colour-only packs will do.
+    data = load_triplets(cfg.data, cfg.height, cfg.limit_scenes, depth=False)
     if cfg.depth == "shipped":
         if models is None:
             from panogrf.app.scene.session import default_models
@@ -280,13 +300,16 @@ def train_renderer(
     else:
         if estimator is None:
             raise ValueError('depth "networks" needs the estimator')
-        depths = pair_depths(estimator, _at_height(data, cfg.depth_height), Path(cfg.data), log)
+        small = _at_height(data, cfg.depth_height)
+        depths = pair_depths(estimator, small, Path(cfg.data), log, cfg.device)
     train_idx, val_idx = held_back(len(data), cfg.val_scenes)
     net = RendererNet(PRESETS[cfg.preset])
     init_from(net, cfg.init, log)
+    net.to(cfg.device)
     log(
         f"renderer ({cfg.preset}, {sum(p.numel() for p in net.parameters())} parameters): "
         f"{len(train_idx)} train scenes, {len(val_idx)} validation"
+        + (f", training on {cfg.device}" if cfg.device != "cpu" else "")
     )
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
     gen = torch.Generator().manual_seed(cfg.seed)
@@ -299,9 +322,11 @@ def train_renderer(
         total = 0.0
         for _ in range(cfg.scenes_per_step):
             i = int(train_idx[int(torch.randint(len(train_idx), (1,), generator=gen))])
-            tgt, tgt_c2w, src, src_c2w, src_dep = _scene_sample(data, depths, i, gen)
+            sample = _scene_sample(data, depths, i, gen)
+            tgt, tgt_c2w, src, src_c2w, src_dep = (t.to(cfg.device) for t in sample)
             cache = build_cache(net, src, src_c2w, src_dep)
             pix = torch.multinomial(probs, cfg.rays, replacement=False, generator=gen)
+            pix = pix.to(cfg.device)
             o, d = target_rays(tgt_c2w, cfg.height, 2 * cfg.height)
             o, d = o[pix], d[pix]
             gt = tgt.reshape(3, -1)[:, pix].T  # [R, 3]
@@ -320,11 +345,11 @@ def train_renderer(
                 ]
             )
             total = total + parts.sum() / cfg.scenes_per_step
-            losses += parts.detach() / cfg.scenes_per_step
+            losses += parts.detach().cpu() / cfg.scenes_per_step
         steps.update(total, losses)
     val = data.subset(val_idx)
     val_depths = {k: v[val_idx] for k, v in depths.items()}
-    figures = validate(net, val, val_depths, cfg.depth_height)
+    figures = validate(net, val, val_depths, cfg.depth_height, cfg.device)
     figures.update({"steps": cfg.steps, "seconds": steps.seconds})
     rows = cfg.depth_height
     log(f"final (validation scenes of the train split, {rows} rows): {json.dumps(figures)}")

@@ -118,6 +118,54 @@ def test_training_reads_a_pack_and_refuses_a_device_it_lacks(two_sets, tmp_path,
 
 
 @pytest.mark.gl
+def test_a_colour_only_pack_is_a_third_and_only_the_renderer_takes_it(two_sets, tmp_path, capsys):
+    a, _ = two_sets
+    full, colour = tmp_path / "full.safetensors", tmp_path / "new" / "dir" / "c.safetensors"
+    assert main(["dataset", "pack", "--out", str(full), "--height", "64", str(a)]) == 0
+    # the pack's folder is made when missing
+    args = ["dataset", "pack", "--out", str(colour), "--height", "64", "--colour-only", str(a)]
+    assert main(args) == 0
+    assert colour.stat().st_size < 0.7 * full.stat().st_size
+    with pytest.raises(UserError, match="colour-only pack"):
+        load_triplets(colour, 64)  # a depth training asks for the depth
+    got, want = load_triplets(colour, 64, depth=False), load_triplets(full, 64)
+    assert torch.equal(got.images, want.images) and torch.equal(got.c2w, want.c2w)
+    assert got.names == want.names and got.depths.shape == want.depths.shape
+    assert not got.depths.any()  # unknown everywhere
+    assert got.subset([1]).depths.shape == (1, 3, 64, 128)
+    # the renderer trains on a folder of them, on the device named
+    weights = tmp_path / "r.safetensors"
+    train = ["train", "renderer", "--data", str(colour.parent), "--out", str(weights)]
+    train += ["--steps", "2", "--height", "64", "--rays", "32", "--threads", "2"]
+    capsys.readouterr()
+    assert main([*train, "--device", "cpu"]) == 0
+    with safe_open(str(weights), framework="pt") as f:
+        assert json.loads(f.metadata()["train"])["device"] == "cpu"
+        assert json.loads(f.metadata()["final"])["val_ws_psnr_fast"] > 5
+    # the depth it cached beside the packs is not taken for a pack
+    assert any(p.name.startswith(".depth_full_") for p in colour.parent.iterdir())
+    assert load_triplets(colour.parent, 64, depth=False).names == want.names
+    assert main([*train, "--steps", "1"]) == 0  # and a second run reads the cache
+    if not torch.cuda.is_available():
+        assert main([*train, "--device", "cuda"]) == 2
+        assert "not available here" in capsys.readouterr().err
+
+
+@pytest.mark.gl
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
+def test_the_renderer_trains_on_a_gpu(two_sets, tmp_path):
+    a, _ = two_sets
+    pack = tmp_path / "packs" / "c.safetensors"
+    main(["dataset", "pack", "--out", str(pack), "--height", "64", "--colour-only", str(a)])
+    out = tmp_path / "r.safetensors"
+    train = ["train", "renderer", "--data", str(pack.parent), "--out", str(out), "--steps", "2"]
+    assert main([*train, "--height", "64", "--rays", "32", "--device", "cuda"]) == 0
+    with safe_open(str(out), framework="pt") as f:
+        assert json.loads(f.metadata()["train"])["device"] == "cuda"
+        assert json.loads(f.metadata()["final"])["val_ws_psnr_fast"] > 5
+
+
+@pytest.mark.gl
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
 def test_the_mvs_stage_trains_on_a_gpu(two_sets, tmp_path):
     a, _ = two_sets
