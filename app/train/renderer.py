@@ -129,14 +129,16 @@ def pair_depths(
     out: dict[str, list[Tensor]] = {}
     n = len(data)
     estimator.to(device)
-    for i in tqdm(range(n), desc="estimating depth of the training pairs", unit="scene"):
-        imgs = data.images[i].to(device).float() / 255.0
-        c2w = data.c2w[i].to(device)
-        for a, b in PAIRS:
-            depth = estimator(imgs[[a, b]], c2w[[a, b]], "full").depth.half().cpu()
-            out.setdefault(f"r{a}s{b}", []).append(depth[0:1])
-            out.setdefault(f"r{b}s{a}", []).append(depth[1:2])
-    estimator.to("cpu")
+    try:
+        for i in tqdm(range(n), desc="estimating depth of the training pairs", unit="scene"):
+            imgs = data.images[i].to(device).float() / 255.0
+            c2w = data.c2w[i].to(device)
+            for a, b in PAIRS:
+                depth = estimator(imgs[[a, b]], c2w[[a, b]], "full").depth.half().cpu()
+                out.setdefault(f"r{a}s{b}", []).append(depth[0:1])
+                out.setdefault(f"r{b}s{a}", []).append(depth[1:2])
+    finally:
+        estimator.to("cpu")  # where the caller's estimator was, whatever happened
     result = {k: torch.cat(v) for k, v in out.items()}
     save_tensors_atomic(path, result)
     return result
