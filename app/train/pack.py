@@ -42,10 +42,13 @@ def _encode(ext: str, pixels: np.ndarray, params: list[int]) -> np.ndarray:
     return buf.reshape(-1)
 
 
-def _decode(buf: np.ndarray, flags: int, what: str) -> np.ndarray:
+def _decode(buf: np.ndarray, flags: int, what: str, height: int | None = None) -> np.ndarray:
+    """An encoded image, checked to be ``height`` x 2 ``height`` when given."""
     pixels = cv2.imdecode(buf, flags)
     if pixels is None:
         raise UserError(f"{what}: corrupt image data")
+    if height is not None and pixels.shape[:2] != (height, 2 * height):
+        raise UserError(f"{what}: size {pixels.shape[:2]}, not {height} rows")
     return pixels
 
 
@@ -162,16 +165,10 @@ def read_packs(path: Path, height: int, limit: int | None = None, depth: bool = 
             views_rgb, views_depth = [], []
             for v in range(3):
                 what = f"{file} scene {file_names[i]} view {v}"
-                bgr = _decode(blobs["jpeg"][3 * i + v], cv2.IMREAD_COLOR, what)
-                dep = np.zeros((height, 2 * height), np.uint16)
-                if depth:
-                    dep = _decode(blobs["depth"][3 * i + v], cv2.IMREAD_UNCHANGED, what)
-                if bgr.shape[:2] != (height, 2 * height) or dep.shape != (height, 2 * height):
-                    raise UserError(
-                        f"{what}: size {bgr.shape[:2]} / {dep.shape}, not {height} rows"
-                    )
+                bgr = _decode(blobs["jpeg"][3 * i + v], cv2.IMREAD_COLOR, what, height)
                 views_rgb.append(bgr[..., ::-1].transpose(2, 0, 1))
                 if depth:
+                    dep = _decode(blobs["depth"][3 * i + v], cv2.IMREAD_UNCHANGED, what, height)
                     views_depth.append(dep.astype(np.float32) * step)
             images.append(np.stack(views_rgb))
             if depth:
