@@ -245,6 +245,14 @@ def _fusion_recording_args(parser: argparse.ArgumentParser) -> None:
         "as a real capture's views read it) instead of drawn per view",
     )
     parser.add_argument(
+        "--mono-features-shift",
+        type=float,
+        default=0.0,
+        help="fraction of the scenes not under --mono-shift whose monocular network gives "
+        "the features of its input seen out of its domain with the depth of the input as it "
+        "is (default 0)",
+    )
+    parser.add_argument(
         "--height",
         type=int,
         default=256,
@@ -411,6 +419,11 @@ def _check_fusion_args(args: argparse.Namespace) -> None:
         )
     if args.mono_heights_shared and not args.mono_heights:
         raise UserError("--mono-heights-shared needs --mono-heights above 0")
+    if not 0 <= args.mono_features_shift <= 1:
+        raise UserError(
+            "--mono-features-shift is a fraction of the scenes (0-1), "
+            f"got {args.mono_features_shift}"
+        )
     if args.height < 32 or args.height % 32:
         raise UserError(f"--height must be a multiple of 32, got {args.height}")
     if args.threads:
@@ -429,6 +442,7 @@ def _fusion_config(args: argparse.Namespace) -> dict:
         shift=args.mono_shift,
         heights=args.mono_heights,
         heights_shared=args.mono_heights_shared,
+        features_shift=args.mono_features_shift,
         height=args.height,
         seed=args.seed,
         limit_scenes=args.limit_scenes,

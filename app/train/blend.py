@@ -54,7 +54,7 @@ def record_scenes(
     depth, "truth": [N, h, w] (all log metres in the canonical world; truth nan: unknown)}.
     Cached in the data folder (written to a temporary file and renamed)."""
     settings = [cfg.shift, cfg.photometric, cfg.heights, cfg.height, cfg.seed, FEATURES]
-    settings += cfg.shared_key
+    settings += cfg.extra_key
     path = recording_path(cfg.data, "blend", estimator, [data.names[i] for i in indices], settings)
     cached = cached_record(path, RECORD_KEYS, FEATURES, "blend", log)
     if cached is not None:

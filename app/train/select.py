@@ -64,6 +64,11 @@ class FusionRecordingConfig:
     heights_shared: bool = False
     """Those scenes' wrong heights drawn once per scene, the same in both views
     (`mono_wrong_heights` ``shared``), instead of once per view."""
+    features_shift: float = 0.0
+    """Fraction of the scenes not under ``shift`` whose monocular network gives the features
+    of its input seen out of its domain and the depth of the input as it is
+    (`mono_out_of_domain` ``features_only``; round 30: on a real capture the mono-guided
+    network is led astray by these features more than by the depth)."""
     height: int = 256
     """Rows the panoramas are loaded at (the sweep's resolution)."""
     steps: int = 1500
@@ -78,10 +83,11 @@ class FusionRecordingConfig:
     """Load only this many scenes (smoke tests)."""
 
     @property
-    def shared_key(self) -> list[str]:
-        """What a recording's cache key adds for ``heights_shared`` (nothing without it, so
-        the recordings made before it keep their keys)."""
-        return ["shared"] if self.heights and self.heights_shared else []
+    def extra_key(self) -> list:
+        """What a recording's cache key adds for ``heights_shared`` and ``features_shift``
+        (nothing without them, so the recordings made before them keep their keys)."""
+        key: list = ["shared"] if self.heights and self.heights_shared else []
+        return key + (["features", self.features_shift] if self.features_shift else [])
 
 
 @dataclass
@@ -124,7 +130,7 @@ def record_scenes(
     photometric rule gives the unguided depth}. Cached in the data folder."""
     settings = [cfg.shift, cfg.photometric, cfg.height, cfg.seed, RECORD_CHANNELS]
     settings += [cfg.heights] if cfg.heights else []
-    settings += cfg.shared_key
+    settings += cfg.extra_key
     path = recording_path(cfg.data, "select", estimator, [data.names[i] for i in indices], settings)
     cached = cached_record(path, RECORD_KEYS, RECORD_CHANNELS, "selector", log)
     if cached is not None:
@@ -181,8 +187,9 @@ def fusion_runs(
 ):
     """Mode "full" on the first and last views of each scene of ``indices`` with the
     estimator's recording list ``attr`` ("record": the selector's, "blend_record": the
-    blend's) set, under ``cfg``'s seeded conditions (``photometric``, ``shift`` and
-    ``heights`` fractions, ``seed``): yields (scene index, the records)."""
+    blend's) set, under ``cfg``'s seeded conditions (``photometric``, ``shift``,
+    ``heights`` and ``features_shift`` fractions, ``seed``): yields (scene index, the
+    records)."""
     gen = torch.Generator().manual_seed(cfg.seed)
     for n, i in enumerate(tqdm(indices, desc="recording the fusion", unit="scene")):
         images = data.images[i, [0, 2]].float() / 255.0
@@ -190,14 +197,21 @@ def fusion_runs(
             images = balance_exposure(photometric(images, gen))[0]
         c2w = data.c2w[i, [0, 2]]
         shifted = float(torch.rand(1, generator=gen)) < cfg.shift
-        # Drawn only when asked for, so that runs without it record what they always did.
+        # Drawn only when asked for, so that runs without them record what they always did.
         heights = cfg.heights > 0 and float(torch.rand(1, generator=gen)) < cfg.heights
+        features = (
+            cfg.features_shift > 0 and float(torch.rand(1, generator=gen)) < cfg.features_shift
+        )
         partner = data.images[indices[(n + 1) % len(indices)], [0, 2]].float() / 255.0
         setattr(estimator, attr, [])
         try:
             with ExitStack() as stack:
                 if shifted:
                     stack.enter_context(mono_out_of_domain(estimator, partner, gen))
+                elif features:
+                    stack.enter_context(
+                        mono_out_of_domain(estimator, partner, gen, features_only=True)
+                    )
                 if heights:
                     stack.enter_context(
                         mono_wrong_heights(estimator, gen, shared=cfg.heights_shared)

@@ -8,6 +8,7 @@ import json
 import pytest
 import torch
 from safetensors import safe_open
+from safetensors.torch import load_file
 
 from panogrf.app.cli import main
 from panogrf.app.synth.make import MakeConfig, make_dataset
@@ -154,6 +155,21 @@ def test_train_select_smoke(tiny_train, tmp_path, capsys):
         main([*args, "--scenes", "1", "--steps", "1", "--batch", "2", "--mono-heights", "1"]) == 0
     )
     assert len(list(tiny_train.glob(".select_*.safetensors"))) == 4
+    # So are the monocular features out of the domain with its depth right (round 34), and
+    # what the mono-guided search ends at moves with them: the selector has something to read.
+    plain = {c.name for c in tiny_train.glob(".select_*.safetensors")}
+    features = [*args, "--scenes", "1", "--steps", "1", "--batch", "2"]
+    assert main([*features, "--mono-shift", "0", "--mono-features-shift", "1"]) == 0
+    assert main([*features, "--mono-shift", "0"]) == 0
+    fresh = sorted(
+        (c for c in tiny_train.glob(".select_*.safetensors") if c.name not in plain),
+        key=lambda c: c.stat().st_mtime_ns,
+    )
+    assert len(fresh) == 4  # training and held-back scenes, with and without the features
+    shifted, unshifted = load_file(str(fresh[0])), load_file(str(fresh[2]))
+    assert shifted["ends"].shape == unshifted["ends"].shape
+    assert not torch.equal(shifted["ends"][:, 0], unshifted["ends"][:, 0])
+    assert torch.equal(shifted["ends"][:, 1], unshifted["ends"][:, 1])
     # Recording ran the rule on the shared, cached estimator; it keeps its shipped selector.
     from panogrf.app.weights.networks import load_depth_estimator
 
@@ -217,6 +233,11 @@ def test_train_select_errors(tmp_path, capsys):
     assert "0-1" in capsys.readouterr().err
     assert main([*base, "--out", str(tmp_path / "s.safetensors"), "--mono-heights-shared"]) == 2
     assert "--mono-heights above 0" in capsys.readouterr().err
+    assert (
+        main([*base, "--out", str(tmp_path / "s.safetensors"), "--mono-features-shift", "1.5"])
+        == 2
+    )
+    assert "--mono-features-shift" in capsys.readouterr().err
     assert main([*base, "--out", str(tmp_path / "s.safetensors"), "--scenes", "0"]) == 2
     assert "at least 1" in capsys.readouterr().err
     assert main([*base, "--out", str(tmp_path / "s.safetensors"), "--height", "100"]) == 2
