@@ -6,8 +6,11 @@ The depth networks are frozen and shipped. For a seeded sample of the training s
 selector sees (`panogrf.model.select.selection_features`) and where the sweep's search from
 each hypothesis ends. On a fraction of the scenes (``shift``) the monocular network sees its
 input out of its domain (`out_of_domain`: blended with another scene's panoramas), so that its
-prior, and the mono-guided depth with it, is wrong as on a real capture; on some the views are
-put through `photometric` (then balanced as at preparation). The records are cached beside the
+prior, and the mono-guided depth with it, is wrong as on a real capture; when asked, on a
+fraction of the others (``features_shift``) only its features are those of the input out of
+its domain, its depth right, which leads the mono-guided network astray as a real image's
+features do (round 30); on some the views are put through `photometric` (then balanced as at
+preparation). The records are cached beside the
 data, keyed by the depth weights, the scenes and these settings.
 
 The label of a pixel is which search end is nearer the truth (in the canonical world), its
