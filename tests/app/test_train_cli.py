@@ -234,8 +234,7 @@ def test_train_select_errors(tmp_path, capsys):
     assert main([*base, "--out", str(tmp_path / "s.safetensors"), "--mono-heights-shared"]) == 2
     assert "--mono-heights above 0" in capsys.readouterr().err
     assert (
-        main([*base, "--out", str(tmp_path / "s.safetensors"), "--mono-features-shift", "1.5"])
-        == 2
+        main([*base, "--out", str(tmp_path / "s.safetensors"), "--mono-features-shift", "1.5"]) == 2
     )
     assert "--mono-features-shift" in capsys.readouterr().err
     assert main([*base, "--out", str(tmp_path / "s.safetensors"), "--scenes", "0"]) == 2
