@@ -11,16 +11,21 @@
 # gets out-of-domain monocular features for a fraction P of its pairs, `--mono-features-shift`,
 # round 30's lever (default 0, round 29's recipe). RUNS="g gf" (round 31): instead of the two
 # networks, two mono-guided runs side by side, OUT/g as round 29's recipe (the control) and
-# OUT/gf with FEATURES (default 0.5 there; the candidate).
+# OUT/gf with FEATURES (default 0.5 there; the candidate). RUNS=gf (round 35): that candidate
+# alone, with the whole device to itself. INIT=FILE: the mono-guided runs start from FILE instead
+# of the shipped weights (to train an earlier run on).
 set -euo pipefail
 data=$1 out=$2 seconds=$3
 py=${PYTHON:-python3}
 runs=(${RUNS:-u g})
 train=(scripts/train_elsewhere.py train depth --data "$data" --stage mvs --trunk 2
        --batch "${BATCH:-16}" --lr 3e-4 --device "${DEVICE:-cuda}" --threads 7)
-guided=(--preset full --init assets/depth_mvs_full.safetensors --mono assets/depth_mono.safetensors
+guided=(--preset full --init "${INIT:-assets/depth_mvs_full.safetensors}" --mono assets/depth_mono.safetensors
         --mono-noise 0.8 --mono-shift 0.3 --mono-warp 0.3)
-[[ ${runs[*]} == "u g" || ${runs[*]} == "g gf" ]] || { echo "RUNS is 'u g' or 'g gf'" >&2; exit 2; }
+case ${runs[*]} in
+    "u g" | "g gf" | gf) ;;
+    *) echo "RUNS is 'u g', 'g gf' or 'gf'" >&2; exit 2 ;;
+esac
 if [[ ${runs[*]} == "g gf" ]]; then features_g=0; else features_g=${FEATURES:-0}; fi
 declare -A weights=([u]=depth_mvs_only [g]=depth_mvs_full [gf]=depth_mvs_full)
 run_args() {  # the arguments of one run, by name
