@@ -10,8 +10,8 @@ prior, and the mono-guided depth with it, is wrong as on a real capture; when as
 fraction of the others (``features_shift``) only its features are those of the input out of
 its domain, its depth right, which leads the mono-guided network astray as a real image's
 features do (round 30); on some the views are put through `photometric` (then balanced as at
-preparation). The records are cached beside the
-data, keyed by the depth weights, the scenes and these settings.
+preparation). The records are cached beside the data, keyed by the depth weights, the scenes
+and these settings.
 
 The label of a pixel is which search end is nearer the truth (in the canonical world), its
 weight how much nearer (metres, capped): the loss is the weighted binary cross-entropy, so the
