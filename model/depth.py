@@ -32,6 +32,7 @@ from panogrf.model.blend import DepthBlend, blend_features, parallax
 from panogrf.model.erp import erp_directions
 from panogrf.model.mono import MonoDepthNet, MonoOutput
 from panogrf.model.mvs import MVSNet
+from panogrf.model.progress import open_stage, stage
 from panogrf.model.refine import (
     SweepConfig,
     cost_at,
@@ -200,9 +201,10 @@ class DepthEstimator(nn.Module):
         """``depth`` with every view that has sources replaced by network ``mode``'s estimate."""
         return self._mvs_confidence(mode, small, c2w, mono, sources, depth)[0]
 
-    def _mvs_confidence(self, mode, small, c2w, mono, sources, depth: Tensor):
+    def _mvs_confidence(self, mode, small, c2w, mono, sources, depth: Tensor, step=None):
         """(`_mvs`'s depth, the network's confidence [V, 1, h, w]: the peak of its
-        cost-volume softmax, 1 for views without sources)."""
+        cost-volume softmax, 1 for views without sources). ``step``: called after each view
+        (progress)."""
         net = self.mvs[mode]
         confidence = torch.ones_like(depth)
         cfg = net.config
@@ -227,6 +229,8 @@ class DepthEstimator(nn.Module):
             confidence[ref] = F.interpolate(
                 peak, size=depth.shape[-2:], mode="bilinear", align_corners=False
             )[0]
+            if step is not None:
+                step()
         return depth, confidence
 
     def _aligned(self, mono: Tensor, mvs: Tensor, sources: list[list[int]]) -> Tensor:
@@ -290,27 +294,29 @@ class DepthEstimator(nn.Module):
         consistency = cross_view_consistency(ends, c2w, sources)
         rows = self.blend.config.rows if self.blend is not None else depth.shape[-2]
         out = depth.clone()
-        for r, log_pair in ends.items():
-            fine = F.interpolate(log_pair[None], **up)[0]
-            cost = torch.stack(
-                [cost_at(img, c2w, r, sources[r], d, dirs, cfg, d_range) for d in fine]
-            )
-            feats = blend_features(
-                img[r],
-                cost,
-                log_pair[0],
-                log_pair[1],
-                consistency[r],
-                parallax(log_pair[0], c2w, r, sources[r]),
-                rows,
-            )
-            if self.blend_record is not None:
-                self.blend_record.append(
-                    {"view": r, "features": feats, "logs": log_pair, "scale": scale}
+        with stage("depth: blend with the monocular depth", len(ends)) as progress:
+            for r, log_pair in ends.items():
+                fine = F.interpolate(log_pair[None], **up)[0]
+                cost = torch.stack(
+                    [cost_at(img, c2w, r, sources[r], d, dirs, cfg, d_range) for d in fine]
                 )
-            else:
-                blended = self.blend.blend(feats[None], log_pair[:1], log_pair[1:])
-                out[r] = self._clean(torch.exp(blended))
+                feats = blend_features(
+                    img[r],
+                    cost,
+                    log_pair[0],
+                    log_pair[1],
+                    consistency[r],
+                    parallax(log_pair[0], c2w, r, sources[r]),
+                    rows,
+                )
+                if self.blend_record is not None:
+                    self.blend_record.append(
+                        {"view": r, "features": feats, "logs": log_pair, "scale": scale}
+                    )
+                else:
+                    blended = self.blend.blend(feats[None], log_pair[:1], log_pair[1:])
+                    out[r] = self._clean(torch.exp(blended))
+                progress.advance()
         return out
 
     def _chooser(self, pixels: Tensor, mono: Tensor, confidence: Tensor) -> _SelectorChooser:
@@ -339,7 +345,9 @@ class DepthEstimator(nn.Module):
             raise ValueError(f"panoramas must be 2:1, got {h}x{w}")
         hw = (self.working_height, 2 * self.working_height)
         small = F.interpolate(images, size=hw, mode="area") if (h, w) != hw else images
-        mono = self.mono(small)
+        with stage("depth: monocular network", 1) as progress:
+            mono = self.mono(small)
+            progress.advance()
         warnings: list[str] = []
         sources: list[list[int]] = [[] for _ in range(v)]
         depth = mono.depth.clone()
@@ -351,16 +359,22 @@ class DepthEstimator(nn.Module):
             sources, notes = self.view_sources(c2w)
             warnings += notes
             guide = mono
+            # Network passes over every view with sources: the unguided one (twice when it
+            # first fixes the world's scale), then the guided one.
+            canonical = self._canonical(mode)
+            passes = 1 + int(self._fuses(mode) or canonical) + int(canonical)
+            progress = open_stage("depth: multi-view stereo", passes * sum(map(bool, sources)))
+            step = progress.advance
             if self._fuses(mode) or self._canonical(mode):
                 unguided, conf_u = self._mvs_confidence(
-                    "mvs", small, c2w, mono, sources, mono.depth.clone()
+                    "mvs", small, c2w, mono, sources, mono.depth.clone(), step
                 )
                 if self._canonical(mode):
                     scale = self._world_scale(mono.depth, self._clean(unguided), sources)
                     c2w = c2w.clone()
                     c2w[:, :3, 3] *= scale
                     unguided, conf_u = self._mvs_confidence(
-                        "mvs", small, c2w, mono, sources, mono.depth.clone()
+                        "mvs", small, c2w, mono, sources, mono.depth.clone(), step
                     )
                 if self._fuses(mode):
                     others = (unguided, mono.depth) if self.mono_hypothesis else (unguided,)
@@ -370,7 +384,8 @@ class DepthEstimator(nn.Module):
                     guide = MonoOutput(self._banded(mono.depth, unguided, sources), mono.features)
                 elif self.guide == "mvs":
                     guide = MonoOutput(self._clean(unguided), mono.features)
-            depth, conf = self._mvs_confidence(mode, small, c2w, guide, sources, depth)
+            depth, conf = self._mvs_confidence(mode, small, c2w, guide, sources, depth, step)
+            progress.close()
             if len(others) == 1:
                 conf = torch.cat((conf, conf_u), 1)  # [V, 2, h, w]
         depth = self._clean(depth)

@@ -37,6 +37,7 @@ from panogrf.model.erp import (
     sample_erp,
     world_to_erp,
 )
+from panogrf.model.progress import open_stage
 
 
 @dataclass(frozen=True)
@@ -230,6 +231,8 @@ def refine_depth(
         (config.height, config.iterations),
         (min(2 * config.height, images.shape[-2]), config.fine),
     )
+    # Progress: a unit per step (each a warp of every view's sources).
+    progress = open_stage("depth refinement", sum(max(steps, 0) for _, steps in stages))
     for hh, steps in stages:
         if steps <= 0:
             continue
@@ -239,6 +242,7 @@ def refine_depth(
         wlat = latitude_weights(hh, 2 * hh, device=depth.device, dtype=depth.dtype)
         for _ in range(steps):
             if should_stop is not None and should_stop():
+                progress.close()
                 return None
             log_d = log_d0 + delta * moves
             log_full = F.interpolate(log_d, size=(hh, 2 * hh), mode="bilinear", align_corners=False)
@@ -268,6 +272,8 @@ def refine_depth(
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
+            progress.advance()
+    progress.close()
     with torch.no_grad():
         return torch.exp(log_d0 + delta * moves).clamp(*d_range)
 
@@ -386,15 +392,18 @@ def sweep_depth(
         out[r] = (depth[r] * torch.exp(small)).clamp(*d_range)
 
     pending: dict[int, Tensor] = {}  # search ends of the views the chooser decides at the end
+    # Progress: a unit per view and hypothesis (each a sweep of its candidates).
+    progress = open_stage("depth: photometric sweep", len(hyps) * sum(map(bool, sources)))
     for r in range(v):
         if not sources[r]:
             continue
-        cost = torch.stack(
-            [
+        costs = []
+        for k in range(len(hyps)):
+            costs.append(
                 _sweep_costs(img, c2w, r, sources[r], log_hyp[k, r], offsets, dirs, config, d_range)
-                for k in range(len(hyps))
-            ]
-        )  # [K, D, H, W]
+            )
+            progress.advance()
+        cost = torch.stack(costs)  # [K, D, H, W]
         # Where the search from each hypothesis ends (log depth), [K, H, W].
         ends = log_hyp[:, r] + torch.stack(
             [_search(c, offsets, centre, step, config) for c in cost]
@@ -410,6 +419,7 @@ def sweep_depth(
     if pending:
         for r, start in chooser.finish(pending, c2w, sources).items():
             move(r, pending[r], start)
+    progress.close()
     return out
 
 
