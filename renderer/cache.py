@@ -14,7 +14,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from panogrf.model.erp import invert_rigid, pad_seam
+from panogrf.model.erp import invert_rigid, pad_seam, sample_padded
 from panogrf.model.render_net import RendererNet
 
 
@@ -27,11 +27,31 @@ class SceneCache:
     depth: Tensor  # [V, 1, h, w] estimated spherical depth (metres)
     maps: Tensor  # [V, C + 6 + 1, h, w] appearance features | visibility params | depth
     feature_channels: int
+    mask: Tensor | None = None
+    """[V, 1, H', W'] each source's rig at the nadir (1: masked; `panogrf.renderer.nadir`):
+    a sample projected into it counts as not seen by that source. None: nothing masked."""
 
     def __post_init__(self) -> None:
         # Padded once for the seam, sampled for every chunk of points.
         self.maps_padded = pad_seam(self.maps)
         self._images_padded = {1: pad_seam(self.images)}
+        self.mask_padded = None if self.mask is None else pad_seam(self.mask.to(self.maps.dtype))
+
+    def masked_at(self, uv: Tensor, height: int, width: int) -> Tensor | None:
+        """Masked fraction [V, N] of each source at its pixel coordinates uv [V, N, 2] on an
+        ``height`` x ``width`` grid (None without a mask)."""
+        if self.mask_padded is None:
+            return None
+        hm, wm = self.mask.shape[-2:]
+        if (hm, wm) != (height, width):
+            uv = uv * (wm / width) + 0.5 * (wm / width - 1.0)
+        return sample_padded(self.mask_padded, uv)[:, 0]
+
+    def with_mask(self, mask: Tensor | None) -> SceneCache:
+        """This cache (its tensors shared) with the sources' nadir ``mask`` [V, 1, H', W']."""
+        return SceneCache(
+            self.images, self.c2w, self.depth, self.maps, self.feature_channels, mask
+        )
 
     def images_padded_by(self, pad: int) -> Tensor:
         """The sources with ``pad`` wrapped columns on each side (bicubic reads need 2),
@@ -59,6 +79,7 @@ class SceneCache:
             self.depth.to(device),
             self.maps.to(device),
             self.feature_channels,
+            None if self.mask is None else self.mask.to(device),
         )
 
     def select(self, views: list[int]) -> SceneCache:
@@ -69,6 +90,7 @@ class SceneCache:
             self.depth[views],
             self.maps[views],
             self.feature_channels,
+            None if self.mask is None else self.mask[views],
         )
 
 
@@ -91,8 +113,11 @@ def resize_erp(x: Tensor, height: int) -> Tensor:
     return F.interpolate(x, size=(height, 2 * height), mode="bilinear", align_corners=False)
 
 
-def build_cache(net: RendererNet, images: Tensor, c2w: Tensor, depth: Tensor) -> SceneCache:
-    """Encode V posed panoramas with their estimated depth: [V, 3, H, W], [V, 4, 4], [V, 1, h, w].
+def build_cache(
+    net: RendererNet, images: Tensor, c2w: Tensor, depth: Tensor, mask: Tensor | None = None
+) -> SceneCache:
+    """Encode V posed panoramas with their estimated depth: [V, 3, H, W], [V, 4, 4], [V, 1, h, w]
+    (``mask`` [V, 1, H', W']: the sources' nadir masks, `SceneCache.mask`).
 
     Differentiable (training calls it under autograd); wrap in ``torch.no_grad()`` otherwise.
     """
@@ -109,4 +134,4 @@ def build_cache(net: RendererNet, images: Tensor, c2w: Tensor, depth: Tensor) ->
     else:
         params = depth.new_zeros(depth.shape[0], 6, h, w)
     maps = torch.cat((features, params, depth), 1)
-    return SceneCache(images, c2w, depth, maps, cfg.feature_channels)
+    return SceneCache(images, c2w, depth, maps, cfg.feature_channels, mask)

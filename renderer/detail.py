@@ -38,6 +38,7 @@ from panogrf.model.refine import median_filter
 from panogrf.model.render_net import RendererNet
 from panogrf.model.splat import proxy_depth
 from panogrf.renderer.cache import SceneCache, resize_erp
+from panogrf.renderer.nadir import mask_factor
 from panogrf.renderer.render import RenderOutput, Sampling, render_panorama
 
 
@@ -142,6 +143,14 @@ def project_sources(
     """Colours [V, 3, H, W] of the sources at the points of the target panorama's pixels at
     spherical depth ``depth`` [H, W] (metres), read from the full-resolution sources
     (``sampling``: "bilinear" or "bicubic")."""
+    return _projected(cache, c2w, depth, sampling)[0]
+
+
+def _projected(
+    cache: SceneCache, c2w: Tensor, depth: Tensor, sampling: str = "bilinear"
+) -> tuple[Tensor, Tensor | None]:
+    """`project_sources` and the sources' masked fraction there [V, 1, H, W] (None without
+    a nadir mask)."""
     h, w = depth.shape
     dirs = erp_directions(h, w, device=depth.device, dtype=depth.dtype) @ c2w[:3, :3].T
     points = c2w[:3, 3] + dirs * depth[..., None]  # [H, W, 3] world
@@ -151,7 +160,8 @@ def project_sources(
     uv = direction_to_pixel(cam, hi, wi)  # [V, N, 2]
     pad = 2 if sampling == "bicubic" else 1
     colour = sample_padded(cache.images_padded_by(pad), uv, sampling, pad=pad)  # [V, 3, N]
-    return colour.reshape(-1, 3, h, w)
+    masked = cache.masked_at(uv, hi, wi)
+    return colour.reshape(-1, 3, h, w), None if masked is None else masked.reshape(-1, 1, h, w)
 
 
 def add_detail(
@@ -167,10 +177,12 @@ def add_detail(
     h = low.rgb.shape[-2]
     depth = _upsample_depth(projection_depth(cache, c2w, low, config), size)
     sampling = config.sampling if height >= cache.images.shape[-2] else "bilinear"
-    proj = project_sources(cache, c2w.to(depth.dtype), depth[0], sampling)
+    proj, masked = _projected(cache, c2w.to(depth.dtype), depth[0], sampling)
     proj_low = resize_erp(proj, h)  # [V, 3, h, 2h]
     diff = _smooth((proj_low - low.rgb[None]).abs().mean(1))  # [V, h, 2h]
     weight = torch.exp(-diff / config.agreement)
+    if masked is not None:  # a source gives no detail where its rig hides the point
+        weight = weight * mask_factor(resize_erp(masked, h)[:, 0])
     total = weight.sum(0, keepdim=True)
     blend_w = weight / total.clamp(min=1e-6)
     gate = total.clamp(max=1.0)  # no source agrees: no detail

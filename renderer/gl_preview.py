@@ -134,6 +134,14 @@ def _uv_world_points(uv: np.ndarray, depth: np.ndarray, c2w: np.ndarray) -> tupl
     return cam @ c2w[:3, :3].T + c2w[:3, 3], d
 
 
+def _uv_masked(uv: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """``mask`` [h, w] (bool) read (nearest) at ERP coordinates uv [N, 2] -> [N] bool."""
+    h, w = mask.shape
+    row = np.minimum((uv[:, 1] * h).astype(np.int64), h - 1)
+    col = np.minimum(((uv[:, 0] % 1.0) * w).astype(np.int64), w - 1)
+    return mask[row, col]
+
+
 def decimate(
     points: np.ndarray, tris: np.ndarray, target: int, c2w: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -186,14 +194,20 @@ class PreviewRenderer:
         mesh_height: int | None = None,
         max_views: int | None = None,
         mesh_triangles: int | None = None,
+        masks: np.ndarray | None = None,  # [V, H', W'] bool
     ) -> None:
         """``mesh_height``: rows of the depth meshes (default: the depth's own; fewer rows,
         fewer triangles). ``max_views``: draw only this many sources per frame, the nearest to
         the camera (default: all of them, at most `MAX_VIEWS`). ``mesh_triangles``: simplify
-        each source's mesh to at most this many triangles (`decimate`; default: keep all)."""
+        each source's mesh to at most this many triangles (`decimate`; default: keep all).
+        ``masks``: each source's rig at the nadir (`panogrf.renderer.nadir`; True: masked):
+        its triangles there are not drawn, so its texels there get no weight and the other
+        sources (or the push-pull fill) give the floor."""
         v = images.shape[0]
         if v < 1:
             raise ValueError("the preview needs at least one view")
+        if masks is not None and (masks.ndim != 3 or masks.shape[0] != v):
+            raise ValueError(f"masks {masks.shape} must be [{v}, H, W]")
         if depth.shape[0] != v or c2w.shape != (v, 4, 4):
             raise ValueError(
                 f"images {images.shape}, depth {depth.shape} and c2w {c2w.shape} disagree"
@@ -252,6 +266,8 @@ class PreviewRenderer:
             pts, dd = _uv_world_points(uv, np.asarray(depth[k], np.float32), self.c2w[k])
             tri_d = dd[grid]
             keep = (tri_d.min(1) > 0) & (tri_d.max(1) <= max_stretch * tri_d.min(1))
+            if masks is not None and masks[k].any():
+                keep &= ~_uv_masked(uv, masks[k])[grid].any(1)
             tris, vuv = np.ascontiguousarray(grid[keep]), uv
             if mesh_triangles and len(tris) > mesh_triangles:
                 pts, vuv, tris = decimate(pts, tris, mesh_triangles, self.c2w[k])

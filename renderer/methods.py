@@ -36,6 +36,12 @@ from panogrf.model.render_net import RendererNet
 from panogrf.renderer.baselines import render_meshwarp, render_nearest
 from panogrf.renderer.cache import SceneCache, build_cache
 from panogrf.renderer.detail import render_detailed
+from panogrf.renderer.nadir import (
+    NadirSetting,
+    fill_floor_depth,
+    inpaint_masked,
+    nadir_masks,
+)
 from panogrf.renderer.render import render_perspective
 
 
@@ -103,6 +109,15 @@ class SourceViews:
     ``refine``: the multi-view depth is refined per scene by photometric consistency between
     the sources (`panogrf.model.refine.refine_depth`, each view against its two nearest
     sources) after the estimator; a few seconds per view here, paid once at preparation.
+
+    ``nadir``: the capture rig (tripod, hand) at the bottom of every source is masked
+    (`panogrf.renderer.nadir`): "auto" (detected per source), degrees of a cap around the
+    nadir, a mask [V, 1, H, W] of its own, or None (the default: nothing masked). On
+    construction the masks go to ``nadir_mask`` [V, 1, H, W] bool (None where no source has
+    any), the one place every renderer reads them, and the masked pixels of ``images`` are
+    filled from the floor around them; the estimated depth there is the floor plane fitted
+    around the mask. ``nadir_mask`` given: the images are taken as already filled (a copy of
+    prepared views, as `refined` makes).
     """
 
     images: Tensor  # [V, 3, H, W] in [0, 1]
@@ -114,6 +129,9 @@ class SourceViews:
     balance: bool = True
     gains: Tensor | None = None  # [V, 3] exposure gains applied to the given images
     refine: RefineConfig | None = None  # per-scene depth refinement (None: none)
+    nadir: NadirSetting | Tensor = None  # the rig at the nadir: "auto", degrees, a mask, None
+    nadir_mask: Tensor | None = None  # [V, 1, H, W] bool, set on construction from ``nadir``
+    nadir_notes: list[str] = field(default_factory=list)  # how each source's mask was found
 
     def __post_init__(self) -> None:
         if self.gains is None:
@@ -121,6 +139,20 @@ class SourceViews:
                 self.images, self.gains = balance_exposure(self.images)
             else:
                 self.gains = self.images.new_ones(self.images.shape[0], 3)
+        if self.nadir_mask is None and self.nadir is not None:
+            start = time.perf_counter()
+            if isinstance(self.nadir, Tensor):
+                mask, self.nadir_notes = self.nadir.bool(), ["given"] * len(self.images)
+            else:
+                mask, self.nadir_notes = nadir_masks(self.images, self.nadir)
+            if mask is not None and mask.any():
+                self.nadir_mask = mask
+                self.images = inpaint_masked(self.images, mask)
+            self.seconds["nadir"] = time.perf_counter() - start
+
+    def _floor_filled(self, depth: Tensor) -> Tensor:
+        """``depth`` with the masked rig's pixels on the floor plane around them."""
+        return depth if self.nadir_mask is None else fill_floor_depth(depth, self.nadir_mask)
 
     def depth_for(self, mode: str, models: Models) -> Tensor:
         if mode not in self.depth:
@@ -129,9 +161,9 @@ class SourceViews:
             small = est.working_height
             with torch.no_grad():
                 out = est(_resize(self.images, small), self.c2w, mode, detail=self.images)
-            depth = out.depth
+            depth = self._floor_filled(out.depth)
             if self.refine is not None and mode != "mono":
-                depth = self.refined_depth(depth, mode, models)
+                depth = self._floor_filled(self.refined_depth(depth, mode, models))
             self.depth[mode] = depth
             self.seconds[f"depth:{mode}"] = time.perf_counter() - start
         return self.depth[mode]
@@ -166,12 +198,20 @@ class SourceViews:
         the refinement's input is this depth, so a viewer can show the plain scene first. None
         when ``should_stop`` said so."""
         mode = METHODS["panogrf"].depth_mode
-        out = SourceViews(self.images, self.c2w, gains=self.gains, refine=refine)
+        out = SourceViews(
+            self.images,
+            self.c2w,
+            gains=self.gains,
+            refine=refine,
+            nadir=self.nadir,
+            nadir_mask=self.nadir_mask,
+            nadir_notes=self.nadir_notes,
+        )
         start = time.perf_counter()
         depth = out.refined_depth(self.depth_for(mode, models), mode, models, should_stop)
         if depth is None:
             return None
-        out.depth[mode] = depth
+        out.depth[mode] = out._floor_filled(depth)
         out.seconds[f"refine:{mode}"] = time.perf_counter() - start
         return out
 
@@ -185,9 +225,12 @@ class SourceViews:
             start = time.perf_counter()
             net = models.renderer(preset)
             with torch.no_grad():
-                self.caches[key] = build_cache(net, self.images, self.c2w, depth)
+                self.caches[key] = build_cache(net, self.images, self.c2w, depth, self.nadir_mask)
             self.seconds[f"cache:{preset}:{mode}"] = time.perf_counter() - start
-        return self.caches[key]
+        cache = self.caches[key]
+        if self.nadir_mask is not None and cache.mask is None:  # e.g. read from the disk cache
+            cache = self.caches[key] = cache.with_mask(self.nadir_mask)
+        return cache
 
 
 def _resize(images: Tensor, height: int) -> Tensor:

@@ -16,6 +16,8 @@ cached source depths lifted to the world, their nearest and farthest distance fr
 centre, with a margin), not a fixed near and far: a 3 m room and a 12 m hall get the same
 number of samples where their surfaces are. `render_rays` serves training and rendering
 alike; `render_panorama` chunks a whole panorama so memory stays bounded at any resolution.
+A source's sample that falls in its rig's mask at the nadir (`SceneCache.mask`) counts as not
+seen by it (`panogrf.renderer.nadir.mask_factor`): the other sources fill the floor in.
 Shapes: R rays, S samples, V views.
 """
 
@@ -38,6 +40,7 @@ from panogrf.model.sampling import (
 )
 from panogrf.model.splat import ProxyDepth, proxy_depth
 from panogrf.renderer.cache import SceneCache
+from panogrf.renderer.nadir import mask_factor
 
 
 @dataclass(frozen=True)
@@ -160,6 +163,7 @@ def point_features(cache: SceneCache, points: Tensor, ray_dirs: Tensor, t: Tenso
     h, w = cache.maps.shape[-2:]
     uv = direction_to_pixel(cam, h, w)  # [V, N, 2]
     sampled = sample_padded(cache.maps_padded, uv).transpose(1, 2)  # [V, N, C + 7]
+    masked = cache.masked_at(uv, h, w)  # [V, N]: in the source's rig at the nadir
     hi, wi = cache.images.shape[-2:]
     if (hi, wi) != (h, w):
         uv = uv * (wi / w) + 0.5 * (wi / w - 1.0)  # same directions on the finer grid
@@ -170,10 +174,13 @@ def point_features(cache: SceneCache, points: Tensor, ray_dirs: Tensor, t: Tenso
     cos = (src_dirs * ray_dirs[None]).sum(-1)
     gap = torch.linalg.vector_norm(src_dirs - ray_dirs[None], dim=-1)
     ratio = torch.log(z / t.clamp(min=1e-6)[None])
+    vis = visibility(params, depth, z)
+    if masked is not None:  # a source does not see what its rig hides (`mask_factor`)
+        vis = vis * mask_factor(masked)
     return PointFeatures(
         appearance=sampled[..., :c],
         colour=colour,
-        visibility=visibility(params, depth, z),
+        visibility=vis,
         residual=depth / z - 1.0,
         direction=torch.stack((cos, gap, ratio), -1),
     )

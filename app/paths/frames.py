@@ -93,7 +93,14 @@ class FrameRenderer:
             depth = self.views.depth_for("full", self.models)[:, 0].numpy()
             images = to_uint8(self.views.images)
             self._context()
-            self._preview = PreviewRenderer(self._ctx, images, depth, self.views.c2w.numpy())
+            mask = self.views.nadir_mask
+            self._preview = PreviewRenderer(
+                self._ctx,
+                images,
+                depth,
+                self.views.c2w.numpy(),
+                masks=None if mask is None else mask[:, 0].numpy(),
+            )
         return self._preview
 
     def panorama(self, c2w: np.ndarray, height: int) -> torch.Tensor:

@@ -86,6 +86,9 @@ class ViewerSetup:
     # The per-scene depth refinement running in the background (`SceneRefiner`; None: none):
     # its refined scene replaces the plain one at the first frame after it is ready.
     scene_refiner: object | None = None
+    # Each source's rig at the nadir ([V, H, W] bool, `SourceViews.nadir_mask`; None: none):
+    # the preview draws none of a source's mesh there.
+    masks: np.ndarray | None = None
 
     @classmethod
     def from_views(cls, views, start_frame: int = 0, **kw) -> ViewerSetup:
@@ -97,6 +100,7 @@ class ViewerSetup:
             depth=views.depth["full"][:, 0].numpy(),
             c2w=views.c2w.numpy(),
             start_pose=views.c2w[start_frame].numpy().astype(np.float64),
+            masks=None if (m := getattr(views, "nadir_mask", None)) is None else m[:, 0].numpy(),
             **kw,
         )
 
@@ -170,6 +174,7 @@ class PanoViewer(ExportsMixin, OverlayMixin, mglw.WindowConfig):
             mesh_height=s.mesh_height,
             max_views=s.max_views,
             mesh_triangles=s.mesh_triangles,
+            masks=s.masks,
         )
 
     def _swap_refined_scene(self) -> None:
