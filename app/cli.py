@@ -67,7 +67,13 @@ def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     keep_freed_memory()
     try:
-        code = int(args.func(args) or 0)
+        if hasattr(args, "quiet"):  # a command that prepares scenes: its stages on stderr
+            from panogrf.app.progress import terminal_progress
+
+            with terminal_progress(args.quiet):
+                code = int(args.func(args) or 0)
+        else:
+            code = int(args.func(args) or 0)
         sys.stdout.flush()  # here, so that a closed pipe is caught below, not at exit
         return code
     except BrokenPipeError:

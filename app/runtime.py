@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import ctypes
 import ctypes.util
+from pathlib import Path
 
 _M_TRIM_THRESHOLD, _M_TOP_PAD, _M_MMAP_THRESHOLD, _M_ARENA_MAX = -1, -2, -3, -8
 _MB = 1 << 20
@@ -128,3 +129,27 @@ def refine_setting(args):
     from panogrf.model.refine import PREPARE_REFINE
 
     return PREPARE_REFINE
+
+
+def add_prepare_options(parser, no_cache: bool = True) -> None:
+    """``--cache-dir``, ``--no-cache`` (unless ``no_cache`` is False) and ``--quiet``: the
+    options of every command that prepares a scene (its depth and feature maps,
+    `panogrf.app.scene.session.prepare_views`)."""
+    parser.add_argument(
+        "--cache-dir",
+        type=Path,
+        default=None,
+        help="the prepared scenes' cache folder, shared by view, render, eval, bench, demo, "
+        "depth and scene prepare (default: $XDG_CACHE_HOME/panogrf or ~/.cache/panogrf)",
+    )
+    if no_cache:
+        parser.add_argument(
+            "--no-cache",
+            action="store_true",
+            help="prepare the scene afresh and write no cache",
+        )
+    parser.add_argument(
+        "--quiet",
+        action="store_true",
+        help="no progress of the preparation's stages on stderr",
+    )

@@ -69,6 +69,10 @@ class BenchConfig:
     """Hard cases for the gallery (empty: none)."""
     refine: RefineConfig | None = None
     """The per-scene depth refinement of every depth-reading setting (the CLI's default)."""
+    cache_dir: Path | None = None
+    """The scene cache's folder (`panogrf.app.scene.session.prepare_views`; None: default)."""
+    use_cache: bool = True
+    """Read and write the scene cache for the test triplets' PanoGRF depth and maps."""
 
 
 @dataclass
@@ -135,6 +139,23 @@ def _timing(setting, views, c2w, cfg, models, gl, seconds_at_height) -> dict:
     return {"seconds": sec, "time_scaled": False, "peak_mib": mem.mib}
 
 
+def _prepare_cached(setting: Setting, views: SourceViews, models: Models, cfg) -> None:
+    """The PanoGRF depth and maps a setting reads, from or into the scene cache (the same as
+    `panogrf render` and `view` use; nothing for a setting that does not read them)."""
+    from panogrf.app.scene import session
+
+    method, quality = (
+        ("panogrf", "preview")
+        if setting.method == "gl"
+        else (
+            setting.method,
+            setting.quality,
+        )
+    )
+    if session.uses_cache(method, quality):
+        session.prepare_views(views, models, method, quality, cfg.cache_dir, cfg.use_cache)
+
+
 def _triplet_views(folder: Path, refine=None) -> tuple[SourceViews, Tensor, Tensor]:
     from panogrf.app.scene.folder import load_scene
 
@@ -161,6 +182,7 @@ def run_bench(cfg: BenchConfig, models: Models, log: Callable[[str], None] = pri
             line = [f"[{n + 1}/{len(triplets) + len(real)}] {folder.name} ({b or 'real'} m)"]
             for s in cfg.settings:
                 t0 = time.perf_counter()
+                _prepare_cached(s, views, models, cfg)
                 prepare_setting(s, views, models, gl)
                 prep = time.perf_counter() - t0
                 rgb, sec = _render(s, views, c2w, cfg.height, models, gl)

@@ -22,7 +22,13 @@ from pathlib import Path
 import torch
 
 from panogrf.app.errors import UserError
-from panogrf.app.runtime import add_refine_depth, metres_list, refine_setting, thread_count
+from panogrf.app.runtime import (
+    add_prepare_options,
+    add_refine_depth,
+    metres_list,
+    refine_setting,
+    thread_count,
+)
 
 
 def register(subparsers) -> None:
@@ -93,6 +99,7 @@ def register(subparsers) -> None:
         "--threads", type=thread_count, default=0, help="torch threads (default: all)"
     )
     add_refine_depth(parser)
+    add_prepare_options(parser)
     parser.set_defaults(func=run)
 
 
@@ -140,6 +147,8 @@ def run(args: argparse.Namespace) -> int:
         time_budget=args.time_budget,
         real=real,
         refine=refine_setting(args),
+        cache_dir=args.cache_dir,
+        use_cache=not args.no_cache,
         case_height=args.case_height,
         sweep=args.sweep,
         cases=cases,

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from panogrf.app.errors import UserError
+from panogrf.app.runtime import add_prepare_options
 
 
 def register(subparsers) -> None:
@@ -27,6 +28,7 @@ def register(subparsers) -> None:
     parser.add_argument(
         "--out", type=Path, default=Path("demo_out"), help="output folder (default demo_out/)"
     )
+    add_prepare_options(parser)
     parser.set_defaults(func=run)
 
 
@@ -51,7 +53,7 @@ def run(args: argparse.Namespace) -> int:
             f"({r.baseline_m:.2f} m): depth warp {r.psnr_depth_warp:.2f} dB vs rotation only "
             f"{r.psnr_rotation_only:.2f} dB on {r.covered:.0%} of the pixels"
         )
-    estimates = _estimate_depth(data)
+    estimates = _estimate_depth(data, args.cache_dir, not args.no_cache)
     rows = []
     max_depth = float(data.depths.max())
     for i in range(scene.num_views):
@@ -65,11 +67,11 @@ def run(args: argparse.Namespace) -> int:
     except OSError as exc:
         raise UserError(f"cannot write to {args.out}: {exc.strerror or exc}") from None
     print(f"wrote {sheet} (each panorama above its true depth, then the estimated depth)")
-    _novel_view(data, args.out)
+    _novel_view(data, args.out, args.cache_dir, not args.no_cache)
     return 0
 
 
-def _novel_view(data, out: Path) -> None:
+def _novel_view(data, out: Path, cache_dir: Path | None = None, use_cache: bool = True) -> None:
     """The middle view rendered from the outer two by PanoGRF and the baselines, scored
     against the real middle panorama; then a short preview video along the three views."""
     import time
@@ -82,7 +84,7 @@ def _novel_view(data, out: Path) -> None:
     from panogrf.app.scoring import image_scores
     from panogrf.app.visualize import stack_rows
     from panogrf.model import refine
-    from panogrf.renderer.methods import SourceViews, prepare, render_view
+    from panogrf.renderer.methods import SourceViews, render_view
 
     models = session.default_models()
     v = data.images.shape[0]
@@ -92,12 +94,14 @@ def _novel_view(data, out: Path) -> None:
     views = SourceViews(data.images[sources], data.c2w[sources], refine=refine.PREPARE_REFINE)
     height = data.images.shape[-2]
     print(f"novel view: frame {target} rendered from frames {sources} ({height}x{2 * height}):")
-    views.depth_for("full", models)
-    seconds = views.seconds["depth:full"]
-    print(f"  depth of the sources, estimated and refined for the scene: {seconds:.2f} s")
+    cache = session.prepare_views(views, models, "panogrf", "fast", cache_dir, use_cache)
+    print(
+        f"  depth of the sources, estimated and refined for the scene, and feature maps: "
+        f"{cache.seconds:.2f} s (scene cache {cache.status})"
+    )
     rows = [to_uint8(data.images[target])]
     for method in ("panogrf", "meshwarp", "nearest"):
-        prepare(method, views, models)
+        session.prepare_views(views, models, method, "fast", cache_dir, use_cache)
         start = time.perf_counter()
         rgb = render_view(method, views, data.c2w[target], height, models, "fast")
         ms = 1000 * (time.perf_counter() - start)
@@ -111,7 +115,9 @@ def _novel_view(data, out: Path) -> None:
     write_rgb(sheet, stack_rows(rows))
     print(f"wrote {sheet} (real middle view, then PanoGRF, meshwarp, nearest)")
     poses = interpolate_keyframes(data.c2w.numpy().astype(np.float64), 48)
-    frames = FrameRenderer(SourceViews(data.images, data.c2w), models, "preview")
+    walk = SourceViews(data.images, data.c2w)
+    session.prepare_views(walk, models, "panogrf", "preview", cache_dir, use_cache)
+    frames = FrameRenderer(walk, models, "preview")
     video = out / "walk_preview.mp4"
     try:
         with FrameSink(video, 24, 2 * height, height, spherical=True) as sink:
@@ -122,10 +128,11 @@ def _novel_view(data, out: Path) -> None:
     print(f"wrote {video} ({sink.count} frames of the GL preview walking through the views)")
 
 
-def _estimate_depth(data) -> dict:
+def _estimate_depth(data, cache_dir: Path | None = None, use_cache: bool = True) -> dict:
     """Depth of every view by mode, with its error against the ground truth printed."""
     import time
 
+    from panogrf.app.scene.cache import estimate_cached
     from panogrf.app.weights.networks import NETWORKS, load_depth_estimator
     from panogrf.model.metrics import depth_metrics
 
@@ -134,7 +141,12 @@ def _estimate_depth(data) -> dict:
     out = {}
     for mode in ("mono", "full"):
         start = time.perf_counter()
-        depth = estimator(data.images, data.c2w, mode).depth
+        if use_cache:  # shared with `panogrf depth` (the same estimate of the same views)
+            est, cache = estimate_cached(estimator, data.images, data.c2w, mode, cache_dir)
+            how = "" if cache.status == "built" else f", {cache.status}"
+        else:
+            est, how = estimator(data.images, data.c2w, mode), ""
+        depth = est.depth
         seconds = time.perf_counter() - start
         errors = []
         for i in range(depth.shape[0]):
@@ -143,6 +155,6 @@ def _estimate_depth(data) -> dict:
             errors.append(depth_metrics(depth[i, 0], gt, valid))
         l1 = sum(e.l1 for e in errors) / len(errors)
         rmse = sum(e.rmse for e in errors) / len(errors)
-        print(f"  {mode:>4}: L1 {l1:.3f} m, RMSE {rmse:.3f} m ({seconds:.2f} s for all views)")
+        print(f"  {mode:>4}: L1 {l1:.3f} m, RMSE {rmse:.3f} m ({seconds:.2f} s for all views{how})")
         out[mode] = depth
     return out

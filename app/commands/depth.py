@@ -12,6 +12,7 @@ from pathlib import Path
 import torch
 
 from panogrf.app.errors import UserError
+from panogrf.app.runtime import add_prepare_options
 from panogrf.app.scene.estimate import (
     METRIC_COLUMNS,
     MODES,
@@ -34,7 +35,10 @@ frame's depth_file_path pointing at the estimate, and a "panogrf_depth" key with
 weights, warnings, sources and the share of pixels clamped at the top of the depth range).
 
 When the scene has ground-truth depth, L1, RMSE, WS-L1 and WS-RMSE (metres) are printed per
-view and their mean. Warnings (a single view, a source at the same position) go to stderr."""
+view and their mean. Warnings (a single view, a source at the same position) go to stderr.
+
+The estimate is cached on disk, keyed by the panoramas, poses, weights, mode and device (the
+cache `panogrf demo` shares): a second run on the same scene reads it (--no-cache: afresh)."""
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -53,6 +57,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--mode", choices=MODES, default="full", help="which estimator (default full)"
     )
     parser.add_argument("--device", default="cpu", help="torch device, e.g. cuda (default: cpu)")
+    add_prepare_options(parser)
     parser.set_defaults(func=run)
 
 
@@ -77,7 +82,15 @@ def run(args: argparse.Namespace) -> int:
     modes = depth_weights.NETWORKS[args.mode]
     estimator = depth_weights.load_depth_estimator(modes, str(device))
     weights = depth_weights.depth_weight_files(args.mode)
-    result = estimate_scene(scene, args.out, estimator, args.mode, weights=weights)
+    result = estimate_scene(
+        scene,
+        args.out,
+        estimator,
+        args.mode,
+        weights=weights,
+        cache_dir=args.cache_dir,
+        use_cache=not args.no_cache,
+    )
     for warning in result.warnings:
         print(f"warning: {warning}", file=sys.stderr)
     print("\n".join(_report_lines(args.scene, result, device)))
@@ -89,7 +102,9 @@ def _report_lines(scene_root: Path, r: DepthRun, device: torch.device) -> list[s
     lines = [
         f"scene: {scene_root} ({n} view{'s' if n != 1 else ''}: {', '.join(r.views)})",
         f"estimated depth (mode {r.mode}) in {r.seconds:.2f} s on {device} "
-        f"({r.seconds / n:.2f} s per view)",
+        f"({r.seconds / n:.2f} s per view"
+        + ("" if r.cache in (None, "built") else f"; depth cache {r.cache}")
+        + ")",
     ]
     clamped = [
         f"{name} {f:.1%}" for name, f in zip(r.views, r.out_of_range_fraction, strict=True) if f > 0

@@ -8,7 +8,8 @@ For every scene (three panoramas on a line) the middle view is rendered from the
 last (the paper's protocol) by each method and scored against the real middle view: PSNR,
 WS-PSNR, SSIM and LPIPS, averaged per baseline (first-to-last distance). Timing per method:
 the pose-independent preparation once per scene (depth estimation, feature caches, per-scene
-fits) and the render itself, in milliseconds per panorama (median over scenes).
+fits; read from the scene cache where an earlier run prepared the same sources, --no-cache
+to time it afresh) and the render itself, in milliseconds per panorama (median over scenes).
 
 A method is a name from `panogrf.renderer.methods.METHODS`, optionally with a sampling for the
 neural ones: ``panogrf:paper`` (64 + 64 samples) or ``panogrf:fast`` (depth-guided, the
@@ -26,7 +27,12 @@ from pathlib import Path
 import torch
 
 from panogrf.app.errors import UserError
-from panogrf.app.runtime import add_refine_depth, refine_setting, thread_count
+from panogrf.app.runtime import (
+    add_prepare_options,
+    add_refine_depth,
+    refine_setting,
+    thread_count,
+)
 from panogrf.renderer.methods import METHODS, Kind
 from panogrf.renderer.render import QUALITY
 
@@ -96,6 +102,7 @@ def register(subparsers) -> None:
         "--threads", type=thread_count, default=0, help="torch threads (default: all)"
     )
     add_refine_depth(parser)
+    add_prepare_options(parser)
     parser.set_defaults(func=run)
 
 
@@ -106,7 +113,7 @@ def run(args: argparse.Namespace) -> int:
     from panogrf.app.scene.folder import load_scene
     from panogrf.app.scene.session import MAX_HEIGHT
     from panogrf.app.scoring import image_scores
-    from panogrf.renderer.methods import SourceViews, prepare, render_view
+    from panogrf.renderer.methods import SourceViews, render_view
 
     methods = parse_methods(args.methods)
     subset = {x.strip() for x in args.subset.split(",") if x.strip()}
@@ -146,7 +153,9 @@ def run(args: argparse.Namespace) -> int:
                 continue
             before = dict(views.seconds)
             t0 = time.perf_counter()
-            prepare(method, views, models)
+            cache = session.prepare_views(
+                views, models, method, quality, args.cache_dir, not args.no_cache
+            )
             prep = time.perf_counter() - t0
             t0 = time.perf_counter()
             rgb = render_view(method, views, data.c2w[1], height, models, quality)
@@ -154,7 +163,14 @@ def run(args: argparse.Namespace) -> int:
             scores = image_scores(rgb, data.images[1:2])
             new = {k: v for k, v in views.seconds.items() if k not in before}
             rows[name][b].append(
-                scores | {"render_ms": ms, "prepare_s": prep, "prepared": new, "scene": folder.name}
+                scores
+                | {
+                    "render_ms": ms,
+                    "prepare_s": prep,
+                    "prepared": new,
+                    "cache": cache.status,
+                    "scene": folder.name,
+                }
             )
             line.append(f"{name} {scores['ws_psnr']:.2f}")
         print("  ".join(line), flush=True)

@@ -17,7 +17,12 @@ import numpy as np
 import torch
 
 from panogrf.app.errors import UserError
-from panogrf.app.runtime import add_refine_depth, refine_setting, thread_count
+from panogrf.app.runtime import (
+    add_prepare_options,
+    add_refine_depth,
+    refine_setting,
+    thread_count,
+)
 from panogrf.app.scene import session
 from panogrf.app.scene.session import MAX_HEIGHT
 from panogrf.renderer.methods import METHODS
@@ -64,9 +69,10 @@ def register(subparsers) -> None:
         help="render a novel panorama of a scene",
         description=(
             "Render the panorama seen from a frame of the scene (--target-frame, held out of "
-            "the sources) or from any pose (--c2w) with PanoGRF or a baseline. Depth is "
-            "estimated from the sources once per run. With a target frame that has an image, "
-            "prints PSNR, WS-PSNR, SSIM and LPIPS against it."
+            "the sources) or from any pose (--c2w) with PanoGRF or a baseline. The sources' "
+            "depth and feature maps are prepared once and cached on disk (shared with view, "
+            "eval, bench, demo and scene prepare; --cache-dir, --no-cache). With a target frame "
+            "that has an image, prints PSNR, WS-PSNR, SSIM and LPIPS against it."
         ),
         epilog=(
             "examples:\n"
@@ -115,6 +121,7 @@ def register(subparsers) -> None:
         "--threads", type=thread_count, default=0, help="torch threads (default: all)"
     )
     add_refine_depth(parser)
+    add_prepare_options(parser)
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
     parser.set_defaults(func=run)
 
@@ -164,6 +171,9 @@ def run(args: argparse.Namespace) -> int:
     frames = FrameRenderer(views, models, args.quality, args.method)
     try:
         frames.check_height(height)
+        cache = session.prepare_views(
+            views, models, args.method, args.quality, args.cache_dir, not args.no_cache
+        )
         frames.prepare()
         prep = time.perf_counter() - start
         start = time.perf_counter()
@@ -183,6 +193,7 @@ def run(args: argparse.Namespace) -> int:
         "size": [height, 2 * height],
         "sources": sources,
         "prepare_s": round(prep, 3),
+        "cache": {"status": cache.status, "path": str(cache.path)},
         "render_ms": round(1000 * seconds, 1),
     }
     if args.target_frame is not None:
@@ -194,7 +205,8 @@ def run(args: argparse.Namespace) -> int:
         return 0
     print(
         f"wrote {args.out} ({height}x{2 * height}, {args.method}, {args.quality}): "
-        f"prepared in {prep:.2f} s, rendered in {1000 * seconds:.0f} ms"
+        f"prepared in {prep:.2f} s (scene cache {cache.status}), rendered in "
+        f"{1000 * seconds:.0f} ms"
     )
     if "metrics" in summary:
         m = summary["metrics"]
@@ -232,13 +244,12 @@ def _check_path_size(path, name: Path) -> None:
 
 def run_path(args: argparse.Namespace) -> int:
     """``--camera-path``: every camera of the path to a video or a folder of frames."""
-    from tqdm import tqdm
-
     from panogrf.app.files.video import FrameSink
     from panogrf.app.paths.camera_path import duration_note, read_camera_path
     from panogrf.app.paths.frames import FrameRenderer, erp_height_for, render_camera_path
     from panogrf.app.scene.coverage import inside_warning, path_warning
     from panogrf.app.scene.folder import load_scene
+    from panogrf.model.progress import stage
     from panogrf.renderer.methods import SourceViews
 
     if args.sources is not None or args.height is not None:
@@ -268,6 +279,9 @@ def run_path(args: argparse.Namespace) -> int:
             for fov in path.fov
         )
         frames.check_height(erp_rows, f"{args.camera_path}: panoramas of")
+        cache = session.prepare_views(
+            views, models, args.method, args.quality, args.cache_dir, not args.no_cache
+        )
         frames.prepare()
         prep = time.perf_counter() - start
         if "full" in views.depth:  # the estimated depth says where the surfaces are
@@ -281,8 +295,8 @@ def run_path(args: argparse.Namespace) -> int:
             if inside:
                 print(inside, flush=True)
         start = time.perf_counter()
-        with sink, tqdm(total=len(path), unit="frame", desc="rendering") as bar:
-            render_camera_path(frames, path, sink, progress=lambda _: bar.update())
+        with sink, stage("rendering frames", len(path)) as bar:
+            render_camera_path(frames, path, sink, progress=lambda _: bar.advance())
     except OSError as exc:
         raise UserError(f"cannot write {args.out}: {exc.strerror or exc}") from None
     finally:
@@ -291,7 +305,8 @@ def run_path(args: argparse.Namespace) -> int:
     what = "video" if sink.is_video else "frames"
     print(
         f"wrote {args.out} ({what}: {sink.count} frames, {path.render_width}x"
-        f"{path.render_height}, {path.camera_type}, {args.quality}): prepared in {prep:.2f} s, "
+        f"{path.render_height}, {path.camera_type}, {args.quality}): prepared in {prep:.2f} s "
+        f"(scene cache {cache.status}), "
         f"{1000 * seconds / max(sink.count, 1):.0f} ms per frame"
     )
     return 0

@@ -13,7 +13,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from panogrf.app.commands import scene_poses
+from panogrf.app.commands import scene_poses, scene_prepare
 from panogrf.app.errors import UserError
 from panogrf.app.scene.folder import TRANSFORMS, SceneReport, inspect_scene
 
@@ -172,6 +172,7 @@ def _add_reproject(sub: argparse._SubParsersAction) -> None:
 _SUBCOMMANDS: dict[str, Callable[[argparse._SubParsersAction], None]] = {
     "check": _add_check,
     "reproject": _add_reproject,
+    "prepare": scene_prepare.add_prepare,
     "from-panoramas": scene_poses._add_from_panoramas,
     "import": scene_poses._add_import,
     "faces": scene_poses._add_faces,

@@ -8,7 +8,12 @@ import time
 from pathlib import Path
 
 from panogrf.app.errors import UserError
-from panogrf.app.runtime import add_refine_depth, refine_setting, thread_count
+from panogrf.app.runtime import (
+    add_prepare_options,
+    add_refine_depth,
+    refine_setting,
+    thread_count,
+)
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -51,7 +56,6 @@ def register(subparsers) -> None:
     )
     parser.add_argument("--size", type=_size, default=(1024, 512), help="window size WxH")
     parser.add_argument("--start-frame", type=int, default=0, help="start at this view's pose")
-    parser.add_argument("--cache-dir", type=Path, default=None, help="scene cache folder")
     parser.add_argument("--no-refine", action="store_true", help="preview only (no network)")
     parser.add_argument(
         "--path-out",
@@ -98,6 +102,7 @@ def register(subparsers) -> None:
         "--threads", type=thread_count, default=0, help="torch threads (default: all)"
     )
     add_refine_depth(parser)
+    add_prepare_options(parser)
     parser.set_defaults(func=run)
 
 
@@ -146,6 +151,7 @@ def _session(args: argparse.Namespace, threads: int) -> int:
         args.cache_dir,
         refine=refine_setting(args),
         defer_refine=True,
+        use_cache=not args.no_cache,
     )
     scene, views, models = prepared.scene, prepared.views, prepared.models
     if not 0 <= args.start_frame < scene.num_views:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -96,6 +97,10 @@ def _cache_path(views: SourceViews, cache_dir: Path | None, weight_files: list[P
     """(key, file) of ``views``' cache: keyed by the pixels, poses, weights and refinement."""
     cache_dir = Path(cache_dir) if cache_dir is not None else default_cache_dir()
     setting = "" if views.refine is None else f"refine {views.refine!r}"
+    mask = getattr(views, "nadir_mask", None)  # sources masked at the nadir: keyed by the mask
+    if mask is not None:
+        digest = hashlib.sha256(mask.to(torch.uint8).contiguous().numpy().tobytes()).hexdigest()
+        setting += f" nadir {tuple(mask.shape)} {digest}"
     key = content_key(views.images, views.c2w, weight_files, setting)
     return key, cache_dir / f"{key}.safetensors"
 
@@ -136,6 +141,19 @@ def _load(
     return CacheResult(path, "loaded", 0.0), None
 
 
+def build_maps(views: SourceViews, models: Models, method=METHOD) -> SceneCache:
+    """``views``' renderer cache of a neural ``method``: its depth (the estimator's stages show
+    their progress) and then its feature maps, a stage of their own."""
+    from panogrf.model.progress import stage
+
+    if method.cache_key not in views.caches:
+        views.depth_for(method.depth_mode, models)
+        with stage("feature maps", 1) as progress:
+            views.cache_for(method, models)
+            progress.advance()
+    return views.cache_for(method, models)
+
+
 def prepare_cached(
     views: SourceViews, models: Models, cache_dir: Path | None, weight_files: list[Path]
 ) -> CacheResult:
@@ -150,7 +168,7 @@ def prepare_cached(
     if loaded is not None:
         loaded.seconds = time.perf_counter() - start
         return loaded
-    cache = views.cache_for(METHOD, models)
+    cache = build_maps(views, models)
     tensors = {
         "depth": cache.depth.contiguous(),
         "maps": cache.maps.contiguous(),
@@ -166,3 +184,120 @@ def prepare_cached(
         reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc
         status += f" (not saved: {reason})"
     return CacheResult(path, status, time.perf_counter() - start)
+
+
+# -- the depth of `panogrf depth` and the demo's depth check --------------------------------------
+def estimate_key(images: torch.Tensor, c2w: torch.Tensor, estimator, mode: str) -> str | None:
+    """The cache key of ``estimator``'s depth of mode ``mode`` on the panoramas as given (no
+    exposure balance, no refinement, at their resolution: what `panogrf depth` writes), or
+    None when the estimator was not loaded from weights files (`weight_files` attribute, set
+    by `panogrf.app.weights.networks.load_depth_estimator`): networks of a test or of a
+    training are never cached under the files' key."""
+    from panogrf.app.weights import networks as dw
+
+    loaded = getattr(estimator, "weight_files", None)
+    if not loaded:
+        return None
+    files = [dw.weights_path(name) for name in dw.depth_weight_files(mode).values()]
+    if not set(files) <= set(loaded) or not all(p.exists() for p in files):
+        return None
+    device = next(estimator.parameters()).device.type
+    return content_key(images, c2w, files, f"estimate {mode} on {device}")
+
+
+def estimate_cached(
+    estimator, images: torch.Tensor, c2w: torch.Tensor, mode: str, cache_dir: Path | None
+):
+    """``estimator(images, c2w, mode)`` (a `DepthEstimate` on the CPU), from the cache when a
+    valid one is there, else estimated and written; (estimate, `CacheResult`). Nothing is read
+    or written for an estimator not loaded from the weights files (`estimate_key`)."""
+    import json
+    import time
+
+    from panogrf.model.depth import DepthEstimate
+
+    start = time.perf_counter()
+    key = estimate_key(images, c2w, estimator, mode)
+    if key is None:
+        est = estimator(images, c2w, mode)
+        return est, CacheResult(
+            Path("-"), "computed (given networks, not cached)", time.perf_counter() - start
+        )
+    cache_dir = Path(cache_dir) if cache_dir is not None else default_cache_dir()
+    path = cache_dir / f"{key}.safetensors"
+    v, _, h, w = images.shape
+    why = None
+    if path.exists():
+        try:
+            tensors = load_file(str(path))
+            with safe_open_metadata(path) as meta:
+                sources = json.loads(meta["sources"])
+                warnings = json.loads(meta["warnings"])
+            why = _estimate_problem(tensors, key, v, h, w, sources, warnings)
+        except (SafetensorError, OSError, ValueError, RuntimeError, KeyError, TypeError) as exc:
+            why = f"unreadable ({type(exc).__name__})"
+        if why is None:
+            est = DepthEstimate(
+                tensors["depth"],
+                tensors["mono_depth"],
+                tensors["out_of_range"].bool(),
+                [list(map(int, s)) for s in sources],
+                list(warnings),
+            )
+            return est, CacheResult(path, "loaded", time.perf_counter() - start)
+    est = estimator(images, c2w, mode)
+    tensors = {
+        "depth": est.depth.float().cpu().contiguous(),
+        "mono_depth": est.mono.float().cpu().contiguous(),
+        "out_of_range": est.out_of_range.cpu().to(torch.uint8).contiguous(),
+        "__key__": torch.tensor(list(key.encode()), dtype=torch.uint8),
+    }
+    metadata = {
+        "format": FORMAT,
+        "sources": json.dumps([list(map(int, s)) for s in est.sources]),
+        "warnings": json.dumps(list(est.warnings)),
+    }
+    status = "built" if why is None else f"rebuilt: {why}"
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with atomic_output(path) as tmp:
+            save_file(tensors, str(tmp), metadata=metadata)
+    except (OSError, SafetensorError) as exc:
+        reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc
+        status += f" (not saved: {reason})"
+    return est, CacheResult(path, status, time.perf_counter() - start)
+
+
+@contextmanager
+def safe_open_metadata(path: Path):
+    """The metadata (str -> str) of a safetensors file."""
+    from safetensors import safe_open
+
+    with safe_open(str(path), framework="pt") as f:
+        yield f.metadata() or {}
+
+
+def _estimate_problem(tensors, key, v, h, w, sources, warnings) -> str | None:
+    """Why a loaded depth estimate cannot be trusted (None: it can)."""
+    meta_key = tensors.get("__key__")
+    if meta_key is None or meta_key.dtype != torch.uint8 or meta_key.ndim != 1:
+        return "no key"
+    if bytes(meta_key.tolist()).decode(errors="replace") != key:
+        return "stale (another scene or other weights)"
+    depth, mono, far = (tensors.get(k) for k in ("depth", "mono_depth", "out_of_range"))
+    if depth is None or mono is None or far is None:
+        return "missing tensors"
+    for name, t in (("depth", depth), ("mono_depth", mono), ("out_of_range", far)):
+        if tuple(t.shape) != (v, 1, h, w):
+            return f"wrong {name} shape {tuple(t.shape)} (expected {(v, 1, h, w)})"
+    if depth.dtype != torch.float32 or mono.dtype != torch.float32:
+        return "wrong dtypes"
+    if not (torch.isfinite(depth).all() and torch.isfinite(mono).all()):
+        return "non-finite values"
+    if (depth < 0).any() or depth.max() > MAX_DEPTH_M:
+        return f"depth out of range (expected 0 to {MAX_DEPTH_M:g} m)"
+    if not isinstance(sources, list) or len(sources) != v or not isinstance(warnings, list):
+        return "malformed sources or warnings"
+    if any(not isinstance(s, list) or any(not 0 <= int(j) < v for j in s) for s in sources):
+        return "malformed sources"
+    return None

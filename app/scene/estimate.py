@@ -50,6 +50,8 @@ class DepthRun:
     metrics: tuple[DepthMetrics | None, ...] | None
     """Per view against ground truth on 0 < gt <= d_max (None: view without valid GT);
     None when the scene has no depth maps."""
+    cache: str | None = None
+    """How the depth cache served the estimate ("loaded", "built", ...; None: not used)."""
 
     @property
     def mean_metrics(self) -> dict[str, float] | None:
@@ -128,12 +130,17 @@ def estimate_scene(
     mode: str = "full",
     *,
     weights: dict[str, str] | None = None,
+    cache_dir: str | Path | None = None,
+    use_cache: bool = False,
 ) -> DepthRun:
     """Estimate depth for every view of a scene and write the scene ``out_dir``.
 
     ``scene`` is a scene folder or a `Scene` loaded with its images (``load_images=True``).
     ``estimator`` must hold the networks of ``mode`` and sits on the device it runs on;
-    ``weights`` (network -> file name) is recorded in the output's metadata. Raises `UserError`
+    ``weights`` (network -> file name) is recorded in the output's metadata. ``use_cache``:
+    the estimate is read from (or written to) the scene cache in ``cache_dir`` when the
+    estimator was loaded from the weights files (`panogrf.app.scene.cache.estimate_cached`).
+    Raises `UserError`
     for an invalid scene or an output folder that cannot or must not be written.
     """
     from panogrf.app.files.images import (
@@ -160,7 +167,15 @@ def estimate_scene(
 
     device = next(estimator.parameters()).device
     start = time.perf_counter()
-    est = estimator(data.images.to(device), data.c2w.to(device), mode)
+    images, c2w = data.images.to(device), data.c2w.to(device)
+    cache = None
+    if use_cache:
+        from panogrf.app.scene.cache import estimate_cached
+
+        est, result = estimate_cached(estimator, images, c2w, mode, cache_dir)
+        cache = result.status
+    else:
+        est = estimator(images, c2w, mode)
     depth = est.depth.float().cpu()  # [V, 1, H, W] metres
     out_of_range = est.out_of_range.cpu()
     seconds = time.perf_counter() - start
@@ -210,6 +225,7 @@ def estimate_scene(
         sources=tuple(tuple(s) for s in sources),
         warnings=tuple(est.warnings),
         metrics=_metrics(depth, data.depths, d_max),
+        cache=cache,
     )
 
 

@@ -10,6 +10,10 @@ instead of each other's modules:
   preparation must be keyed by.
 - `prepare_scene`: load a scene folder and prepare it (depth and renderer caches, from the
   on-disk cache when valid) with the given `Models`.
+- `prepare_views`: prepare given `SourceViews` (a subset of a scene's views, say) for a
+  method: from or into the same on-disk cache where the method reads what it holds (PanoGRF's
+  depth and feature maps), computed otherwise. `render`, `eval`, `bench` and `demo` prepare
+  through it, `view` and `scene prepare` through `prepare_scene`: one cache for all.
 - `estimate_scene` (from `panogrf.app.scene.estimate`): estimate a scene's depth and write it
   as a scene folder of its own (`panogrf depth`).
 """
@@ -31,12 +35,20 @@ __all__ = [
     "MAX_HEIGHT",
     "DepthRun",
     "PreparedScene",
+    "ShippedModels",
     "default_models",
     "estimate_scene",
     "prepare_scene",
+    "prepare_views",
     "refine_prepared",
     "weight_files",
 ]
+
+
+class ShippedModels(Models):
+    """`Models` that load the weights files (`weight_files`): the only networks whose
+    preparations the disk cache, keyed by those files, may hold. Any other `Models` (a test's,
+    a training's) is prepared afresh and never cached."""
 
 
 def default_models() -> Models:
@@ -46,7 +58,7 @@ def default_models() -> Models:
     def estimator(mode: str):
         return load_depth_estimator(NETWORKS[mode])
 
-    return Models(estimator=estimator, renderer=load_renderer)
+    return ShippedModels(estimator=estimator, renderer=load_renderer)
 
 
 def weight_files(method: str = "panogrf") -> list[Path]:
@@ -86,6 +98,7 @@ def prepare_scene(
     log=print,
     refine: RefineConfig | None = None,
     defer_refine: bool = False,
+    use_cache: bool = True,
 ) -> PreparedScene:
     """Load the scene folder and prepare PanoGRF's depth and caches with ``models`` (default:
     the shipped weights), reading or writing the on-disk cache in ``cache_dir`` (default
@@ -93,20 +106,23 @@ def prepare_scene(
 
     ``defer_refine``: unless the refined scene is cached already, prepare the plain one and
     leave the refinement to `refine_prepared` (``pending_refine``): the viewer opens on the
-    plain scene and swaps the refined one in when it is done."""
+    plain scene and swaps the refined one in when it is done. ``use_cache=False``: the disk
+    cache is neither read nor written (nor is it for networks other than the shipped ones,
+    `ShippedModels`)."""
     import time
 
-    from panogrf.app.scene.cache import METHOD, CacheResult, load_cached, prepare_cached
+    from panogrf.app.scene.cache import CacheResult, build_maps, load_cached, prepare_cached
     from panogrf.app.scene.folder import load_scene
 
     scene = load_scene(scene_dir, load_images=True)
     views = SourceViews(scene.images.images, scene.images.c2w, refine=refine)
     log(f"preparing {scene_dir} ({scene.num_views} views, {scene.width}x{scene.height})...")
     deferring = defer_refine and refine is not None
-    on_disk = models is None
+    if models is None:
+        models = default_models()
+    on_disk = use_cache and isinstance(models, ShippedModels)
     result = files = None
     if on_disk:
-        models = default_models()
         files = weight_files("panogrf")
         missing = [p.name for p in files if not p.exists()]
         if missing:
@@ -123,9 +139,10 @@ def prepare_scene(
         # Other networks than the shipped files: the disk cache (keyed by those files) is
         # neither read nor written.
         start = time.perf_counter()
-        views.cache_for(METHOD, models)
+        build_maps(views, models)
         seconds = time.perf_counter() - start
-        result = CacheResult(Path("-"), "computed (given networks, not cached)", seconds)
+        why = "given networks" if use_cache else "--no-cache"
+        result = CacheResult(Path("-"), f"computed ({why}, not cached)", seconds)
     what = "scene" if refine is None or pending else "refined scene"
     log(f"{what} {result.status} in {result.seconds:.2f} s ({result.path})")
     return PreparedScene(scene, views, models, result, cache_dir, on_disk, pending)
@@ -138,7 +155,7 @@ def refine_prepared(prepared: PreparedScene, should_stop=None, log=print) -> Pre
     ``should_stop`` said so (nothing written)."""
     import time
 
-    from panogrf.app.scene.cache import METHOD, CacheResult, prepare_cached
+    from panogrf.app.scene.cache import CacheResult, build_maps, prepare_cached
 
     refine = prepared.pending_refine
     if refine is None:
@@ -148,8 +165,8 @@ def refine_prepared(prepared: PreparedScene, should_stop=None, log=print) -> Pre
     if views is None:
         return None
     if not prepared.on_disk:
-        views.cache_for(METHOD, prepared.models)
-        result = CacheResult(Path("-"), "computed (given networks, not cached)", 0.0)
+        build_maps(views, prepared.models)
+        result = CacheResult(Path("-"), "computed (not cached)", 0.0)
     else:
         result = prepare_cached(views, prepared.models, prepared.cache_dir, weight_files())
     result.seconds = time.perf_counter() - start
@@ -157,3 +174,64 @@ def refine_prepared(prepared: PreparedScene, should_stop=None, log=print) -> Pre
     return PreparedScene(
         prepared.scene, views, prepared.models, result, prepared.cache_dir, prepared.on_disk
     )
+
+
+def uses_cache(method: str, quality: str = "fast") -> bool:
+    """Whether ``method`` at ``quality`` reads what the scene cache holds: PanoGRF's depth
+    (mode full, refined as the views say) and its feature maps. The GL preview and meshwarp
+    draw that depth, the renderer presets other than PanoGRF's build their own maps on it;
+    the other depth modes and the baselines without depth are prepared afresh."""
+    spec = METHODS[method]
+    return quality == "preview" or spec.depth_mode == METHODS["panogrf"].depth_mode
+
+
+def prepare_views(
+    views: SourceViews,
+    models: Models,
+    method: str = "panogrf",
+    quality: str = "fast",
+    cache_dir: Path | None = None,
+    use_cache: bool = True,
+):
+    """Compute (once) what ``method`` at ``quality`` needs of ``views`` before the first
+    pixel, every stage showing its progress (`panogrf.model.progress`). Where the method reads
+    what the scene cache holds (`uses_cache`) and the networks are the shipped ones
+    (`ShippedModels`), PanoGRF's depth and feature maps come from the disk cache in
+    ``cache_dir`` (default ``~/.cache/panogrf``) when a valid one is there, and are written to
+    it otherwise; ``use_cache=False`` neither reads nor writes it. Returns the cache's
+    `CacheResult` (its ``status``: "loaded", "built", "rebuilt: why", or "not cached: why")."""
+    import time
+
+    from panogrf.app.scene.cache import CacheResult, build_maps, prepare_cached
+    from panogrf.model.progress import stage
+    from panogrf.renderer.methods import Kind, prepare
+
+    start = time.perf_counter()
+    spec = METHODS[method]
+    result = None
+    if not uses_cache(method, quality):
+        why = f"not cached: {method} does not read PanoGRF's depth"
+    elif not use_cache:
+        why = "not cached: --no-cache"
+    elif not isinstance(models, ShippedModels):
+        why = "not cached: given networks"
+    else:
+        files = weight_files("panogrf")
+        missing = [p.name for p in files if not p.exists()]
+        if missing:
+            raise UserError(f"missing weights {missing}: reproduce them with `panogrf train`")
+        result = prepare_cached(views, models, cache_dir, files)
+    if quality == "preview":
+        views.depth_for(METHODS["panogrf"].depth_mode, models)
+    elif spec.kind is Kind.NEURAL:
+        build_maps(views, models, spec)
+    elif spec.kind is Kind.SNERF and "snerf" not in views.fitted:
+        with stage("fitting S-NeRF", 1) as progress:
+            prepare(method, views, models)
+            progress.advance()
+    else:
+        prepare(method, views, models)
+    if result is None:
+        result = CacheResult(Path("-"), why, 0.0)
+    result.seconds = time.perf_counter() - start
+    return result

@@ -41,6 +41,7 @@ class SceneRefiner:
         self._started = 0.0
         self._seconds: float | None = None
         self._thread = threading.Thread(target=self._run, name="panogrf-refine", daemon=True)
+        self._watch = None  # the refinement's current stage (`panogrf.app.progress.StageWatch`)
 
     def start(self) -> SceneRefiner:
         self._started = time.perf_counter()
@@ -84,15 +85,21 @@ class SceneRefiner:
                 return f"depth refined ({self._seconds:.1f} s)"
         if self._stop.is_set():
             return "depth refinement stopped"
-        return f"refining depth ({time.perf_counter() - self._started:.0f} s)"
+        text = f"refining depth ({time.perf_counter() - self._started:.0f} s)"
+        stage = self._watch.text() if self._watch is not None else None
+        return text if stage is None else f"{text}: {stage}"
 
     def _run(self) -> None:
+        from panogrf.app.progress import StageWatch
         from panogrf.app.scene import session
+        from panogrf.model.progress import listening
 
         if self.threads:
             torch.set_num_threads(self.threads)
+        self._watch = StageWatch(threading.get_ident())
         try:
-            out = session.refine_prepared(self.prepared, self._stop.is_set, self.log)
+            with listening(self._watch):
+                out = session.refine_prepared(self.prepared, self._stop.is_set, self.log)
         except Exception as exc:  # shown on screen and in the terminal; the plain scene stays
             message = f"{type(exc).__name__}: {exc}"
             with self._lock:

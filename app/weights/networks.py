@@ -150,10 +150,16 @@ def load_depth_estimator(
         _load(net, path, asdict(net.config))
         mvs[mode] = net
     estimator = DepthEstimator(mono, mvs)
+    files = [weights_path(WEIGHTS["mono"]), *(weights_path(WEIGHTS[m]) for m in modes)]
     if _fuses(modes):
         estimator.selector = load_selector(weights_path(SELECTOR))
+        files.append(weights_path(SELECTOR))
         if weights_path(BLEND).exists():
             estimator.blend = load_blend(weights_path(BLEND))
+            files.append(weights_path(BLEND))
+    # Where its networks came from: what a cached estimate of it is keyed by
+    # (`panogrf.app.scene.cache.estimate_key`).
+    estimator.weight_files = tuple(files)
     return estimator.to(device).eval()
 
 
