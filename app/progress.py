@@ -3,9 +3,10 @@
 `TerminalProgress` writes to stderr: on a terminal a tqdm bar per stage (its name, k/n,
 elapsed and ETA); elsewhere (a log file, a pipe) plain lines ``stage: k/n, elapsed 1.2 s,
 eta 3.4 s``, a stage's first and last and at most one a second between. A heartbeat thread
-refreshes a stage whose unit of work is taking long, so nothing waits silently for more than
-about a second. Commands with ``--quiet`` (`panogrf.app.runtime.add_prepare_options`) get it
-from `panogrf.app.cli` unless they pass that flag.
+refreshes the innermost open stage when its unit of work is taking long (a preparation is one
+outer stage around its inner ones, which covers the work between them), so nothing waits
+silently for more than about a second. Commands with ``--quiet``
+(`panogrf.app.runtime.add_prepare_options`) get it from `panogrf.app.cli` unless they pass it.
 
 `StageWatch` keeps the latest stage of one thread for the viewer's overlay.
 """
@@ -96,17 +97,21 @@ class TerminalProgress:
         entry["shown_done"] = stage.done
 
     def beat(self) -> None:
-        """Refresh every stage not shown for ``interval`` seconds (the heartbeat calls this)."""
+        """Refresh the innermost open stage (the latest started) when it was not shown for
+        ``interval`` seconds (the heartbeat calls this): an outer stage speaks up only
+        between its inner ones."""
         with self._lock:
+            if not self._open:
+                return
+            entry = list(self._open.values())[-1]
             now = self.clock()
-            for entry in self._open.values():
-                if now - entry["shown"] < self.interval:
-                    continue
-                if entry["bar"] is not None:
-                    entry["bar"].refresh()
-                    entry["shown"] = now
-                else:
-                    self._line(entry)
+            if now - entry["shown"] < self.interval:
+                return
+            if entry["bar"] is not None:
+                entry["bar"].refresh()
+                entry["shown"] = now
+            else:
+                self._line(entry)
 
     def _beating(self) -> None:
         while not self._stop.wait(self.interval / 4):

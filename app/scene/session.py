@@ -108,13 +108,30 @@ def prepare_scene(
     leave the refinement to `refine_prepared` (``pending_refine``): the viewer opens on the
     plain scene and swaps the refined one in when it is done. ``use_cache=False``: the disk
     cache is neither read nor written (nor is it for networks other than the shipped ones,
-    `ShippedModels`)."""
+    `ShippedModels`). The whole is a progress stage around the inner ones."""
+    from panogrf.app.scene.folder import load_scene
+    from panogrf.model.progress import stage
+
+    scene = load_scene(scene_dir, load_images=True)  # a bad scene: its error before any stage
+    with stage(PREPARING, 1) as progress:
+        prepared = _prepare_scene(
+            scene, scene_dir, cache_dir, models, log, refine, defer_refine, use_cache
+        )
+        progress.advance()
+    return prepared
+
+
+#: The progress stage around a whole preparation (its inner stages: depth estimation's,
+#: the refinement, the feature maps): it speaks up between them.
+PREPARING = "preparing the scene"
+
+
+def _prepare_scene(scene, scene_dir, cache_dir, models, log, refine, defer_refine, use_cache):
+    """`prepare_scene`'s work, on the loaded ``scene``."""
     import time
 
     from panogrf.app.scene.cache import CacheResult, build_maps, load_cached, prepare_cached
-    from panogrf.app.scene.folder import load_scene
 
-    scene = load_scene(scene_dir, load_images=True)
     views = SourceViews(scene.images.images, scene.images.c2w, refine=refine)
     log(f"preparing {scene_dir} ({scene.num_views} views, {scene.width}x{scene.height})...")
     deferring = defer_refine and refine is not None
@@ -199,7 +216,18 @@ def prepare_views(
     (`ShippedModels`), PanoGRF's depth and feature maps come from the disk cache in
     ``cache_dir`` (default ``~/.cache/panogrf``) when a valid one is there, and are written to
     it otherwise; ``use_cache=False`` neither reads nor writes it. Returns the cache's
-    `CacheResult` (its ``status``: "loaded", "built", "rebuilt: why", or "not cached: why")."""
+    `CacheResult` (its ``status``: "loaded", "built", "rebuilt: why", or "not cached: why").
+    The whole is a progress stage around the inner ones."""
+    from panogrf.model.progress import stage
+
+    with stage(PREPARING, 1) as progress:
+        result = _prepare_views(views, models, method, quality, cache_dir, use_cache)
+        progress.advance()
+    return result
+
+
+def _prepare_views(views, models, method, quality, cache_dir, use_cache):
+    """`prepare_views`' work."""
     import time
 
     from panogrf.app.scene.cache import CacheResult, build_maps, prepare_cached
