@@ -1,0 +1,435 @@
+"""Relative poses of V panoramas: SIFT on cube faces, pooled matching, COLMAP's geometry.
+
+The front end is the one measured to find matches in blank real rooms
+(`panogrf.app.poses.features`): SIFT on six locally equalised 90-degree cube faces per
+panorama, every keypoint a unit bearing; each pair of panoramas matched as a whole (mutual
+nearest neighbours with the ratio test, every keypoint of one panorama against every keypoint
+of the other). Keypoints far below the horizon (tripod, hand, operator) are dropped: they move
+with the camera and pull the poses towards a rotation only.
+
+The geometry is COLMAP's (pycolmap), on its native EQUIRECTANGULAR camera: each panorama is
+one image whose keypoints are the bearings' panorama pixels; COLMAP verifies every pair
+(essential matrix on the bearings, RANSAC), the matches are then grown along the verified
+epipolar planes (guided matching) and verified again, and the poses come from COLMAP's global
+mapper (rotation averaging, global positioning, bundle adjustment), or its incremental mapper
+where that registers more panoramas.
+
+Output poses are camera-to-world [V, 4, 4] in the OpenGL camera frame, in COLMAP's arbitrary
+world frame and unit; `panogrf.app.poses.scale` makes them upright and metric. The report has
+one entry per pair of panoramas (putative matches, verified inliers, the points both see and
+their median residual in degrees) and one per panorama.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from panogrf.app.poses import CV_TO_GL
+from panogrf.app.poses import features as ft
+
+
+@dataclass(frozen=True)
+class ColmapConfig:
+    """Settings of `estimate_poses_colmap`."""
+
+    nadir_deg: float = 60.0
+    """Keypoints more than this below the horizon are dropped (tripod, operator)."""
+    ratio: float = 0.8
+    """Lowe's ratio test of the pooled matching."""
+    guided_px: float = 3.0
+    """Guided matching: candidates within this many equator pixels of the epipolar plane."""
+    min_pair_inliers: int = 15
+    """Fewer verified inliers than this: the pair is reported failed (and gives no geometry)."""
+    max_error_px: float = 4.0
+    """COLMAP's RANSAC and reprojection thresholds, in panorama pixels at 1024 columns."""
+    num_threads: int = -1
+    """COLMAP's threads (-1: all cores)."""
+    seed: int = 0
+
+
+@dataclass
+class PairReport:
+    """One pair of panoramas."""
+
+    i: int
+    j: int
+    matches: int = 0
+    """Putative matches (pooled, then grown along the verified epipolar planes)."""
+    inliers: int = 0
+    """Matches that passed COLMAP's geometric verification."""
+    shared_points: int = 0
+    """Points of the reconstruction seen by both panoramas."""
+    residual_deg: float | None = None
+    """Median reprojection residual of those points (degrees; None: no shared points)."""
+    ok: bool = False
+    reason: str = ""
+
+
+@dataclass
+class ViewReport:
+    index: int
+    registered: bool = False
+    points: int = 0
+    residual_deg: float | None = None
+    note: str = ""
+
+
+@dataclass
+class ColmapEstimate:
+    """Poses of the registered panoramas and the evidence behind them."""
+
+    c2w: np.ndarray
+    """[V, 4, 4] camera-to-world (OpenGL), COLMAP's world frame; NaN for unregistered views."""
+    registered: np.ndarray
+    """[V] bool."""
+    points: np.ndarray
+    """[P, 3] the reconstruction's points, same frame."""
+    pairs: list[PairReport] = field(default_factory=list)
+    views: list[ViewReport] = field(default_factory=list)
+    residual_deg: float | None = None
+    """Median reprojection residual over all observations (degrees)."""
+    mapper: str = ""
+    """Which of COLMAP's mappers gave the poses."""
+    seconds: float = 0.0
+
+    @property
+    def view_notes(self) -> list[str]:
+        return [v.note for v in self.views]
+
+
+def estimate_poses_colmap(
+    images: list[np.ndarray],
+    cfg: ColmapConfig = ColmapConfig(),
+    progress=None,
+    work_dir: Path | None = None,
+) -> ColmapEstimate:
+    """Poses of panoramas [H, W, 3] uint8 (RGB), at least two, all the same size.
+
+    ``progress(stage: str, done: int, total: int)`` is called as work proceeds.
+    ``work_dir``: where COLMAP's database goes (default: a temporary folder, removed after)."""
+    start = time.perf_counter()
+    say = progress or (lambda stage, done, total: None)
+    with contextlib.ExitStack() as stack:
+        if work_dir is None:
+            work_dir = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="panogrf-")))
+        est = _run(images, cfg, say, Path(work_dir))
+    est.seconds = time.perf_counter() - start
+    return est
+
+
+def _camera(width: int, height: int):
+    import pycolmap
+
+    return pycolmap.Camera.create_from_model_id(
+        camera_id=1,
+        model=pycolmap.CameraModelId.EQUIRECTANGULAR,
+        focal_length=0.0,
+        width=width,
+        height=height,
+    )
+
+
+def _pixels(camera, bearings_gl: np.ndarray) -> np.ndarray:
+    """Bearings [K, 3] (OpenGL camera frame) -> COLMAP panorama pixels [K, 2]."""
+    if len(bearings_gl) == 0:
+        return np.zeros((0, 2))
+    return np.asarray(camera.img_from_cam(bearings_gl @ CV_TO_GL))
+
+
+def _run(images, cfg: ColmapConfig, say, work: Path) -> ColmapEstimate:
+    import pycolmap
+
+    pycolmap.logging.minloglevel = 2  # warnings and errors only
+    pycolmap.set_random_seed(cfg.seed)
+    v_count = len(images)
+    h, w = images[0].shape[:2]
+    floor = -math.sin(math.radians(cfg.nadir_deg))
+    feats = []
+    for k, img in enumerate(images):
+        say("features", k, v_count)
+        f = ft.detect(img)
+        keep = f.bearings[:, 1] > floor
+        feats.append(ft.Features(f.bearings[keep], f.descriptors[keep]))
+    say("features", v_count, v_count)
+    camera = _camera(w, h)
+    image_dir = work / "images"
+    image_dir.mkdir(parents=True, exist_ok=True)
+    names = [f"p{k:03d}.jpg" for k in range(v_count)]
+    for k, img in enumerate(images):
+        # COLMAP reads the files only for the size and the points' colours: a small copy will
+        # do, but the size must match the camera.
+        if not cv2.imwrite(str(image_dir / names[k]), cv2.cvtColor(img, cv2.COLOR_RGB2BGR)):
+            raise OSError(f"cannot write COLMAP's images in {work}")
+    db_path = work / "database.db"
+    pycolmap.Database.open(db_path).close()
+    pycolmap.import_images(
+        db_path,
+        image_dir,
+        camera_mode=pycolmap.CameraMode.SINGLE,
+        options=pycolmap.ImageReaderOptions(camera_model="EQUIRECTANGULAR"),
+    )
+    scale_px = w / 1024.0
+    verify = pycolmap.TwoViewGeometryOptions()
+    verify.min_num_inliers = cfg.min_pair_inliers
+    verify.ransac.max_error = cfg.max_error_px * scale_px
+    verify.ransac.random_seed = cfg.seed
+    verify.compute_relative_pose = True
+    with pycolmap.Database.open(db_path) as db:
+        ids = {im.name: im.image_id for im in db.read_all_images()}
+        image_ids = [ids[n] for n in names]
+        for k, f in enumerate(feats):
+            db.write_keypoints(image_ids[k], _pixels(camera, f.bearings).astype(np.float32))
+        pair_list = [(i, j) for i in range(v_count) for j in range(i + 1, v_count)]
+        putative = {}
+        for n, (i, j) in enumerate(pair_list):
+            say("matching", n, len(pair_list))
+            m = ft.match(feats[i], feats[j], cfg.ratio)
+            putative[(i, j)] = m
+            db.write_matches(image_ids[i], image_ids[j], m.astype(np.uint32))
+        say("matching", len(pair_list), len(pair_list))
+    say("verifying", 0, 2)
+    _verify(db_path, verify, cfg)
+    guided_rad = cfg.guided_px * math.pi / 512.0  # equator pixels at 1024 columns -> radians
+    with pycolmap.Database.open(db_path) as db:
+        for i, j in pair_list:
+            a, b = image_ids[i], image_ids[j]
+            if not db.exists_two_view_geometry(a, b):
+                continue
+            tvg = db.read_two_view_geometry(a, b)
+            if len(tvg.inlier_matches) < cfg.min_pair_inliers:
+                continue
+            e_cv = np.asarray(tvg.E)
+            if not np.isfinite(e_cv).all() or not np.abs(e_cv).sum() > 0:
+                continue
+            if (a, b) != (image_ids[i], image_ids[j]) or a > b:
+                pass
+            guided = ft.match_guided(feats[i], feats[j], CV_TO_GL @ e_cv @ CV_TO_GL, guided_rad)
+            if len(guided) > len(putative[(i, j)]):
+                merged = np.unique(np.concatenate([putative[(i, j)], guided]), axis=0)
+                # One keypoint, one match: the pooled match wins where they disagree.
+                _, first_a = np.unique(merged[:, 0], return_index=True)
+                merged = merged[np.sort(first_a)]
+                _, first_b = np.unique(merged[:, 1], return_index=True)
+                merged = merged[np.sort(first_b)]
+                putative[(i, j)] = merged
+                db.delete_matches(a, b)
+                db.delete_two_view_geometry(a, b)
+                db.write_matches(a, b, merged.astype(np.uint32))
+    say("verifying", 1, 2)
+    _verify(db_path, verify, cfg)
+    say("verifying", 2, 2)
+    counts = {}
+    with pycolmap.Database.open(db_path) as db:
+        for i, j in pair_list:
+            a, b = image_ids[i], image_ids[j]
+            inl = 0
+            if db.exists_two_view_geometry(a, b):
+                inl = len(db.read_two_view_geometry(a, b).inlier_matches)
+            counts[(i, j)] = (len(putative[(i, j)]), inl)
+    say("mapping", 0, 1)
+    pano_of = {image_ids[k]: k for k in range(v_count)}
+    if v_count == 2:  # COLMAP's mappers want more than one pair: the verified pair is it
+        est = _two_view(db_path, image_ids, feats, counts, cfg, w)
+    else:
+        recs = _map(db_path, image_dir, work, cfg)
+        est = _collect(recs, v_count, pano_of, counts, cfg, w)
+    say("mapping", 1, 1)
+    return est
+
+
+def _verify(db_path: Path, verify, cfg: ColmapConfig) -> None:
+    import pycolmap
+
+    pycolmap.geometric_verification(
+        db_path,
+        verifier_options=pycolmap.GeometricVerifierOptions(num_threads=cfg.num_threads),
+        two_view_geometry_options=verify,
+    )
+
+
+def _map(db_path: Path, image_dir: Path, work: Path, cfg: ColmapConfig) -> list[tuple]:
+    """[(mapper name, reconstruction)] of COLMAP's global and incremental mappers."""
+    import pycolmap
+
+    out = []
+    gopts = pycolmap.GlobalPipelineOptions(num_threads=cfg.num_threads, random_seed=cfg.seed)
+    recs = pycolmap.global_mapping(db_path, image_dir, work / "global", gopts)
+    out += [("global", r) for r in recs.values()]
+    if not out or max(r.num_reg_images() for _, r in out) < _num_images(db_path):
+        iopts = pycolmap.IncrementalPipelineOptions(
+            num_threads=cfg.num_threads, random_seed=cfg.seed, min_model_size=2
+        )
+        # Few panoramas: the first pair may be all there is.
+        iopts.mapper.init_min_num_inliers = 2 * cfg.min_pair_inliers
+        iopts.mapper.init_min_tri_angle = 4.0
+        iopts.mapper.abs_pose_min_num_inliers = cfg.min_pair_inliers
+        recs = pycolmap.incremental_mapping(db_path, image_dir, work / "incremental", iopts)
+        out += [("incremental", r) for r in recs.values()]
+    return out
+
+
+def _two_view(db_path, image_ids, feats, counts, cfg: ColmapConfig, width: int):
+    """Two panoramas: COLMAP's verified relative pose, its inliers triangulated, and both
+    refined together on angular residuals."""
+    import pycolmap
+
+    from panogrf.app.poses import geometry as geo
+
+    a, b = image_ids
+    matches, inliers = counts[(0, 1)]
+    pair = PairReport(0, 1, matches, inliers)
+    views = [ViewReport(0), ViewReport(1)]
+    c2w = np.full((2, 4, 4), np.nan)
+    registered = np.zeros(2, bool)
+    est = ColmapEstimate(c2w, registered, np.zeros((0, 3)), [pair], views, None, "two-view")
+    tvg = None
+    with pycolmap.Database.open(db_path) as db:
+        if db.exists_two_view_geometry(a, b):
+            tvg = db.read_two_view_geometry(a, b)
+    if tvg is None or inliers < cfg.min_pair_inliers:
+        pair.reason = (
+            f"{inliers} of {matches} matches agree on a geometry (< {cfg.min_pair_inliers}): "
+            "too little overlap or texture between these two"
+        )
+        for v in views:
+            v.note = f"not registered: {inliers} verified matches with the other panorama"
+        return est
+    m = np.asarray(tvg.inlier_matches)
+    pose = tvg.cam2_from_cam1
+    rot_cv = np.asarray(pose.rotation.matrix())
+    t_cv = np.asarray(pose.translation).reshape(3)
+    # OpenGL camera frames: x_gl = F x_cv on both sides.
+    rot, t = CV_TO_GL @ rot_cv @ CV_TO_GL, CV_TO_GL @ t_cv
+    t = t / max(np.linalg.norm(t), 1e-12)
+    b1, b2 = feats[0].bearings[m[:, 0]], feats[1].bearings[m[:, 1]]
+    dist, pts = geo.triangulate_pair(rot, t, b1, b2)
+    front = (dist > 0).all(1)
+    if front.sum() < cfg.min_pair_inliers:
+        pair.reason = f"only {int(front.sum())} verified matches triangulate in front of both"
+        for v in views:
+            v.note = "not registered: the pair's geometry puts the points behind a camera"
+        return est
+    pts, b1, b2 = pts[front], b1[front], b2[front]
+    # The two poses refined on a spread subset of the points (the adjustment's cost grows
+    # with the points; 500 pin two poses down), then every point triangulated again.
+    sub = np.random.default_rng(cfg.seed).permutation(len(pts))[:500]
+    n = len(sub)
+    adj = geo.bundle_adjust(
+        np.stack([np.eye(3), rot]),
+        np.stack([np.zeros(3), t]),
+        pts[sub],
+        np.repeat([0, 1], n),
+        np.tile(np.arange(n), 2),
+        np.concatenate([b1[sub], b2[sub]]),
+        loss_scale=cfg.max_error_px * math.pi / 512.0 / 2,
+    )
+    rot = adj.rots[1] @ adj.rots[0].T
+    t = adj.trans[1] - rot @ adj.trans[0]
+    dist, pts = geo.triangulate_pair(rot, t, b1, b2)
+    p2 = pts @ rot.T + t
+    res = np.stack([
+        np.arccos(np.clip((pts * b1).sum(1) / np.linalg.norm(pts, axis=1), -1, 1)),
+        np.arccos(np.clip((p2 * b2).sum(1) / np.linalg.norm(p2, axis=1), -1, 1)),
+    ])
+    good = (dist > 0).all(1) & (res < cfg.max_error_px * math.pi / 512.0).all(0)
+    for k, (r, tk) in enumerate(((np.eye(3), np.zeros(3)), (rot, t))):
+        c2w[k] = np.eye(4)
+        c2w[k, :3, :3] = r.T
+        c2w[k, :3, 3] = -r.T @ tk
+    registered[:] = True
+    deg = np.degrees(res[:, good])
+    est.points = pts[good]
+    est.residual_deg = float(np.median(deg)) if deg.size else None
+    pair.shared_points = int(good.sum())
+    pair.residual_deg = est.residual_deg
+    pair.ok = True
+    for k, v in enumerate(views):
+        v.registered, v.points = True, int(good.sum())
+        v.residual_deg = float(np.median(deg[k])) if deg.size else None
+        v.note = f"registered: {v.points} points, median residual {v.residual_deg:.3f} deg"
+    return est
+
+
+def _num_images(db_path: Path) -> int:
+    import pycolmap
+
+    with pycolmap.Database.open(db_path) as db:
+        return db.num_images()
+
+
+def _collect(recs, v_count, pano_of, counts, cfg: ColmapConfig, width: int) -> ColmapEstimate:
+    """The reconstruction that registers most panoramas (then: the smaller residual) as poses
+    and the report."""
+    c2w = np.full((v_count, 4, 4), np.nan)
+    registered = np.zeros(v_count, bool)
+    px_to_deg = 360.0 / width  # at the equator; towards the poles a pixel is less
+    views = [ViewReport(k) for k in range(v_count)]
+    pairs = [
+        PairReport(i, j, *counts.get((i, j), (0, 0)))
+        for i in range(v_count)
+        for j in range(i + 1, v_count)
+    ]
+    points = np.zeros((0, 3))
+    residual, mapper = None, ""
+    usable = [(n, r) for n, r in recs if r.num_reg_images() >= 2]
+    if usable:
+        mapper, rec = max(
+            usable, key=lambda nr: (nr[1].num_reg_images(), -nr[1].compute_mean_reprojection_error())
+        )
+        for image in rec.images.values():
+            if not image.has_pose:
+                continue
+            k = pano_of[image.image_id]
+            m = np.eye(4)
+            m[:3, :4] = np.asarray(image.cam_from_world().matrix())
+            c2w_cv = np.linalg.inv(m)
+            registered[k] = True
+            c2w[k] = c2w_cv
+            c2w[k, :3, :3] = c2w_cv[:3, :3] @ CV_TO_GL
+        ids = list(rec.points3D.keys())
+        points = np.array([rec.points3D[i].xyz for i in ids]).reshape(-1, 3)
+        errors = np.array([rec.points3D[i].error for i in ids])
+        seen = [{pano_of[e.image_id] for e in rec.points3D[i].track.elements} for i in ids]
+        if len(errors):
+            residual = float(np.median(errors) * px_to_deg)
+        for v in views:
+            if registered[v.index]:
+                sel = [n for n, s in enumerate(seen) if v.index in s]
+                v.registered, v.points = True, len(sel)
+                v.residual_deg = float(np.median(errors[sel]) * px_to_deg) if sel else None
+                v.note = f"registered: {v.points} points" + (
+                    f", median residual {v.residual_deg:.3f} deg" if sel else ""
+                )
+        for p in pairs:
+            sel = [n for n, s in enumerate(seen) if p.i in s and p.j in s]
+            p.shared_points = len(sel)
+            if sel:
+                p.residual_deg = float(np.median(errors[sel]) * px_to_deg)
+    for p in pairs:
+        if p.inliers < cfg.min_pair_inliers:
+            p.reason = (
+                f"{p.inliers} of {p.matches} matches agree on a geometry "
+                f"(< {cfg.min_pair_inliers}): too little overlap or texture between these two"
+            )
+        elif not (registered[p.i] and registered[p.j]):
+            p.reason = "consistent on its own, but not with the other pairs"
+        else:
+            p.ok = True
+    for v in views:
+        if not registered[v.index]:
+            links = [p for p in pairs if v.index in (p.i, p.j)]
+            best = max(links, key=lambda p: p.inliers) if links else None
+            v.note = "not registered: " + (
+                f"at most {best.inliers} verified matches with another panorama"
+                if best is not None
+                else "no other panorama"
+            )
+    return ColmapEstimate(c2w, registered, points, pairs, views, residual, mapper)
