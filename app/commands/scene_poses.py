@@ -212,8 +212,72 @@ def _add_faces(sub: argparse._SubParsersAction) -> None:
 # --- from-panoramas -----------------------------------------------------------------------
 
 
+#: What to do when panoramas cannot be posed (the failure's one line ends with it).
+ADVICE = (
+    "try a photo between the two (each pair should share most of the room: 1-3 m apart "
+    "indoors), fewer moving objects or people, or poses from another tool with "
+    "`panogrf scene import --format colmap|opensfm|tum`"
+)
+
+#: The report's file in the scene folder (JSON; the printed report is its "lines").
+REPORT = "poses_report.json"
+
+
+def _deg(value: float | None) -> str:
+    return "n/a" if value is None else f"{value:.3f} deg"
+
+
+def pose_report(files: list[Path], est) -> list[str]:
+    """The printed report of a `ColmapEstimate`: a line per pair and per view."""
+    lines = [f"posing (COLMAP {est.mapper or 'mappers'}, {est.seconds:.1f} s):", "pairs:"]
+    for p in est.pairs:
+        state = (
+            f"ok, {p.inliers} inliers, {p.shared_points} shared points, "
+            f"median residual {_deg(p.residual_deg)}"
+            if p.ok
+            else f"FAILED: {p.reason}"
+        )
+        lines.append(f"  {files[p.i].name} - {files[p.j].name}: {p.matches} matches; {state}")
+    lines.append("views:")
+    lines += [f"  {files[v.index].name}: {v.note}" for v in est.views]
+    return lines
+
+
+def _report_json(files: list[Path], est, lines: list[str]) -> dict:
+    return {
+        "method": f"SIFT on cube faces, pooled and guided matching; COLMAP {est.mapper}",
+        "seconds": round(est.seconds, 2),
+        "median_residual_deg": est.residual_deg,
+        "pairs": [
+            {
+                "a": files[p.i].name,
+                "b": files[p.j].name,
+                "matches": p.matches,
+                "inliers": p.inliers,
+                "shared_points": p.shared_points,
+                "median_residual_deg": p.residual_deg,
+                "ok": p.ok,
+                "reason": p.reason,
+            }
+            for p in est.pairs
+        ],
+        "views": [
+            {
+                "file": str(files[v.index]),
+                "registered": v.registered,
+                "points": v.points,
+                "median_residual_deg": v.residual_deg,
+                "note": v.note,
+            }
+            for v in est.views
+        ],
+        "lines": lines,
+    }
+
+
 def run_from_panoramas(args: argparse.Namespace) -> int:
-    from panogrf.app.poses.estimate import estimate_poses
+    from panogrf.app.files.images import write_json_atomic
+    from panogrf.app.poses.colmap import estimate_poses_colmap
     from panogrf.app.scene.folder import write_scene
 
     files = list(args.panoramas)
@@ -228,50 +292,57 @@ def run_from_panoramas(args: argparse.Namespace) -> int:
     n = len(files)
     heights = sc.parse_heights(args.camera_height, n) if args.camera_height else None
     distance = sc.parse_distance(args.distance, n) if args.distance else None
-    est = estimate_poses([img.transpose(1, 2, 0) for img in images])
-    lines = [f"poses from {n} panoramas ({images.shape[3]}x{images.shape[2]}):", "pairs:"]
-    for p in est.pairs:
-        state = (
-            f"ok, {p.inliers} inliers, median residual {p.residual_deg:.3f} deg"
-            if p.ok
-            else f"FAILED: {p.reason}"
-        )
-        lines.append(f"  {files[p.i].name} - {files[p.j].name}: {p.matches} matches; {state}")
-    lines.append("views:")
-    lines += [f"  {f.name}: {note}" for f, note in zip(files, est.view_notes, strict=True)]
+    est = estimate_poses_colmap([img.transpose(1, 2, 0) for img in images])
+    lines = [f"{n} panoramas ({images.shape[3]}x{images.shape[2]})", *pose_report(files, est)]
     keep = np.flatnonzero(est.registered)
     if len(keep) < 2:
         print("\n".join(lines))
-        reasons = "; ".join(sorted({p.reason for p in est.pairs if not p.ok}))
-        raise UserError(f"{files[0]}: no pair of the panoramas could be posed ({reasons})")
+        best = max(est.pairs, key=lambda p: p.inliers)
+        raise UserError(
+            f"{files[best.i]}, {files[best.j]}: no pair of the {n} panoramas could be posed "
+            f"(at best {best.inliers} of {best.matches} matches agree, between these two); "
+            + ADVICE
+        )
     if distance is not None:
         i, j, m = distance
         if not (est.registered[i] and est.registered[j]):
+            bad = i if not est.registered[i] else j
             raise UserError(
-                f"--distance {args.distance}: view {i if not est.registered[i] else j} "
-                f"({files[i if not est.registered[i] else j]}) could not be posed"
+                f"{files[bad]}: --distance {args.distance} names view {bad}, which could not be "
+                "posed (see the report above)"
             )
         distance = (int(np.searchsorted(keep, i)), int(np.searchsorted(keep, j)), m)
     metric = sc.make_metric(
         est.c2w[keep], est.points, None if heights is None else heights[keep], distance
     )
     lines += metric.lines
-    lines.append(f"median residual over all points: {est.residual_deg:.3f} deg")
+    lines.append(f"median residual over all points: {_deg(est.residual_deg)}")
     names = [files[k].stem for k in keep]
     if len(set(names)) != len(names):
         names = [f"view_{k:03d}" for k in keep]
+    lines.append(f"baselines (m): {_baselines(metric.c2w)}")
+    if len(keep) < n:
+        left = [files[k].name for k in range(n) if not est.registered[k]]
+        lines.append(
+            f"left out {n - len(keep)} panorama(s) that could not be posed: {', '.join(left)}; "
+            + ADVICE
+        )
+    lines.append(f"wrote {args.out} (the report: {args.out / REPORT})")
     meta = {
         "poses": {
             "estimated_from": [str(files[k]) for k in keep],
-            "residual_deg": round(est.residual_deg, 4),
+            "residual_deg": None if est.residual_deg is None else round(est.residual_deg, 4),
             "scale": next(x for x in metric.lines if x.startswith("scale:")),
+            "report": REPORT,
         }
     }
     write_scene(args.out, metric.c2w, images[keep], names=names, metadata=meta)
-    lines.append(f"baselines (m): {_baselines(metric.c2w)}")
-    if len(keep) < n:
-        lines.append(f"left out {n - len(keep)} view(s) that could not be posed (see views)")
-    lines.append(f"wrote {args.out}")
+    report = _report_json(files, est, lines)
+    report["scale"] = metric.lines
+    try:
+        write_json_atomic(args.out / REPORT, report)
+    except OSError as exc:
+        lines[-1] = f"wrote {args.out} (the report could not be saved: {exc.strerror or exc})"
     print("\n".join(lines))
     return 0
 
@@ -282,10 +353,12 @@ def _add_from_panoramas(sub: argparse._SubParsersAction) -> None:
         help="a posed scene folder from plain 360-degree photos (poses estimated)",
         description=(
             "Estimate the relative poses of panoramas of one place from their pixels (SIFT on "
-            "cube faces, essential matrix on bearings with RANSAC, bundle adjustment on angular "
-            "residuals), make them upright (floor plane, else level cameras) and metric, and "
-            "write a scene folder for view, render, depth and eval. The report lists matches "
-            "and residuals per pair and which pairs or views failed and why. Metric scale "
+            "cube faces, pooled and guided matching; COLMAP's geometric verification, global "
+            "mapping and bundle adjustment on equirectangular cameras), make them upright "
+            "(floor plane, else level cameras) and metric, and write a scene folder for view, "
+            "render, depth and eval. The report (printed, and poses_report.json in the scene) "
+            "lists matches, inliers and residuals per pair and per view, and which failed and "
+            "why. Metric scale "
             "comes from --camera-height or --distance; without either the mean camera height "
             "is assumed to be 1.5 m (said in the report).\n\n" + _CONVENTIONS
         ),
@@ -304,4 +377,5 @@ def _add_from_panoramas(sub: argparse._SubParsersAction) -> None:
         help="camera height above the floor: one value for all, or one per panorama (a,b,c)",
     )
     group.add_argument("--distance", metavar="I,J=METRES", help="views I and J are this far apart")
+    parser.add_argument("--quiet", action="store_true", help="no progress of the stages on stderr")
     parser.set_defaults(func=run_from_panoramas)

@@ -113,16 +113,44 @@ def estimate_poses_colmap(
 ) -> ColmapEstimate:
     """Poses of panoramas [H, W, 3] uint8 (RGB), at least two, all the same size.
 
-    ``progress(stage: str, done: int, total: int)`` is called as work proceeds.
-    ``work_dir``: where COLMAP's database goes (default: a temporary folder, removed after)."""
+    Each step is a `panogrf.model.progress` stage ("posing: features", "posing: matching",
+    "posing: verification", "posing: mapping"); ``progress(stage, done, total)`` is also called
+    when given. ``work_dir``: where COLMAP's database goes (default: a temporary folder,
+    removed after)."""
     start = time.perf_counter()
-    say = progress or (lambda stage, done, total: None)
+    say = _Stages(progress)
     with contextlib.ExitStack() as stack:
+        stack.callback(say.close)
         if work_dir is None:
             work_dir = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="panogrf-")))
         est = _run(images, cfg, say, Path(work_dir))
     est.seconds = time.perf_counter() - start
     return est
+
+
+class _Stages:
+    """``say(name, done, total)`` -> one `panogrf.model.progress` stage per name."""
+
+    def __init__(self, callback=None) -> None:
+        self.callback = callback
+        self.current = None
+
+    def __call__(self, name: str, done: int, total: int) -> None:
+        from panogrf.model.progress import open_stage
+
+        if self.callback is not None:
+            self.callback(name, done, total)
+        label = f"posing: {name}"
+        if self.current is None or self.current.name != label:
+            self.close()
+            self.current = open_stage(label, total)
+        if done > self.current.done:
+            self.current.advance(done - self.current.done)
+
+    def close(self) -> None:
+        if self.current is not None:
+            self.current.close()
+            self.current = None
 
 
 def _camera(width: int, height: int):
@@ -195,7 +223,7 @@ def _run(images, cfg: ColmapConfig, say, work: Path) -> ColmapEstimate:
             putative[(i, j)] = m
             db.write_matches(image_ids[i], image_ids[j], m.astype(np.uint32))
         say("matching", len(pair_list), len(pair_list))
-    say("verifying", 0, 2)
+    say("verification", 0, 2)
     _verify(db_path, verify, cfg)
     guided_rad = cfg.guided_px * math.pi / 512.0  # equator pixels at 1024 columns -> radians
     with pycolmap.Database.open(db_path) as db:
@@ -223,9 +251,9 @@ def _run(images, cfg: ColmapConfig, say, work: Path) -> ColmapEstimate:
                 db.delete_matches(a, b)
                 db.delete_two_view_geometry(a, b)
                 db.write_matches(a, b, merged.astype(np.uint32))
-    say("verifying", 1, 2)
+    say("verification", 1, 2)
     _verify(db_path, verify, cfg)
-    say("verifying", 2, 2)
+    say("verification", 2, 2)
     counts = {}
     with pycolmap.Database.open(db_path) as db:
         for i, j in pair_list:

@@ -4,6 +4,8 @@ a plain folder of scenes."""
 from __future__ import annotations
 
 import json
+import math
+import re
 import shutil
 
 import numpy as np
@@ -35,8 +37,19 @@ def test_demo_poses_from_its_pixels(tmp_path, capsys):
         )
         == 0
     )
-    report = capsys.readouterr().out
+    captured = capsys.readouterr()
+    report = captured.out
     assert "matches; ok" in report and "median residual" in report and "upright:" in report
+    assert "nan" not in report.lower()
+    # Every stage of the posing showed its progress on stderr.
+    for name in ("features", "matching", "verification", "mapping"):
+        assert f"posing: {name}:" in captured.err
+    saved = json.loads((out / "poses_report.json").read_text())
+    assert len(saved["pairs"]) == 3 and all(p["ok"] for p in saved["pairs"])
+    for p in saved["pairs"]:
+        assert 0 < p["inliers"] <= p["matches"]
+        assert math.isfinite(p["median_residual_deg"]) and p["shared_points"] > 0
+    assert all(v["registered"] for v in saved["views"])
     est = load_scene(out).c2w
     errors = er.pair_errors(est, truth.c2w)
     assert max(e["rotation_deg"] for e in errors) < 0.5
@@ -45,12 +58,17 @@ def test_demo_poses_from_its_pixels(tmp_path, capsys):
     assert cli.main(["scene", "check", str(out)]) == 0
 
 
+#: A line of the stages' progress on stderr (`panogrf.model.progress.Stage.text`).
+PROGRESS = re.compile(r"^[\w :-]+: \d+/\d+, elapsed [\d.]+ s, eta ")
+
+
 def _one_line_error(capsys, args, name):
     assert cli.main(args) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1, err
-    assert str(name) in err, err
-    return err
+    lines = [line for line in err.splitlines() if not PROGRESS.match(line)]
+    assert len(lines) == 1 and err.endswith("\n"), err
+    assert str(name) in lines[0], err
+    return lines[0]
 
 
 def test_bad_panoramas_are_one_line_errors_naming_the_file(tmp_path, capsys):
