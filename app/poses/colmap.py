@@ -128,6 +128,18 @@ def estimate_poses_colmap(
     return est
 
 
+def load_pycolmap():
+    """``pycolmap``, imported after the system's zlib: the wheel's extension brings zlib
+    symbols of its own, and a process that loads it first and then writes a PNG with Pillow
+    (matplotlib, the viewer's screenshots) aborts in ``deflateEnd``."""
+    import zlib  # noqa: F401 - loads the system's libz first
+
+    import PIL.Image  # noqa: F401
+    import pycolmap
+
+    return pycolmap
+
+
 class _Stages:
     """``say(name, done, total)`` -> one `panogrf.model.progress` stage per name."""
 
@@ -154,7 +166,7 @@ class _Stages:
 
 
 def _camera(width: int, height: int):
-    import pycolmap
+    pycolmap = load_pycolmap()
 
     return pycolmap.Camera.create_from_model_id(
         camera_id=1,
@@ -173,7 +185,7 @@ def _pixels(camera, bearings_gl: np.ndarray) -> np.ndarray:
 
 
 def _run(images, cfg: ColmapConfig, say, work: Path) -> ColmapEstimate:
-    import pycolmap
+    pycolmap = load_pycolmap()
 
     pycolmap.logging.minloglevel = 2  # warnings and errors only
     pycolmap.set_random_seed(cfg.seed)
@@ -274,7 +286,7 @@ def _run(images, cfg: ColmapConfig, say, work: Path) -> ColmapEstimate:
 
 
 def _verify(db_path: Path, verify, cfg: ColmapConfig) -> None:
-    import pycolmap
+    pycolmap = load_pycolmap()
 
     pycolmap.geometric_verification(
         db_path,
@@ -285,7 +297,7 @@ def _verify(db_path: Path, verify, cfg: ColmapConfig) -> None:
 
 def _map(db_path: Path, image_dir: Path, work: Path, cfg: ColmapConfig) -> list[tuple]:
     """[(mapper name, reconstruction)] of COLMAP's global and incremental mappers."""
-    import pycolmap
+    pycolmap = load_pycolmap()
 
     out = []
     gopts = pycolmap.GlobalPipelineOptions(num_threads=cfg.num_threads, random_seed=cfg.seed)
@@ -307,7 +319,7 @@ def _map(db_path: Path, image_dir: Path, work: Path, cfg: ColmapConfig) -> list[
 def _two_view(db_path, image_ids, feats, counts, cfg: ColmapConfig, width: int):
     """Two panoramas: COLMAP's verified relative pose, its inliers triangulated, and both
     refined together on angular residuals."""
-    import pycolmap
+    pycolmap = load_pycolmap()
 
     from panogrf.app.poses import geometry as geo
 
@@ -387,7 +399,7 @@ def _two_view(db_path, image_ids, feats, counts, cfg: ColmapConfig, width: int):
 
 
 def _num_images(db_path: Path) -> int:
-    import pycolmap
+    pycolmap = load_pycolmap()
 
     with pycolmap.Database.open(db_path) as db:
         return db.num_images()

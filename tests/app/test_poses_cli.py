@@ -126,3 +126,21 @@ def test_eval_on_a_plain_folder_of_scenes_and_on_one_scene(tmp_path, monkeypatch
     capsys.readouterr()
     assert cli.main(["eval", str(tmp_path / "mine" / "notes"), *args]) == 2
     assert "no scene folder" in capsys.readouterr().err
+
+
+def test_pycolmap_and_pillow_png_in_one_process(tmp_path):
+    """pycolmap's wheel carries zlib symbols of its own: loaded the product's way, a later PNG
+    written by Pillow must not abort the process (run in a child: an abort is not an error)."""
+    import subprocess
+    import sys
+
+    code = (
+        "from panogrf.app.poses.colmap import load_pycolmap; load_pycolmap()\n"
+        "import io, numpy as np, PIL.Image\n"
+        "for _ in range(5):\n"
+        "    PIL.Image.fromarray(np.random.default_rng(0).integers(0, 255, (64, 128, 3),"
+        " dtype=np.uint8)).save(io.BytesIO(), format='PNG')\n"
+        "print('saved')\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0 and "saved" in done.stdout, done.stderr[-2000:]
