@@ -49,9 +49,7 @@ class SceneCache:
 
     def with_mask(self, mask: Tensor | None) -> SceneCache:
         """This cache (its tensors shared) with the sources' nadir ``mask`` [V, 1, H', W']."""
-        return SceneCache(
-            self.images, self.c2w, self.depth, self.maps, self.feature_channels, mask
-        )
+        return SceneCache(self.images, self.c2w, self.depth, self.maps, self.feature_channels, mask)
 
     def images_padded_by(self, pad: int) -> Tensor:
         """The sources with ``pad`` wrapped columns on each side (bicubic reads need 2),

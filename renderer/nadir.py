@@ -215,7 +215,9 @@ def detect_nadir(image: Tensor | np.ndarray) -> tuple[Tensor, str, float]:
     rgb = np.ascontiguousarray(np.transpose(rgb, (1, 2, 0)), np.float32)
     h, w = rgb.shape[:2]
     outer = SEARCH_DEG + RING_DEG
-    polar = to_polar(rgb, outer, STEP_DEG)
+    rows = int(round(180.0 / STEP_DEG))
+    small = cv2.resize(rgb, (2 * rows, rows), interpolation=cv2.INTER_AREA) if h > rows else rgb
+    polar = to_polar(small, outer, STEP_DEG)  # (from at most STEP_DEG per row: no aliasing)
     polar = cv2.GaussianBlur(polar, (5, 5), 1.0)  # texture and noise, not the rig's edge
     rho, theta = _polar_grid(outer, STEP_DEG)
     ring = rho >= SEARCH_DEG
