@@ -7,10 +7,10 @@ nadir of every panorama, as a real capture has: a dark tripod (a hub of 8 degree
 legs reaching 15 degrees from the nadir) or a grey blob (a cap of 12 % of the rows, 21.6
 degrees, as `panogrf.app.train.augment.photometric` paints). The middle view is rendered from
 the outer two with the shipped networks, depth estimated from the (rigged) sources as `panogrf
-render` does (no per-scene refinement; ``--depth true``: the scene's true depth), and scored against the real middle view (WS-PSNR,
-LPIPS: `panogrf.app.scoring.image_scores`), over the whole panorama and over the pixels where
-a source's rig lands in the view (its true surface points that project into a source's rig:
-mean absolute error there). Variants:
+render` does (no per-scene refinement; ``--depth true``: the scene's true depth), and scored
+against the real middle view (WS-PSNR, LPIPS: `panogrf.app.scoring.image_scores`), over the
+whole panorama and over the pixels where a source's rig lands in the view (its true surface
+points that project into a source's rig: mean absolute error there). Variants:
 
 - ``clean``: the sources without a rig (the ceiling of what masking can reach);
 - ``no mask``: the rigged sources as they are (what a real capture got until now);
