@@ -69,6 +69,9 @@ def run_scene(folder: Path, method: str) -> dict:
     if not registered.all():
         row["failed"] = f"{int(registered.sum())} of {len(images)} views posed"
         return row
+    pairs = er.pair_errors(c2w, true)
+    row["rotation_deg"] = [p["rotation_deg"] for p in pairs]
+    row["translation_deg"] = [p["translation_deg"] for p in pairs]
     heights = true[:, 1, 3]
     try:
         if np.all(heights > 0.5):
@@ -80,11 +83,7 @@ def run_scene(folder: Path, method: str) -> dict:
             row["scale_error"] = er.scale_error(metric.c2w, true, 0, 1)
             row["scale_from"] = "true first-to-last distance"
     except Exception as exc:  # noqa: BLE001 - a failure to count, with its reason
-        row["failed"] = f"scale: {exc}"
-        return row
-    pairs = er.pair_errors(c2w, true)
-    row["rotation_deg"] = [p["rotation_deg"] for p in pairs]
-    row["translation_deg"] = [p["translation_deg"] for p in pairs]
+        row["scale_failed"] = str(exc)
     return row
 
 
@@ -101,7 +100,10 @@ def summary(rows: list[dict]) -> dict:
         out.update(
             rotation_deg_median=statistics.median(x for r in ok for x in r["rotation_deg"]),
             translation_deg_median=statistics.median(x for r in ok for x in r["translation_deg"]),
-            scale_error_median=statistics.median(r["scale_error"] for r in ok),
+            scale_error_median=statistics.median(r["scale_error"] for r in ok if "scale_error" in r)
+            if any("scale_error" in r for r in ok)
+            else float("nan"),
+            scale_failed=sum("scale_failed" in r for r in ok),
             rotation_deg_max=max(x for r in ok for x in r["rotation_deg"]),
             translation_deg_max=max(x for r in ok for x in r["translation_deg"]),
         )
@@ -137,7 +139,8 @@ def main() -> None:
                 rows[m][s].append(row)
                 state = row.get("failed") or (
                     f"rot {max(row['rotation_deg']):.3f} dir {max(row['translation_deg']):.3f} "
-                    f"scale {100 * row['scale_error']:.1f}%"
+                    + (f"scale {100 * row['scale_error']:.1f}%" if "scale_error" in row
+                       else f"scale failed: {row['scale_failed']}")
                 )
                 print(f"{m:>10} {s}/{folder.name} {row['seconds']:.1f} s  {state}", flush=True)
     result = {
@@ -150,16 +153,16 @@ def main() -> None:
     write_json_atomic(args.out, result)
     lines = [
         f"{'method':<10} {'set':<8} {'posed':>7} {'views':>7} {'rot med':>8} {'dir med':>8} "
-        f"{'rot max':>8} {'dir max':>8} {'scale %':>8} {'s/scene':>8}"
+        f"{'rot max':>8} {'dir max':>8} {'scale %':>8} {'no scale':>8} {'s/scene':>8}"
     ]
     for m, by in result["summary"].items():
         for s, x in by.items():
             tail = (
                 f"{x['rotation_deg_median']:8.3f} {x['translation_deg_median']:8.3f} "
                 f"{x['rotation_deg_max']:8.2f} {x['translation_deg_max']:8.2f} "
-                f"{100 * x['scale_error_median']:8.1f}"
+                f"{100 * x['scale_error_median']:8.1f} {x['scale_failed']:>8}"
                 if "rotation_deg_median" in x
-                else f"{'-':>8} {'-':>8} {'-':>8} {'-':>8} {'-':>8}"
+                else f"{'-':>8} {'-':>8} {'-':>8} {'-':>8} {'-':>8} {'-':>8}"
             )
             lines.append(
                 f"{m:<10} {s:<8} {x['posed']:>3}/{x['scenes']:<3} "
