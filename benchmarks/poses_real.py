@@ -78,13 +78,39 @@ def run_scene(folder: Path, method: str) -> dict:
             metric = make_metric(c2w, points, heights=heights)
             row["scale_error"] = er.scale_error(metric.c2w, true)
             row["scale_from"] = "true camera heights"
+            row["metric_c2w"] = metric.c2w.tolist()
         else:
             metric = make_metric(c2w, points, distance=(0, len(true) - 1, row["baseline_m"]))
             row["scale_error"] = er.scale_error(metric.c2w, true, 0, 1)
             row["scale_from"] = "true first-to-last distance"
+            row["metric_c2w"] = metric.c2w.tolist()
     except Exception as exc:  # noqa: BLE001 - a failure to count, with its reason
         row["scale_failed"] = str(exc)
     return row
+
+
+def render_check(folder: Path, est_c2w: np.ndarray, height: int, models) -> dict:
+    """The middle view of a triplet rendered (PanoGRF, fast) from the outer two with the true
+    poses and with the estimated metric ones (the estimated scene's own frame), both scored
+    against the real middle photo: WS-PSNR and LPIPS."""
+    import torch
+
+    from panogrf.app.scoring import image_scores
+    from panogrf.renderer.methods import SourceViews, prepare, render_view
+
+    scene = load_scene(folder, load_images=True)
+    data = scene.images
+    out = {}
+    for name, c2w in (("true", data.c2w), ("estimated", torch.from_numpy(est_c2w).to(data.c2w))):
+        views = SourceViews(data.images[[0, 2]], c2w[[0, 2]])
+        prepare("panogrf", views, models)
+        rgb = render_view("panogrf", views, c2w[1], height, models, "fast")
+        gt = torch.nn.functional.interpolate(
+            data.images[1:2], size=(height, 2 * height), mode="area"
+        )
+        scores = image_scores(rgb, gt)
+        out[name] = {"ws_psnr": scores["ws_psnr"], "lpips": scores.get("lpips")}
+    return out
 
 
 def summary(rows: list[dict]) -> dict:
@@ -113,11 +139,21 @@ def summary(rows: list[dict]) -> dict:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument(
-        "--set", action="append", required=True, metavar="NAME=DIR",
+        "--set",
+        action="append",
+        required=True,
+        metavar="NAME=DIR",
         help="a scene folder, or a folder of scene folders; repeat for more sets",
     )
     parser.add_argument("--methods", default="colmap,sift-cube")
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/poses_real.json"))
+    parser.add_argument(
+        "--render",
+        type=int,
+        default=0,
+        metavar="ROWS",
+        help="also render each posed triplet's middle view at this height (0: no render check)",
+    )
     args = parser.parse_args()
     import torch
 
@@ -131,6 +167,7 @@ def main() -> None:
         else:
             sets[name] = sorted(p.parent for p in folder.glob("*/transforms.json"))
     methods = args.methods.split(",")
+    models = None
     rows: dict = {m: {s: [] for s in sets} for m in methods}
     for s, folders in sets.items():
         for folder in folders:
@@ -139,10 +176,27 @@ def main() -> None:
                 rows[m][s].append(row)
                 state = row.get("failed") or (
                     f"rot {max(row['rotation_deg']):.3f} dir {max(row['translation_deg']):.3f} "
-                    + (f"scale {100 * row['scale_error']:.1f}%" if "scale_error" in row
-                       else f"scale failed: {row['scale_failed']}")
+                    + (
+                        f"scale {100 * row['scale_error']:.1f}%"
+                        if "scale_error" in row
+                        else f"scale failed: {row['scale_failed']}"
+                    )
                 )
                 print(f"{m:>10} {s}/{folder.name} {row['seconds']:.1f} s  {state}", flush=True)
+                if args.render and row.get("metric_c2w") and row["views"] == 3:
+                    if models is None:
+                        from panogrf.app.scene.session import default_models
+
+                        models = default_models()
+                    row["render"] = render_check(
+                        folder, np.array(row["metric_c2w"]), args.render, models
+                    )
+                    r = row["render"]
+                    print(
+                        f"{'':>10} render: WS-PSNR true {r['true']['ws_psnr']:.2f}, estimated "
+                        f"{r['estimated']['ws_psnr']:.2f} dB",
+                        flush=True,
+                    )
     result = {
         "what": "poses from panoramas against the truth (relative errors, no alignment)",
         "machine": f"{platform.machine()}, {os.cpu_count()} cores, CPU, 2 threads",
@@ -167,6 +221,15 @@ def main() -> None:
             lines.append(
                 f"{m:<10} {s:<8} {x['posed']:>3}/{x['scenes']:<3} "
                 f"{x['views_posed']:>3}/{x['views']:<3} {tail} {x['seconds_median']:8.1f}"
+            )
+    for m, by in rows.items():
+        renders = [r["render"] for rs in by.values() for r in rs if "render" in r]
+        if renders:
+            deltas = [r["estimated"]["ws_psnr"] - r["true"]["ws_psnr"] for r in renders]
+            lines.append(
+                f"{m}: render check on {len(renders)} triplets ({args.render} rows), WS-PSNR "
+                f"estimated - true poses: median {statistics.median(deltas):+.2f} dB, worst "
+                f"{min(deltas):+.2f} dB"
             )
     print(f"wrote {args.out}")
     print("\n".join(lines))

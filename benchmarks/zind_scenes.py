@@ -48,8 +48,9 @@ def panoramas(tour: Path) -> dict[str, list[dict]]:
                 for pano in partial.values():
                     t = pano["floor_plan_transformation"]
                     a = math.radians(t["rotation"])
-                    rz = np.array([[math.cos(a), -math.sin(a), 0], [math.sin(a), math.cos(a), 0],
-                                   [0, 0, 1]])
+                    rz = np.array(
+                        [[math.cos(a), -math.sin(a), 0], [math.sin(a), math.cos(a), 0], [0, 0, 1]]
+                    )
                     height = pano["camera_height"] * t["scale"] * metres
                     centre = np.array([*(np.array(t["translation"]) * metres), height])
                     c2w = np.eye(4)
@@ -102,8 +103,10 @@ def main() -> None:
                 c2w,
                 np.ascontiguousarray(images.transpose(0, 3, 1, 2)),
                 names=[panos[i]["image"].stem for i in c],
-                metadata={"source": "ZInD (academic, non-commercial use only)",
-                          "labels": [panos[i]["label"] for i in c]},
+                metadata={
+                    "source": "ZInD (academic, non-commercial use only)",
+                    "labels": [panos[i]["label"] for i in c],
+                },
             )
             made.append(name)
     print(f"wrote {len(made)} scenes to {args.out}")

@@ -249,8 +249,6 @@ def _run(images, cfg: ColmapConfig, say, work: Path) -> ColmapEstimate:
             e_cv = np.asarray(tvg.E)
             if not np.isfinite(e_cv).all() or not np.abs(e_cv).sum() > 0:
                 continue
-            if (a, b) != (image_ids[i], image_ids[j]) or a > b:
-                pass
             guided = ft.match_guided(feats[i], feats[j], CV_TO_GL @ e_cv @ CV_TO_GL, guided_rad)
             if len(guided) > len(putative[(i, j)]):
                 merged = np.unique(np.concatenate([putative[(i, j)], guided]), axis=0)
@@ -375,10 +373,12 @@ def _two_view(db_path, image_ids, feats, counts, cfg: ColmapConfig, width: int):
     t = adj.trans[1] - rot @ adj.trans[0]
     dist, pts = geo.triangulate_pair(rot, t, b1, b2)
     p2 = pts @ rot.T + t
-    res = np.stack([
-        np.arccos(np.clip((pts * b1).sum(1) / np.linalg.norm(pts, axis=1), -1, 1)),
-        np.arccos(np.clip((p2 * b2).sum(1) / np.linalg.norm(p2, axis=1), -1, 1)),
-    ])
+    res = np.stack(
+        [
+            np.arccos(np.clip((pts * b1).sum(1) / np.linalg.norm(pts, axis=1), -1, 1)),
+            np.arccos(np.clip((p2 * b2).sum(1) / np.linalg.norm(p2, axis=1), -1, 1)),
+        ]
+    )
     good = (dist > 0).all(1) & (res < cfg.max_error_px * math.pi / 512.0).all(0)
     for k, (r, tk) in enumerate(((np.eye(3), np.zeros(3)), (rot, t))):
         c2w[k] = np.eye(4)
@@ -422,7 +422,8 @@ def _collect(recs, v_count, pano_of, counts, cfg: ColmapConfig, width: int) -> C
     usable = [(n, r) for n, r in recs if r.num_reg_images() >= 2]
     if usable:
         mapper, rec = max(
-            usable, key=lambda nr: (nr[1].num_reg_images(), -nr[1].compute_mean_reprojection_error())
+            usable,
+            key=lambda nr: (nr[1].num_reg_images(), -nr[1].compute_mean_reprojection_error()),
         )
         for image in rec.images.values():
             if not image.has_pose:
