@@ -40,6 +40,8 @@ from panogrf.app.poses import features as ft
 class ColmapConfig:
     """Settings of `estimate_poses_colmap`."""
 
+    max_width: int = 2048
+    """Wider panoramas are downsampled for the features (the poses do not depend on it)."""
     nadir_deg: float = 60.0
     """Keypoints more than this below the horizon are dropped (tripod, operator)."""
     ratio: float = 0.8
@@ -190,6 +192,9 @@ def _run(images, cfg: ColmapConfig, say, work: Path) -> ColmapEstimate:
     pycolmap.logging.minloglevel = 2  # warnings and errors only
     pycolmap.set_random_seed(cfg.seed)
     v_count = len(images)
+    if images[0].shape[1] > cfg.max_width:  # features need no more (bearings are unchanged)
+        size = (cfg.max_width, cfg.max_width // 2)
+        images = [cv2.resize(img, size, interpolation=cv2.INTER_AREA) for img in images]
     h, w = images[0].shape[:2]
     floor = -math.sin(math.radians(cfg.nadir_deg))
     feats = []
