@@ -1,6 +1,7 @@
 """Cold preparation against a warm load of the scene cache, on the bundled scene, on this CPU.
 
-    python benchmarks/prepare_cache.py [--repeats 3] [--out benchmarks/results/prepare_cache.json]
+    python benchmarks/prepare_cache.py [--cold 3] [--warm 5] [--cli 3]
+        [--out benchmarks/results/prepare_cache.json]
 
 What `panogrf render` (and `view`, `eval`, `bench`, `demo`) spends before its first pixel, in
 one process with the shipped networks loaded once: read the scene folder, balance the
@@ -8,8 +9,8 @@ exposure, then `session.prepare_views` (the sources' depth estimated and refined
 scene, the renderer's feature maps). Cold: into an empty cache folder (everything computed,
 then written). Warm: the same again, the cache now there (read and checked). Two source sets:
 every view (what `view`, `render --c2w` and `--camera-path` prepare) and views 0 and 2 (what
-`render --target-frame 1` prepares). The median of ``--repeats`` runs each (cold runs get a
-fresh folder each). Last, ``--cli`` runs of `panogrf render --c2w ... --json` in fresh
+`render --target-frame 1` prepares). The median of ``--cold`` and ``--warm`` runs (cold runs
+get a fresh folder each). Last, ``--cli`` runs of `panogrf render --c2w ... --json` in fresh
 processes on the warm cache: their own ``prepare_s`` and the whole process's wall time
 (Python, torch and the networks' import included). Prints a table last; writes JSON.
 """
@@ -46,7 +47,8 @@ def _prepare(scene_dir: Path, sources, cache_dir: Path, models) -> tuple[float, 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--repeats", type=int, default=3, help="runs per case (median)")
+    parser.add_argument("--cold", type=int, default=3, help="cold runs per case (median)")
+    parser.add_argument("--warm", type=int, default=5, help="warm runs per case (median)")
     parser.add_argument("--cli", type=int, default=3, help="CLI renders on the warm cache")
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/prepare_cache.json"))
     args = parser.parse_args()
@@ -64,13 +66,13 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         for label, sources in (("every view (view, render --c2w)", None), ("views 0,2", [0, 2])):
             cold, warm = [], []
-            for i in range(args.repeats):
+            for i in range(args.cold):
                 cache = Path(tmp) / f"{label[:5]}_{i}"
                 seconds, status = _prepare(scene, sources, cache, models)
                 assert status == "built", status
                 cold.append(seconds)
                 print(f"{label}: cold {seconds:.2f} s", flush=True)
-            for _ in range(args.repeats):
+            for _ in range(args.warm):
                 seconds, status = _prepare(scene, sources, cache, models)
                 assert status == "loaded", status
                 warm.append(seconds)
@@ -110,7 +112,7 @@ def main() -> None:
         "what": "seconds before the first pixel on the bundled scene (256 x 512, 3 views): "
         "cold preparation (depth, per-scene refinement, feature maps, cache written) against a "
         "warm load of the scene cache; CLI renders on the warm cache in fresh processes",
-        "repeats": args.repeats,
+        "repeats": {"cold": args.cold, "warm": args.warm, "cli": args.cli},
         "rows": rows,
         "cli_warm": cli,
         "cli_warm_prepare_median_s": statistics.median(c["prepare_s"] for c in cli)
