@@ -34,6 +34,7 @@ import numpy as np
 
 from panogrf.app.poses import CV_TO_GL
 from panogrf.app.poses import features as ft
+from panogrf.app.poses import geometry as geo
 
 
 @dataclass(frozen=True)
@@ -48,6 +49,9 @@ class ColmapConfig:
     """Lowe's ratio test of the pooled matching."""
     guided_px: float = 3.0
     """Guided matching: candidates within this many equator pixels of the epipolar plane."""
+    min_guided_inliers: int = 30
+    """A pair's first verification must keep this many inliers before matches are grown along
+    its epipolar planes."""
     min_pair_inliers: int = 15
     """Fewer verified inliers than this: the pair is reported failed (and gives no geometry)."""
     max_error_px: float = 4.0
@@ -243,17 +247,27 @@ def _run(images, cfg: ColmapConfig, say, work: Path) -> ColmapEstimate:
     say("verification", 0, 2)
     _verify(db_path, verify, cfg)
     guided_rad = cfg.guided_px * math.pi / 512.0  # equator pixels at 1024 columns -> radians
+    first: dict[tuple[int, int], tuple[int, int]] = {}
     with pycolmap.Database.open(db_path) as db:
         for i, j in pair_list:
             a, b = image_ids[i], image_ids[j]
             if not db.exists_two_view_geometry(a, b):
                 continue
             tvg = db.read_two_view_geometry(a, b)
-            if len(tvg.inlier_matches) < cfg.min_pair_inliers:
+            first[(i, j)] = (len(tvg.inlier_matches), int(tvg.config))
+            # Guided matching harvests matches along whatever epipolar planes it is given: only
+            # a calibrated geometry with a clear majority of support earns it.
+            kind = pycolmap.TwoViewGeometryConfiguration
+            if len(tvg.inlier_matches) < cfg.min_guided_inliers or tvg.config not in (
+                kind.CALIBRATED,
+                kind.PLANAR,  # a wall or the floor dominates: the pose is from the homography
+            ):
                 continue
-            e_cv = np.asarray(tvg.E)
-            if not np.isfinite(e_cv).all() or not np.abs(e_cv).sum() > 0:
+            pose = tvg.cam2_from_cam1
+            t_cv = np.asarray(pose.translation).reshape(3)
+            if not np.linalg.norm(t_cv) > 0:
                 continue
+            e_cv = geo.skew(t_cv / np.linalg.norm(t_cv)) @ np.asarray(pose.rotation.matrix())
             guided = ft.match_guided(feats[i], feats[j], CV_TO_GL @ e_cv @ CV_TO_GL, guided_rad)
             if len(guided) > len(putative[(i, j)]):
                 merged = np.unique(np.concatenate([putative[(i, j)], guided]), axis=0)
@@ -269,21 +283,29 @@ def _run(images, cfg: ColmapConfig, say, work: Path) -> ColmapEstimate:
     say("verification", 1, 2)
     _verify(db_path, verify, cfg)
     say("verification", 2, 2)
-    counts = {}
+    counts, relatives = {}, {}
     with pycolmap.Database.open(db_path) as db:
         for i, j in pair_list:
             a, b = image_ids[i], image_ids[j]
-            inl = 0
+            inl, rel = 0, None
             if db.exists_two_view_geometry(a, b):
-                inl = len(db.read_two_view_geometry(a, b).inlier_matches)
+                tvg = db.read_two_view_geometry(a, b)
+                inl = len(tvg.inlier_matches)
+                if inl >= cfg.min_pair_inliers:
+                    pose = tvg.cam2_from_cam1
+                    rel = (
+                        CV_TO_GL @ np.asarray(pose.rotation.matrix()) @ CV_TO_GL,
+                        CV_TO_GL @ np.asarray(pose.translation).reshape(3),
+                    )
             counts[(i, j)] = (len(putative[(i, j)]), inl)
+            relatives[(i, j)] = rel
     say("mapping", 0, 1)
     pano_of = {image_ids[k]: k for k in range(v_count)}
     if v_count == 2:  # COLMAP's mappers want more than one pair: the verified pair is it
         est = _two_view(db_path, image_ids, feats, counts, cfg, w)
     else:
         recs = _map(db_path, image_dir, work, cfg)
-        est = _collect(recs, v_count, pano_of, counts, cfg, w)
+        est = _collect(recs, v_count, pano_of, counts, cfg, w, relatives)
     say("mapping", 1, 1)
     return est
 
@@ -304,6 +326,13 @@ def _map(db_path: Path, image_dir: Path, work: Path, cfg: ColmapConfig) -> list[
 
     out = []
     gopts = pycolmap.GlobalPipelineOptions(num_threads=cfg.num_threads, random_seed=cfg.seed)
+    # COLMAP's global mapper is made for large collections and keeps only points seen by three
+    # views or more; a few panoramas have mostly two-view points, and without them a third
+    # panorama hangs on a handful of points.
+    gopts.mapper.track_min_num_views_per_track = 2
+    gopts.mapper.global_positioning.min_num_view_per_track = 2
+    gopts.mapper.bundle_adjustment.min_track_length = 2
+    gopts.mapper.retriangulation.ignore_two_view_tracks = False
     recs = pycolmap.global_mapping(db_path, image_dir, work / "global", gopts)
     out += [("global", r) for r in recs.values()]
     if not out or max(r.num_reg_images() for _, r in out) < _num_images(db_path):
@@ -323,8 +352,6 @@ def _two_view(db_path, image_ids, feats, counts, cfg: ColmapConfig, width: int):
     """Two panoramas: COLMAP's verified relative pose, its inliers triangulated, and both
     refined together on angular residuals."""
     pycolmap = load_pycolmap()
-
-    from panogrf.app.poses import geometry as geo
 
     a, b = image_ids
     matches, inliers = counts[(0, 1)]
@@ -403,6 +430,29 @@ def _two_view(db_path, image_ids, feats, counts, cfg: ColmapConfig, width: int):
     return est
 
 
+def _check_pairs(pairs, c2w, registered, relatives) -> dict:
+    """{(i, j): why} for registered pairs whose relative pose in the reconstruction disagrees
+    with their own verified two-view geometry."""
+    out = {}
+    for p in pairs:
+        rel = relatives.get((p.i, p.j))
+        if rel is None or not (registered[p.i] and registered[p.j]):
+            continue
+        rot_v, t_v = rel  # x_j = rot_v x_i + t_v (camera frames, OpenGL)
+        w2c = [np.linalg.inv(c2w[k]) for k in (p.i, p.j)]
+        rot = w2c[1][:3, :3] @ w2c[0][:3, :3].T
+        t = w2c[1][:3, 3] - rot @ w2c[0][:3, 3]
+        d_rot = _angle_deg((np.trace(rot.T @ rot_v) - 1) / 2)
+        norm = np.linalg.norm(t) * np.linalg.norm(t_v)
+        d_dir = _angle_deg(float(t @ t_v / norm)) if norm > 0 else 180.0
+        if d_rot > MAX_PAIR_ROTATION_DEG or d_dir > MAX_PAIR_DIRECTION_DEG:
+            out[(p.i, p.j)] = (
+                f"its place in the reconstruction disagrees with its own geometry (rotation "
+                f"by {d_rot:.1f} deg, direction by {d_dir:.1f} deg)"
+            )
+    return out
+
+
 def _num_images(db_path: Path) -> int:
     pycolmap = load_pycolmap()
 
@@ -410,9 +460,23 @@ def _num_images(db_path: Path) -> int:
         return db.num_images()
 
 
-def _collect(recs, v_count, pano_of, counts, cfg: ColmapConfig, width: int) -> ColmapEstimate:
+#: A registered pair's relative pose may differ from its own verified two-view geometry by this
+#: much (rotation, translation direction; degrees) before the pair counts as inconsistent.
+MAX_PAIR_ROTATION_DEG = 3.0
+MAX_PAIR_DIRECTION_DEG = 10.0
+
+
+def _angle_deg(cos: float) -> float:
+    return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+
+
+def _collect(
+    recs, v_count, pano_of, counts, cfg: ColmapConfig, width: int, relatives=None
+) -> ColmapEstimate:
     """The reconstruction that registers most panoramas (then: the smaller residual) as poses
-    and the report."""
+    and the report. A panorama is kept only if it sees ``min_pair_inliers`` points of the
+    reconstruction and one of its pairs agrees with that pair's own verified geometry: the
+    mapper can place a panorama on a handful of points, and then it is wrong."""
     c2w = np.full((v_count, 4, 4), np.nan)
     registered = np.zeros(v_count, bool)
     px_to_deg = 360.0 / width  # at the equator; towards the poles a pixel is less
@@ -459,18 +523,36 @@ def _collect(recs, v_count, pano_of, counts, cfg: ColmapConfig, width: int) -> C
             p.shared_points = len(sel)
             if sel:
                 p.residual_deg = float(np.median(errors[sel]) * px_to_deg)
+    inconsistent = _check_pairs(pairs, c2w, registered, relatives or {})
+    for v in views:
+        if not registered[v.index]:
+            continue
+        links = [p for p in pairs if v.index in (p.i, p.j) and registered[p.i] and registered[p.j]]
+        agreeing = [p for p in links if (p.i, p.j) not in inconsistent and p.inliers]
+        if v.points < cfg.min_pair_inliers or not agreeing:
+            registered[v.index] = False
+            c2w[v.index] = np.nan
+            v.registered = False
+            v.note = (
+                f"not registered: placed on {v.points} points only"
+                if v.points < cfg.min_pair_inliers
+                else "not registered: its place disagrees with its own pairs' geometry"
+            ) + " (wrong matches, or too little overlap)"
     for p in pairs:
-        if p.inliers < cfg.min_pair_inliers:
+        if (p.i, p.j) in inconsistent:
+            p.reason = inconsistent[(p.i, p.j)]
+        elif p.inliers < cfg.min_pair_inliers:
             p.reason = (
                 f"{p.inliers} of {p.matches} matches agree on a geometry "
                 f"(< {cfg.min_pair_inliers}): too little overlap or texture between these two"
             )
         elif not (registered[p.i] and registered[p.j]):
-            p.reason = "consistent on its own, but not with the other pairs"
+            lost = p.i if not registered[p.i] else p.j
+            p.reason = f"{p.inliers} inliers, but view {lost} could not be placed (see views)"
         else:
             p.ok = True
     for v in views:
-        if not registered[v.index]:
+        if not registered[v.index] and not v.note:
             links = [p for p in pairs if v.index in (p.i, p.j)]
             best = max(links, key=lambda p: p.inliers) if links else None
             v.note = "not registered: " + (
