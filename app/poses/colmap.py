@@ -302,10 +302,13 @@ def _run(images, cfg: ColmapConfig, say, work: Path) -> ColmapEstimate:
     say("mapping", 0, 1)
     pano_of = {image_ids[k]: k for k in range(v_count)}
     if v_count == 2:  # COLMAP's mappers want more than one pair: the verified pair is it
-        est = _two_view(db_path, image_ids, feats, counts, cfg, w)
+        est = _two_view(db_path, image_ids, feats, counts, cfg)
     else:
         recs = _map(db_path, image_dir, work, cfg)
         est = _collect(recs, v_count, pano_of, counts, cfg, w, relatives)
+        if est.registered.sum() < 2:  # no graph of pairs: the best pair alone, if it holds
+            best = max(counts, key=lambda ij: counts[ij][1])
+            est = _two_view(db_path, image_ids, feats, counts, cfg, best)
     say("mapping", 1, 1)
     return est
 
@@ -348,18 +351,37 @@ def _map(db_path: Path, image_dir: Path, work: Path, cfg: ColmapConfig) -> list[
     return out
 
 
-def _two_view(db_path, image_ids, feats, counts, cfg: ColmapConfig, width: int):
-    """Two panoramas: COLMAP's verified relative pose, its inliers triangulated, and both
-    refined together on angular residuals."""
+def _two_view(db_path, image_ids, feats, counts, cfg: ColmapConfig, pair_ij=(0, 1)):
+    """One pair of the panoramas (the only pair, or the best one when COLMAP's mappers, which
+    want a graph of pairs, build nothing): COLMAP's verified relative pose, its inliers
+    triangulated, and both poses refined together on angular residuals. The other panoramas
+    are reported as not registered."""
     pycolmap = load_pycolmap()
 
-    a, b = image_ids
-    matches, inliers = counts[(0, 1)]
-    pair = PairReport(0, 1, matches, inliers)
-    views = [ViewReport(0), ViewReport(1)]
-    c2w = np.full((2, 4, 4), np.nan)
-    registered = np.zeros(2, bool)
-    est = ColmapEstimate(c2w, registered, np.zeros((0, 3)), [pair], views, None, "two-view")
+    v_count = len(image_ids)
+    i, j = pair_ij
+    a, b = image_ids[i], image_ids[j]
+    matches, inliers = counts[(i, j)]
+    pairs = [
+        PairReport(x, y, *counts.get((x, y), (0, 0)))
+        for x in range(v_count)
+        for y in range(x + 1, v_count)
+    ]
+    pair = next(p for p in pairs if (p.i, p.j) == (i, j))
+    for p in pairs:
+        if p is not pair:
+            p.reason = (
+                f"{p.inliers} of {p.matches} matches agree on a geometry: too little overlap "
+                "or texture, or not consistent with the rest"
+            )
+    every = [ViewReport(k) for k in range(v_count)]
+    for v in every:
+        if v.index not in (i, j):
+            v.note = "not registered: no pair links it to the posed pair"
+    views = [every[i], every[j]]
+    c2w = np.full((v_count, 4, 4), np.nan)
+    registered = np.zeros(v_count, bool)
+    est = ColmapEstimate(c2w, registered, np.zeros((0, 3)), pairs, every, None, "two-view")
     tvg = None
     with pycolmap.Database.open(db_path) as db:
         if db.exists_two_view_geometry(a, b):
@@ -379,7 +401,7 @@ def _two_view(db_path, image_ids, feats, counts, cfg: ColmapConfig, width: int):
     # OpenGL camera frames: x_gl = F x_cv on both sides.
     rot, t = CV_TO_GL @ rot_cv @ CV_TO_GL, CV_TO_GL @ t_cv
     t = t / max(np.linalg.norm(t), 1e-12)
-    b1, b2 = feats[0].bearings[m[:, 0]], feats[1].bearings[m[:, 1]]
+    b1, b2 = feats[i].bearings[m[:, 0]], feats[j].bearings[m[:, 1]]
     dist, pts = geo.triangulate_pair(rot, t, b1, b2)
     front = (dist > 0).all(1)
     if front.sum() < cfg.min_pair_inliers:
@@ -412,11 +434,11 @@ def _two_view(db_path, image_ids, feats, counts, cfg: ColmapConfig, width: int):
         ]
     )
     good = (dist > 0).all(1) & (res < cfg.max_error_px * math.pi / 512.0).all(0)
-    for k, (r, tk) in enumerate(((np.eye(3), np.zeros(3)), (rot, t))):
+    for k, (r, tk) in zip((i, j), ((np.eye(3), np.zeros(3)), (rot, t)), strict=True):
         c2w[k] = np.eye(4)
         c2w[k, :3, :3] = r.T
         c2w[k, :3, 3] = -r.T @ tk
-    registered[:] = True
+        registered[k] = True
     deg = np.degrees(res[:, good])
     est.points = pts[good]
     est.residual_deg = float(np.median(deg)) if deg.size else None

@@ -144,3 +144,24 @@ def test_pycolmap_and_pillow_png_in_one_process(tmp_path):
     )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0 and "saved" in done.stdout, done.stderr[-2000:]
+
+
+def test_two_panoramas_pose_and_an_unrelated_one_is_left_out_with_a_reason(tmp_path, capsys):
+    truth = load_scene(DEMO)
+    a, b = (str(truth.frames[k].image_path) for k in (0, 2))
+    noise = tmp_path / "elsewhere.png"
+    rng = np.random.default_rng(1)
+    write_rgb(noise, rng.integers(0, 255, (256, 512, 3), dtype=np.uint8))
+    out = tmp_path / "est"
+    args = ["scene", "from-panoramas", a, str(noise), b, "--out", str(out), "--distance", "0,2=1"]
+    assert cli.main(args) == 0
+    report = capsys.readouterr().out
+    assert "left out 1 panorama(s) that could not be posed: elsewhere.png" in report
+    est = load_scene(out)
+    assert est.num_views == 2
+    (err,) = er.pair_errors(est.c2w, truth.c2w[[0, 2]])
+    assert err["rotation_deg"] < 1.0 and err["translation_deg"] < 3.0
+    saved = json.loads((out / "poses_report.json").read_text())
+    views = {v["file"]: v for v in saved["views"]}
+    assert not views[str(noise)]["registered"] and views[str(noise)]["note"]
+    assert all(views[p]["registered"] for p in (a, b))
