@@ -43,8 +43,10 @@ class ColmapConfig:
 
     max_width: int = 2048
     """Wider panoramas are downsampled for the features (the poses do not depend on it)."""
-    nadir_deg: float = 60.0
-    """Keypoints more than this below the horizon are dropped (tripod, operator)."""
+    nadir_deg: float = 70.0
+    """Keypoints more than this below the horizon are dropped: a tripod's legs (0.4 m spread
+    under a camera at 1.5 m) or a hand-held stick lie within 15-20 degrees of the nadir, and
+    the floor above them is what fixes the scale from the camera height."""
     ratio: float = 0.8
     """Lowe's ratio test of the pooled matching."""
     guided_px: float = 3.0
