@@ -47,6 +47,8 @@ class TerminalProgress:
 
     # -- the listener -------------------------------------------------------------------------
     def started(self, stage: Stage) -> None:
+        if stage.total <= 0:  # no work (e.g. no view with sources): nothing to show
+            return
         with self._lock:
             entry = {"stage": stage, "bar": None, "shown": self.clock(), "shown_done": 0}
             self._open[id(stage)] = entry
