@@ -131,10 +131,11 @@ def refine_setting(args):
     return PREPARE_REFINE
 
 
-def add_prepare_options(parser, no_cache: bool = True) -> None:
+def add_prepare_options(parser, no_cache: bool = True, nadir: bool = True) -> None:
     """``--cache-dir``, ``--no-cache`` (unless ``no_cache`` is False) and ``--quiet``: the
     options of every command that prepares a scene (its depth and feature maps,
-    `panogrf.app.scene.session.prepare_views`)."""
+    `panogrf.app.scene.session.prepare_views`). ``nadir``: also ``--nadir-cap`` (the tripod
+    or hand at the bottom of every source masked, `panogrf.renderer.nadir`)."""
     parser.add_argument(
         "--cache-dir",
         type=Path,
@@ -153,3 +154,7 @@ def add_prepare_options(parser, no_cache: bool = True) -> None:
         action="store_true",
         help="no progress of the preparation's stages on stderr",
     )
+    if nadir:  # the commands that render the scene's own sources
+        from panogrf.renderer.nadir import add_nadir_argument
+
+        add_nadir_argument(parser)

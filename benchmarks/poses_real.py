@@ -13,7 +13,9 @@ Methods:
 - ``colmap``: the product's path (`panogrf.app.poses.colmap`): a rig of virtual views per
   panorama, pooled SIFT matching between panoramas, COLMAP's rig verification, mapping and
   bundle adjustment.
-- ``sift-cube``: the home-made pipeline it replaced (`panogrf.app.poses.estimate`).
+The home-made pipeline it replaced (SIFT cube faces, RANSAC on bearings, incremental
+registration, scipy adjustment; ``app/poses/estimate.py`` until this round) was measured side by
+side before it was removed: ``benchmarks/results/poses_real_before.json``.
 The table is printed last; the JSON keeps every scene's row.
 """
 
@@ -42,12 +44,6 @@ def pose(method: str, images: list[np.ndarray]):
         est = estimate_poses_colmap(images, ColmapConfig(num_threads=2))
         notes = [f"{p.i}-{p.j}: {p.matches} matches, {p.inliers} inliers" for p in est.pairs]
         return est.c2w, est.registered, est.points, notes
-    if method == "sift-cube":
-        from panogrf.app.poses.estimate import estimate_poses
-
-        est = estimate_poses(images)
-        notes = [f"{p.i}-{p.j}: {p.matches} matches, {p.inliers} inliers" for p in est.pairs]
-        return est.c2w, est.registered, est.points, notes
     raise SystemExit(f"unknown method {method}")
 
 
@@ -68,6 +64,15 @@ def run_scene(folder: Path, method: str) -> dict:
     }
     if not registered.all():
         row["failed"] = f"{int(registered.sum())} of {len(images)} views posed"
+        keep = np.flatnonzero(registered)
+        if len(keep) >= 2:  # what was posed must still be right
+            pairs = er.pair_errors(c2w[keep], true[keep])
+            row["posed_rotation_deg"] = [p["rotation_deg"] for p in pairs]
+            row["posed_translation_deg"] = [p["translation_deg"] for p in pairs]
+            row["failed"] += (
+                f" (those: rot {max(row['posed_rotation_deg']):.3f}, "
+                f"dir {max(row['posed_translation_deg']):.3f})"
+            )
         return row
     pairs = er.pair_errors(c2w, true)
     row["rotation_deg"] = [p["rotation_deg"] for p in pairs]
@@ -122,6 +127,12 @@ def summary(rows: list[dict]) -> dict:
         "views": sum(r["views"] for r in rows),
         "seconds_median": statistics.median(r["seconds"] for r in rows),
     }
+    partial = [x for r in rows for x in r.get("posed_rotation_deg", [])]
+    if partial:
+        out["partial_rotation_deg_max"] = max(partial)
+        out["partial_translation_deg_max"] = max(
+            x for r in rows for x in r.get("posed_translation_deg", [])
+        )
     if ok:
         out.update(
             rotation_deg_median=statistics.median(x for r in ok for x in r["rotation_deg"]),
@@ -145,7 +156,7 @@ def main() -> None:
         metavar="NAME=DIR",
         help="a scene folder, or a folder of scene folders; repeat for more sets",
     )
-    parser.add_argument("--methods", default="colmap,sift-cube")
+    parser.add_argument("--methods", default="colmap")
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/poses_real.json"))
     parser.add_argument(
         "--render",

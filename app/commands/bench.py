@@ -99,7 +99,7 @@ def register(subparsers) -> None:
         "--threads", type=thread_count, default=0, help="torch threads (default: all)"
     )
     add_refine_depth(parser)
-    add_prepare_options(parser)
+    add_prepare_options(parser, nadir=False)
     parser.set_defaults(func=run)
 
 

@@ -67,11 +67,16 @@ def run(args: argparse.Namespace) -> int:
     except OSError as exc:
         raise UserError(f"cannot write to {args.out}: {exc.strerror or exc}") from None
     print(f"wrote {sheet} (each panorama above its true depth, then the estimated depth)")
-    _novel_view(data, args.out, args.cache_dir, not args.no_cache)
+    from panogrf.renderer.nadir import nadir_setting
+
+    nadir = nadir_setting(scene.metadata, args.nadir_cap)
+    _novel_view(data, args.out, args.cache_dir, not args.no_cache, nadir)
     return 0
 
 
-def _novel_view(data, out: Path, cache_dir: Path | None = None, use_cache: bool = True) -> None:
+def _novel_view(
+    data, out: Path, cache_dir: Path | None = None, use_cache: bool = True, nadir="auto"
+) -> None:
     """The middle view rendered from the outer two by PanoGRF and the baselines, scored
     against the real middle panorama; then a short preview video along the three views."""
     import time
@@ -91,7 +96,9 @@ def _novel_view(data, out: Path, cache_dir: Path | None = None, use_cache: bool 
     target = v // 2
     sources = [i for i in range(v) if i != target]
     # As `panogrf render` and `view` by default: the sources' depth refined for the scene.
-    views = SourceViews(data.images[sources], data.c2w[sources], refine=refine.PREPARE_REFINE)
+    views = SourceViews(
+        data.images[sources], data.c2w[sources], refine=refine.PREPARE_REFINE, nadir=nadir
+    )
     height = data.images.shape[-2]
     print(f"novel view: frame {target} rendered from frames {sources} ({height}x{2 * height}):")
     cache = session.prepare_views(views, models, "panogrf", "fast", cache_dir, use_cache)
@@ -115,7 +122,7 @@ def _novel_view(data, out: Path, cache_dir: Path | None = None, use_cache: bool 
     write_rgb(sheet, stack_rows(rows))
     print(f"wrote {sheet} (real middle view, then PanoGRF, meshwarp, nearest)")
     poses = interpolate_keyframes(data.c2w.numpy().astype(np.float64), 48)
-    walk = SourceViews(data.images, data.c2w)
+    walk = SourceViews(data.images, data.c2w, nadir=nadir)
     session.prepare_views(walk, models, "panogrf", "preview", cache_dir, use_cache)
     frames = FrameRenderer(walk, models, "preview")
     video = out / "walk_preview.mp4"

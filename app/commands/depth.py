@@ -57,7 +57,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--mode", choices=MODES, default="full", help="which estimator (default full)"
     )
     parser.add_argument("--device", default="cpu", help="torch device, e.g. cuda (default: cpu)")
-    add_prepare_options(parser)
+    add_prepare_options(parser, nadir=False)
     parser.set_defaults(func=run)
 
 

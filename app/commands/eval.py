@@ -34,6 +34,7 @@ from panogrf.app.runtime import (
     thread_count,
 )
 from panogrf.renderer.methods import METHODS, Kind
+from panogrf.renderer.nadir import nadir_setting
 from panogrf.renderer.render import QUALITY
 
 METRICS = ("psnr", "ws_psnr", "ssim", "lpips")
@@ -143,7 +144,12 @@ def run(args: argparse.Namespace) -> int:
         scene = load_scene(folder, load_images=True)
         data = scene.images
         height = args.height or scene.height
-        views = SourceViews(data.images[[0, 2]], data.c2w[[0, 2]], refine=refine_setting(args))
+        views = SourceViews(
+            data.images[[0, 2]],
+            data.c2w[[0, 2]],
+            refine=refine_setting(args),
+            nadir=nadir_setting(scene.metadata, args.nadir_cap),
+        )
         index = seen[b]
         seen[b] += 1
         line = [f"[{n}/{len(scenes)}] {folder.name} ({b} m)"]

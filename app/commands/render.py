@@ -26,6 +26,7 @@ from panogrf.app.runtime import (
 from panogrf.app.scene import session
 from panogrf.app.scene.session import MAX_HEIGHT
 from panogrf.renderer.methods import METHODS
+from panogrf.renderer.nadir import nadir_setting
 from panogrf.renderer.render import QUALITY
 
 #: Largest frame of a camera path (columns x rows): a 2:1 panorama of `MAX_HEIGHT` rows.
@@ -165,7 +166,12 @@ def run(args: argparse.Namespace) -> int:
     else:
         tgt = torch.from_numpy(parse_c2w(args.c2w)).to(data.c2w.dtype)
     height = args.height or scene.height
-    views = SourceViews(data.images[sources], data.c2w[sources], refine=refine_setting(args))
+    views = SourceViews(
+        data.images[sources],
+        data.c2w[sources],
+        refine=refine_setting(args),
+        nadir=nadir_setting(scene.metadata, args.nadir_cap),
+    )
     models = session.default_models()
     start = time.perf_counter()
     frames = FrameRenderer(views, models, args.quality, args.method)
@@ -266,7 +272,12 @@ def run_path(args: argparse.Namespace) -> int:
     sink = FrameSink(args.out, path.fps, path.render_width, path.render_height, spherical)
     scene = load_scene(args.scene, load_images=True)
     data = scene.images
-    views = SourceViews(data.images, data.c2w, refine=refine_setting(args))
+    views = SourceViews(
+        data.images,
+        data.c2w,
+        refine=refine_setting(args),
+        nadir=nadir_setting(scene.metadata, args.nadir_cap),
+    )
     warning = path_warning(np.asarray(path.poses, dtype=np.float64), scene.c2w)
     if warning:
         print(warning, flush=True)

@@ -64,13 +64,16 @@ def run_prepare(args: argparse.Namespace) -> int:
     from panogrf.app.scene import session
     from panogrf.app.scene.folder import load_scene
     from panogrf.renderer.methods import SourceViews
+    from panogrf.renderer.nadir import nadir_setting
 
     if args.threads:
         torch.set_num_threads(args.threads)
     refine = refine_setting(args)
     start = time.perf_counter()
     if args.sources is None:
-        prepared = session.prepare_scene(args.dir, args.cache_dir, refine=refine, log=_quiet)
+        prepared = session.prepare_scene(
+            args.dir, args.cache_dir, refine=refine, log=_quiet, nadir_cap=args.nadir_cap
+        )
         result, views = prepared.cache, prepared.scene.num_views
         what = f"all {views} views"
     else:
@@ -82,7 +85,12 @@ def run_prepare(args: argparse.Namespace) -> int:
         if len(set(args.sources)) != len(args.sources):
             raise UserError(f"--sources must list distinct frames, got {args.sources}")
         data = scene.images
-        views = SourceViews(data.images[args.sources], data.c2w[args.sources], refine=refine)
+        views = SourceViews(
+            data.images[args.sources],
+            data.c2w[args.sources],
+            refine=refine,
+            nadir=nadir_setting(scene.metadata, args.nadir_cap),
+        )
         result = session.prepare_views(views, session.default_models(), cache_dir=args.cache_dir)
         what = f"sources {','.join(map(str, args.sources))}"
     if result.path == Path("-"):  # e.g. missing weights were reported before; belt and braces

@@ -152,6 +152,7 @@ def _session(args: argparse.Namespace, threads: int) -> int:
         refine=refine_setting(args),
         defer_refine=True,
         use_cache=not args.no_cache,
+        nadir_cap=args.nadir_cap,
     )
     scene, views, models = prepared.scene, prepared.views, prepared.models
     if not 0 <= args.start_frame < scene.num_views:

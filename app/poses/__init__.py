@@ -1,10 +1,11 @@
 """Poses for one's own captures: estimated from plain 360-degree panoramas, or imported.
 
 - `panogrf.app.poses.features`: SIFT on cube faces rendered from a panorama, unit bearings,
-  ratio-tested and cross-checked matches.
-- `panogrf.app.poses.geometry`: the essential matrix on bearings (8-point inside RANSAC on the
-  angular epipolar error), cheirality, triangulation, bundle adjustment on angular residuals.
-- `panogrf.app.poses.estimate`: the pipeline for V views, with a report per pair and per view.
+  ratio-tested and cross-checked matches, guided matching along epipolar planes.
+- `panogrf.app.poses.colmap`: the pipeline for V views: those features and matches, COLMAP's
+  verification, global mapping and bundle adjustment (pycolmap), a report per pair and view.
+- `panogrf.app.poses.geometry`: the essential matrix on bearings, cheirality, triangulation,
+  bundle adjustment on angular residuals (the two-view case).
 - `panogrf.app.poses.scale`: upright (floor plane or level cameras), metric scale from a camera
   height or a known distance, the canonical world frame.
 - `panogrf.app.poses.importers`: TUM trajectories (stella_vslam / OpenVSLAM), OpenSfM

@@ -99,10 +99,15 @@ def prepare_scene(
     refine: RefineConfig | None = None,
     defer_refine: bool = False,
     use_cache: bool = True,
+    nadir_cap=None,
 ) -> PreparedScene:
     """Load the scene folder and prepare PanoGRF's depth and caches with ``models`` (default:
     the shipped weights), reading or writing the on-disk cache in ``cache_dir`` (default
     ``~/.cache/panogrf``); ``refine``: the per-scene depth refinement (`SourceViews.refine`).
+
+    ``nadir_cap``: the ``--nadir-cap`` value (`panogrf.renderer.nadir.nadir_setting`: else the
+    scene's transforms.json setting, else "auto"): the tripod or hand at the bottom of every
+    source is masked and never painted into another view.
 
     ``defer_refine``: unless the refined scene is cached already, prepare the plain one and
     leave the refinement to `refine_prepared` (``pending_refine``): the viewer opens on the
@@ -111,11 +116,13 @@ def prepare_scene(
     `ShippedModels`). The whole is a progress stage around the inner ones."""
     from panogrf.app.scene.folder import load_scene
     from panogrf.model.progress import stage
+    from panogrf.renderer.nadir import nadir_setting
 
     scene = load_scene(scene_dir, load_images=True)  # a bad scene: its error before any stage
+    nadir = nadir_setting(scene.metadata, nadir_cap)  # and a bad nadir setting's
     with stage(PREPARING, 1) as progress:
         prepared = _prepare_scene(
-            scene, scene_dir, cache_dir, models, log, refine, defer_refine, use_cache
+            scene, scene_dir, cache_dir, models, log, refine, defer_refine, use_cache, nadir
         )
         progress.advance()
     return prepared
@@ -126,13 +133,15 @@ def prepare_scene(
 PREPARING = "preparing the scene"
 
 
-def _prepare_scene(scene, scene_dir, cache_dir, models, log, refine, defer_refine, use_cache):
+def _prepare_scene(
+    scene, scene_dir, cache_dir, models, log, refine, defer_refine, use_cache, nadir=None
+):
     """`prepare_scene`'s work, on the loaded ``scene``."""
     import time
 
     from panogrf.app.scene.cache import CacheResult, build_maps, load_cached, prepare_cached
 
-    views = SourceViews(scene.images.images, scene.images.c2w, refine=refine)
+    views = SourceViews(scene.images.images, scene.images.c2w, refine=refine, nadir=nadir)
     log(f"preparing {scene_dir} ({scene.num_views} views, {scene.width}x{scene.height})...")
     deferring = defer_refine and refine is not None
     if models is None:
@@ -148,7 +157,14 @@ def _prepare_scene(scene, scene_dir, cache_dir, models, log, refine, defer_refin
             result, _ = load_cached(views, models, cache_dir, files)
     pending = None
     if deferring and result is None:  # the plain scene now, the refined one later
-        views = SourceViews(views.images, views.c2w, gains=views.gains)
+        views = SourceViews(
+            views.images,
+            views.c2w,
+            gains=views.gains,
+            nadir=views.nadir,
+            nadir_mask=views.nadir_mask,
+            nadir_notes=views.nadir_notes,
+        )
         pending = refine
     if result is None and on_disk:
         result = prepare_cached(views, models, cache_dir, files)
