@@ -195,7 +195,7 @@ def _pixels(camera, bearings_gl: np.ndarray) -> np.ndarray:
 def _run(images, cfg: ColmapConfig, say, work: Path) -> ColmapEstimate:
     pycolmap = load_pycolmap()
 
-    pycolmap.logging.minloglevel = 2  # warnings and errors only
+    pycolmap.logging.minloglevel = 3  # quiet: what fails is in our own report
     pycolmap.set_random_seed(cfg.seed)
     v_count = len(images)
     if images[0].shape[1] > cfg.max_width:  # features need no more (bearings are unchanged)
