@@ -54,8 +54,10 @@ class ColmapConfig:
     min_guided_inliers: int = 30
     """A pair's first verification must keep this many inliers before matches are grown along
     its epipolar planes."""
-    min_pair_inliers: int = 15
-    """Fewer verified inliers than this: the pair is reported failed (and gives no geometry)."""
+    min_pair_inliers: int = 30
+    """Fewer verified inliers than this: the pair is reported failed and gives no geometry (on
+    real homes the pairs that pose have hundreds; a wrong geometry finds a dozen or two, and a
+    pair alone, or a chain of pairs, has nothing to check it against)."""
     max_error_px: float = 4.0
     """COLMAP's RANSAC and reprojection thresholds, in panorama pixels at 1024 columns."""
     num_threads: int = -1
