@@ -131,7 +131,10 @@ def test_bench_command_on_a_tiny_dataset(tmp_path, capsys):
     r = report["results"]["panogrf:draft"]
     assert r["seconds"] > 0 and r["params"] > 0 and r["time_scaled"] is False
     assert set(r["sweep"]) == {"0.5"} and set(r["cases"]) == {"at_source"}
-    assert report["frontier"]["ws_psnr"][0] == "nearest"  # the cheapest is always on it
+    # The cheapest setting (by the time measured in this run: any of them on a loaded
+    # machine) is always on the frontier.
+    cheapest = min(report["results"], key=lambda k: report["results"][k]["seconds"])
+    assert cheapest in report["frontier"]["ws_psnr"]
     assert report["problems"] == {}
     from panogrf.model import refine
 
