@@ -158,3 +158,31 @@ def add_prepare_options(parser, no_cache: bool = True, nadir: bool = True) -> No
         from panogrf.renderer.nadir import add_nadir_argument
 
         add_nadir_argument(parser)
+
+
+def refuse_scene_inputs(out: Path, scene, option: str = "--out", folder: bool = False) -> None:
+    """Refuse, before any work, an output that would replace one of ``scene``'s own files
+    (a source panorama, a depth map, its transforms.json) or, for a folder output
+    (``folder``), the scene folder or a folder holding its files: a render or a report must
+    never overwrite what it was made from."""
+    from panogrf.app.errors import UserError
+
+    inputs = [scene.root / "transforms.json"]
+    for f in scene.frames:
+        inputs.append(f.image_path)
+        if f.depth_path is not None:
+            inputs.append(f.depth_path)
+    target = Path(out).resolve()
+    for path in inputs:
+        if path.resolve() == target:
+            raise UserError(
+                f"{option} {out}: is the scene's own {path.name}; refusing to overwrite an input, "
+                "choose another"
+            )
+    if folder:
+        folders = {scene.root.resolve()} | {p.resolve().parent for p in inputs}
+        if target in folders:
+            raise UserError(
+                f"{option} {out}: holds the scene's own files; refusing to write over them, "
+                "choose another folder"
+            )

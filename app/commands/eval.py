@@ -31,6 +31,7 @@ from panogrf.app.runtime import (
     add_prepare_options,
     add_refine_depth,
     refine_setting,
+    refuse_scene_inputs,
     thread_count,
 )
 from panogrf.renderer.methods import METHODS, Kind
@@ -136,6 +137,8 @@ def run(args: argparse.Namespace) -> int:
         torch.set_num_threads(args.threads)
     check_output(args.out)  # before the work: an hour of rendering must not end unwritable
     scenes, baselines = triplets_by_baseline(args.dataset, baselines, args.limit)
+    for _, folder in scenes:  # the report must not replace a scene's own file
+        refuse_scene_inputs(args.out, load_scene(folder))
     models = session.default_models()
     rows = {label(*m): {b: [] for b in baselines} for m in methods}
     seen: dict[float, int] = {b: 0 for b in baselines}

@@ -21,6 +21,7 @@ from panogrf.app.runtime import (
     add_prepare_options,
     add_refine_depth,
     refine_setting,
+    refuse_scene_inputs,
     thread_count,
 )
 from panogrf.app.scene import session
@@ -147,6 +148,7 @@ def run(args: argparse.Namespace) -> int:
     if args.threads:
         torch.set_num_threads(args.threads)
     scene = load_scene(args.scene, load_images=True)
+    refuse_scene_inputs(args.out, scene)
     v = scene.num_views
     if args.target_frame is not None and not 0 <= args.target_frame < v:
         raise UserError(f"--target-frame {args.target_frame}: the scene has frames 0..{v - 1}")
@@ -271,6 +273,7 @@ def run_path(args: argparse.Namespace) -> int:
     spherical = path.camera_type == "equirectangular"
     sink = FrameSink(args.out, path.fps, path.render_width, path.render_height, spherical)
     scene = load_scene(args.scene, load_images=True)
+    refuse_scene_inputs(args.out, scene, folder=args.out.suffix.lower() != ".mp4")
     data = scene.images
     views = SourceViews(
         data.images,

@@ -239,3 +239,29 @@ def test_camera_path_errors(random_nets, tmp_path, capsys):
     assert cli.main([*base, "--out", str(tmp_path / "v.mp4"), "--height", "64"]) == 2
     assert "--height" in capsys.readouterr().err
     assert not (tmp_path / "v.mp4").exists()
+
+
+def test_outputs_never_replace_the_scene_they_are_made_from(random_nets, tmp_path, capsys):
+    scene = tmp_path / "scene"
+    shutil.copytree(DEMO, scene)
+    source = scene / "images" / "frame_000.png"
+    poses = scene / "transforms.json"
+    before = {p: p.read_bytes() for p in (source, poses)}
+    path = tmp_path / "path.json"
+    _write_path(path)
+    cases = [
+        ["render", str(scene), "--target-frame", "1", "--out", str(source)],
+        ["render", str(scene), "--camera-path", str(path), "--out", str(scene / "images")],
+        ["render", str(scene), "--camera-path", str(path), "--out", str(scene)],
+        ["eval", str(scene), "--out", str(poses), "--methods", "nearest"],
+    ]
+    for args in cases:
+        assert cli.main(args) == 2, args
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and ("refusing" in err or "name a new" in err), err
+    assert all(p.read_bytes() == data for p, data in before.items())
+    assert sorted(p.name for p in (scene / "images").iterdir()) == [
+        "frame_000.png",
+        "frame_001.png",
+        "frame_002.png",
+    ]
