@@ -77,6 +77,19 @@ def heap_in_use() -> int | None:
     return int(info.uordblks + info.hblkhd)
 
 
+def frame_indices(text: str) -> list[int]:
+    """``--sources 0,2`` -> [0, 2] (argparse type): comma-separated frame indices, at least one."""
+    try:
+        values = [int(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected comma-separated frame indices, got {text!r}"
+        ) from None
+    if not values:
+        raise argparse.ArgumentTypeError("expected at least one frame index")
+    return values
+
+
 def thread_count(text: str) -> int:
     """argparse type of ``--threads``: 0 (torch's default, every core) or a positive count."""
 

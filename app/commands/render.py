@@ -20,6 +20,7 @@ from panogrf.app.errors import UserError
 from panogrf.app.runtime import (
     add_prepare_options,
     add_refine_depth,
+    frame_indices,
     refine_setting,
     refuse_scene_inputs,
     thread_count,
@@ -32,18 +33,6 @@ from panogrf.renderer.render import QUALITY
 
 #: Largest frame of a camera path (columns x rows): a 2:1 panorama of `MAX_HEIGHT` rows.
 MAX_FRAME = (2 * MAX_HEIGHT, MAX_HEIGHT)
-
-
-def _indices(text: str) -> list[int]:
-    try:
-        values = [int(x) for x in text.split(",") if x.strip()]
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"expected comma-separated frame indices, got {text!r}"
-        ) from None
-    if not values:
-        raise argparse.ArgumentTypeError("expected at least one frame index")
-    return values
 
 
 def parse_c2w(text: str) -> np.ndarray:
@@ -102,7 +91,7 @@ def register(subparsers) -> None:
     )
     parser.add_argument(
         "--sources",
-        type=_indices,
+        type=frame_indices,
         default=None,
         help="comma-separated source frames (default: every frame but the target)",
     )

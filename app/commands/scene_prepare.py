@@ -17,19 +17,13 @@ from pathlib import Path
 import torch
 
 from panogrf.app.errors import UserError
-from panogrf.app.runtime import add_prepare_options, add_refine_depth, refine_setting, thread_count
-
-
-def _indices(text: str) -> list[int]:
-    try:
-        values = [int(x) for x in text.split(",") if x.strip()]
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"expected comma-separated frame indices, got {text!r}"
-        ) from None
-    if not values:
-        raise argparse.ArgumentTypeError("expected at least one frame index")
-    return values
+from panogrf.app.runtime import (
+    add_prepare_options,
+    add_refine_depth,
+    frame_indices,
+    refine_setting,
+    thread_count,
+)
 
 
 def add_prepare(sub: argparse._SubParsersAction) -> None:
@@ -48,7 +42,7 @@ def add_prepare(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("dir", type=Path, metavar="SCENE_DIR", help="scene folder")
     parser.add_argument(
         "--sources",
-        type=_indices,
+        type=frame_indices,
         default=None,
         help="comma-separated frames to prepare as the sources (default: every frame)",
     )

@@ -4,7 +4,7 @@
   ratio-tested and cross-checked matches, guided matching along epipolar planes.
 - `panogrf.app.poses.colmap`: the pipeline for V views: those features and matches, COLMAP's
   verification, global mapping and bundle adjustment (pycolmap), a report per pair and view.
-- `panogrf.app.poses.geometry`: the essential matrix on bearings, cheirality, triangulation,
+- `panogrf.app.poses.geometry`: triangulation of a pair and
   bundle adjustment on angular residuals (the two-view case).
 - `panogrf.app.poses.scale`: upright (floor plane or level cameras), metric scale from a camera
   height or a known distance, the canonical world frame.
