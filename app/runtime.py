@@ -145,7 +145,8 @@ def refine_setting(args):
 
 
 def add_prepare_options(parser, no_cache: bool = True, nadir: bool = True) -> None:
-    """``--cache-dir``, ``--no-cache`` (unless ``no_cache`` is False) and ``--quiet``: the
+    """``--cache-dir``, ``--no-cache`` (unless ``no_cache`` is False), ``--quiet`` and
+    ``--device`` (`resolve_device`): the
     options of every command that prepares a scene (its depth and feature maps,
     `panogrf.app.scene.session.prepare_views`). ``nadir``: also ``--nadir-cap`` (the tripod
     or hand at the bottom of every source masked, `panogrf.renderer.nadir`)."""
@@ -171,6 +172,7 @@ def add_prepare_options(parser, no_cache: bool = True, nadir: bool = True) -> No
         from panogrf.renderer.nadir import add_nadir_argument
 
         add_nadir_argument(parser)
+    add_device_option(parser)
 
 
 def refuse_scene_inputs(out: Path, scene, option: str = "--out", folder: bool = False) -> None:
@@ -199,3 +201,39 @@ def refuse_scene_inputs(out: Path, scene, option: str = "--out", folder: bool = 
                 f"{option} {out}: holds the scene's own files; refusing to write over them, "
                 "choose another folder"
             )
+
+
+def add_device_option(parser, default: str = "auto") -> None:
+    """``--device``: where the networks and the whole depth chain run."""
+    parser.add_argument(
+        "--device",
+        default=default,
+        help=f"where the networks run: auto (a CUDA GPU when there is one, else the CPU), cpu, "
+        f"cuda or cuda:N (default {default})",
+    )
+
+
+def resolve_device(name: str):
+    """The torch device ``--device name`` asks for ("auto": the first CUDA GPU when torch
+    sees one, else the CPU); a `UserError` in one line for one this machine does not have."""
+    import torch
+
+    from panogrf.app.errors import UserError
+
+    text = str(name).strip().lower()
+    if text == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    try:
+        device = torch.device(text)
+    except (RuntimeError, ValueError):
+        raise UserError(f"--device {name!r}: not a device (auto, cpu, cuda or cuda:N)") from None
+    if device.type not in ("cpu", "cuda"):
+        raise UserError(f"--device {name!r}: this tool runs on cpu or cuda")
+    if device.type == "cuda":
+        if not torch.cuda.is_available():
+            why = "this torch is a CPU build" if torch.version.cuda is None else "no CUDA GPU seen"
+            raise UserError(f"--device {name}: CUDA is not available here ({why})")
+        count = torch.cuda.device_count()
+        if device.index is not None and device.index >= count:
+            raise UserError(f"--device {name}: this machine has {count} CUDA device(s)")
+    return device

@@ -40,7 +40,8 @@ def image_scores(rgb: torch.Tensor, reference: torch.Tensor) -> dict[str, float]
     LPIPS are NaN below their minimum sizes."""
     from panogrf.renderer.cache import resize_erp
 
-    gt = resize_erp(reference, rgb.shape[-2]).clamp(0, 1)
+    rgb = rgb.detach().float().cpu()  # scored on the CPU, whatever device rendered it
+    gt = resize_erp(reference.detach().float().cpu(), rgb.shape[-2]).clamp(0, 1)
     x = rgb[None].clamp(0, 1)
     lp = float("nan")  # LPIPS needs a minimum size
     if min(x.shape[-2:]) >= MIN_SIZE:

@@ -7,9 +7,10 @@
 ``--data``: dataset folders (with ``dataset.json``) or scene folders of three views. For every
 scene and every variant the outer two views are prepared from nothing, as `panogrf render`
 prepares a scene (exposure balance, the depth chain, the per-scene refinement, the renderer's
-feature maps: timed together, "prep s"), the middle view is rendered by PanoGRF (``fast``, at the
-scenes' rows, at most ``--rows``; the view nearest both others is the middle one) and scored (WS-PSNR, SSIM, LPIPS), and where the scene has true depth the
-outer views' depth is scored (L1 in metres, overall and by band of elevation, pooled).
+feature maps: timed together, "prep s"); the middle view (the one nearest both others) is
+rendered by PanoGRF (``fast``, at the scene's rows, at most ``--rows``) and scored (WS-PSNR,
+SSIM, LPIPS); where the scene has true depth, the outer views' depth is scored (L1 in metres,
+overall and by band of elevation, pooled).
 
 Variants (``VARIANTS``): ``shipped`` (mode full with every stage); ``-X``: the shipped chain
 without stage X (or with its simplest replacement); ``mvs``: the MVS-only member (the unguided
@@ -121,8 +122,10 @@ def run_variant(name, data, models, rows: int):
     spec = MethodSpec("panogrf", mode, "panogrf", METHODS["panogrf"].kind)
     with attributes(est, attrs):
         t0 = time.perf_counter()
-        views = SourceViews(data.images[[0, 2]], data.c2w[[0, 2]], **kw)
+        views = SourceViews(data.images[[0, 2]], data.c2w[[0, 2]], device=models.device, **kw)
         views.cache_for(spec, models)
+        if models.device.type == "cuda":
+            torch.cuda.synchronize(models.device)
         seconds = time.perf_counter() - t0
     if mode != "full":  # render_view reads the method's own depth mode: alias it
         views.depth["full"] = views.depth[mode]
@@ -133,7 +136,10 @@ def run_variant(name, data, models, rows: int):
     bands: dict[str, list[float]] = {}
     if data.depths is not None:
         depth = torch.nn.functional.interpolate(
-            views.depth[mode], size=data.images.shape[-2:], mode="bilinear", align_corners=False
+            views.depth[mode].cpu(),
+            size=data.images.shape[-2:],
+            mode="bilinear",
+            align_corners=False,
         )
         d_max = est.d_max
         l1s = []
@@ -159,12 +165,51 @@ def summarise(rows: list[dict]) -> dict:
     return out
 
 
+def write_report(args, names, results, bands, models, start) -> tuple[dict, list[str]]:
+    """The report so far (tables pooled per set and overall), written to ``args.out``."""
+    from panogrf.app.files.atomic import write_json_atomic
+
+    groups = sorted({g for per in results.values() for g in per})
+    table = {
+        name: {g: summarise(per[g]) for g in groups if g in per}
+        | {"pooled": summarise([r for rs in per.values() for r in rs])}
+        for name, per in results.items()
+    }
+    band_l1 = {
+        name: {k: total / count for k, (total, count) in b.items() if count}
+        for name, b in bands.items()
+    }
+    try:
+        commit = subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True
+        )
+        commit = commit.stdout.strip()
+    except OSError:  # no git where it runs
+        commit = "unknown"
+    report = {
+        "what": "leave-one-out of the depth chain: middle view from the outer two, fast",
+        "data": [str(p) for p in args.data],
+        "variants": {n: VARIANTS[n][3] for n in names},
+        "table": table,
+        "depth_l1_by_band_synthetic": band_l1,
+        "rows": results,
+        "machine": f"{platform.machine()}, {torch.get_num_threads()} torch threads, "
+        + (torch.cuda.get_device_name() if models.device.type == "cuda" else "CPU"),
+        "seconds": round(time.perf_counter() - start, 1),
+        "commit": commit,
+    }
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    write_json_atomic(args.out, report)
+    return report, groups
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--data", type=Path, nargs="+", required=True)
     parser.add_argument("--variants", default=",".join(VARIANTS))
     parser.add_argument("--threads", type=int, default=0)
     parser.add_argument("--rows", type=int, default=512, help="larger scenes are resized to it")
+    parser.add_argument("--device", default="cpu", help="cpu, cuda or auto (default cpu)")
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/depth_stages.json"))
     args = parser.parse_args()
     if args.threads:
@@ -174,11 +219,11 @@ def main() -> int:
     if unknown:
         raise SystemExit(f"unknown variants {unknown}: have {list(VARIANTS)}")
 
-    from panogrf.app.files.atomic import write_json_atomic
+    from panogrf.app.runtime import resolve_device
     from panogrf.app.scene.folder import load_scene
     from panogrf.app.scene.session import default_models
 
-    models = default_models()
+    models = default_models(resolve_device(args.device))
     for mode in {VARIANTS[n][0] for n in names}:  # loaded before anything is timed
         models.estimator(mode)
     models.renderer("panogrf")
@@ -208,30 +253,10 @@ def main() -> int:
                 f"LPIPS {row['lpips']:.3f}{depth} ({row['seconds']:.1f} s)",
                 flush=True,
             )
+        write_report(args, names, results, bands, models, start)  # kept if the run stops
 
-    groups = sorted({g for per in results.values() for g in per})
-    table = {
-        name: {g: summarise(per[g]) for g in groups if g in per}
-        | {"pooled": summarise([r for rs in per.values() for r in rs])}
-        for name, per in results.items()
-    }
-    band_l1 = {
-        name: {k: total / count for k, (total, count) in b.items() if count} for name, b in bands.items()
-    }
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
-    report = {
-        "what": "leave-one-out of the depth chain: middle view from the outer two, fast",
-        "data": [str(p) for p in args.data],
-        "variants": {n: VARIANTS[n][3] for n in names},
-        "table": table,
-        "depth_l1_by_band_synthetic": band_l1,
-        "rows": results,
-        "machine": f"{platform.machine()}, {torch.get_num_threads()} torch threads, CPU",
-        "seconds": round(time.perf_counter() - start, 1),
-        "commit": commit.stdout.strip(),
-    }
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    write_json_atomic(args.out, report)
+    report, groups = write_report(args, names, results, bands, models, start)
+    table, band_l1 = report["table"], report["depth_l1_by_band_synthetic"]
     print(f"\n{len(folders)} scenes; {report['machine']}; wrote {args.out}")
     print("\ndepth L1 (m) by band of elevation, synthetic sets pooled:")
     keys = sorted({k for b in band_l1.values() for k in b}, key=lambda k: -int(k.split("_")[1]))

@@ -19,18 +19,19 @@ from panogrf.model.erp import erp_directions, rotation_about, sample_erp_directi
 FACE_NAMES = ("front", "right", "back", "left", "up", "down")
 
 
-def face_rotations(dtype: torch.dtype = torch.float32) -> Tensor:
-    """Camera-to-panorama rotations of the six faces [6, 3, 3] (front = identity)."""
+def face_rotations(dtype: torch.dtype = torch.float32, device=None) -> Tensor:
+    """Camera-to-panorama rotations of the six faces [6, 3, 3] (front = identity), on
+    ``device`` (default: the CPU)."""
     half = math.pi / 2
     rots = [
-        torch.eye(3, dtype=torch.float64),
+        torch.eye(3, dtype=torch.float64, device="cpu"),
         rotation_about("y", -half),  # right: looks along +x
         rotation_about("y", math.pi),  # back: looks along +z
         rotation_about("y", half),  # left: looks along -x
         rotation_about("x", half),  # up: looks along +y
         rotation_about("x", -half),  # down: looks along -y
     ]
-    return torch.stack(rots).to(dtype)
+    return torch.stack(rots).to(device or "cpu", dtype)
 
 
 def face_directions(face_size: int, *, device=None, dtype=torch.float32) -> Tensor:
@@ -39,7 +40,7 @@ def face_directions(face_size: int, *, device=None, dtype=torch.float32) -> Tens
     y, x = torch.meshgrid(-t, t, indexing="ij")
     local = torch.stack((x, y, -torch.ones_like(x)), -1)
     local = local / torch.linalg.vector_norm(local, dim=-1, keepdim=True)
-    rots = face_rotations(dtype).to(device)
+    rots = face_rotations(dtype, device)
     return torch.einsum("kij,hwj->khwi", rots, local)
 
 
@@ -59,7 +60,7 @@ def cubemap_to_erp(faces: Tensor, height: int, width: int, mode: str = "bilinear
     """
     b, _, c, fsize, _ = faces.shape
     dirs = erp_directions(height, width, device=faces.device, dtype=faces.dtype)  # [H, W, 3]
-    rots = face_rotations(faces.dtype).to(faces.device)
+    rots = face_rotations(faces.dtype, faces.device)
     local = torch.einsum("kji,hwj->khwi", rots, dirs)  # rotate into each face's frame (R^T d)
     forward = -local[..., 2]  # [6, H, W] component along each face's viewing axis
     face_idx = forward.argmax(0)  # [H, W]

@@ -249,8 +249,10 @@ class DepthEstimator(nn.Module):
         out = mono.clone()
         h = mono.shape[-2]
         band = (torch.arange(h, device=mono.device) * bands) // h  # band of each row
-        centres = (torch.arange(bands, dtype=mono.dtype) + 0.5) * h / bands - 0.5
-        rows = torch.arange(h, dtype=mono.dtype)
+        centres = (
+            torch.arange(bands, dtype=mono.dtype, device=mono.device) + 0.5
+        ) * h / bands - 0.5
+        rows = torch.arange(h, dtype=mono.dtype, device=mono.device)
         for v, src in enumerate(sources):
             ok = (mvs[v, 0] < 0.98 * self.d_max) & (mono[v, 0] > 0.05)
             if not src or int(ok.sum()) == 0:
@@ -262,7 +264,7 @@ class DepthEstimator(nn.Module):
                 inside = ok & (band == b)[:, None]
                 needed = max(1.0, 0.01 * int((band == b).sum()) * mono.shape[-1])
                 scales.append(ratio[inside].median() if int(inside.sum()) >= needed else overall)
-            profile = _interp(rows, centres, torch.stack(scales).cpu()).clamp(0.5, 2.0)
+            profile = _interp(rows, centres, torch.stack(scales)).clamp(0.5, 2.0)
             out[v] = (mono[v] * profile.to(mono)[:, None]).clamp(0.05, self.d_max)
         return out
 

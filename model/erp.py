@@ -182,4 +182,4 @@ def rotation_about(axis: str, angle: float) -> Tensor:
         m = [[c, -s, 0], [s, c, 0], [0, 0, 1]]
     else:
         raise ValueError(f"axis must be 'x', 'y' or 'z', got {axis!r}")
-    return torch.tensor(m, dtype=torch.float64)
+    return torch.tensor(m, dtype=torch.float64, device="cpu")

@@ -94,7 +94,7 @@ class CubeToErp(nn.Module):
         if key not in self._grids:
             from panogrf.model.cubemap import face_rotations
 
-            dirs = erp_directions(height, width, dtype=torch.float64)  # [H, W, 3]
+            dirs = erp_directions(height, width, device="cpu", dtype=torch.float64)  # [H, W, 3]
             local = torch.einsum("kji,hwj->khwi", face_rotations(torch.float64), dirs)
             fwd = -local[..., 2]
             k = fwd.argmax(0)  # [H, W]
@@ -130,7 +130,8 @@ class ErpToCube(nn.Module):
         b, c, h, w = erp.shape
         key = (face, h, w, str(erp.device), erp.dtype)
         if key not in self._grids:
-            uv = direction_to_pixel(face_directions(face, dtype=torch.float64), h, w)  # [6,F,F,2]
+            dirs = face_directions(face, device="cpu", dtype=torch.float64)
+            uv = direction_to_pixel(dirs, h, w)  # [6,F,F,2]
             gx = (uv[..., 0] + 0.5) / w * 2 - 1
             gy = (uv[..., 1] + 0.5) / h * 2 - 1
             self._grids[key] = (
@@ -197,8 +198,15 @@ class PretrainedTrunk(nn.Module):
         offset is the same for every cell, so a turn by a multiple of ``stride`` pixels turns
         the result by whole cells."""
         rows, cols = y.shape[-2:]
-        gy = (stride * torch.arange(h // stride) + (stride - 1) / 2 - centre) / stride
-        gx = (stride * torch.arange(w // stride) + (stride - 1) / 2 + self.wrap - centre) / stride
+        gy = (
+            stride * torch.arange(h // stride, device=y.device) + (stride - 1) / 2 - centre
+        ) / stride
+        gx = (
+            stride * torch.arange(w // stride, device=y.device)
+            + (stride - 1) / 2
+            + self.wrap
+            - centre
+        ) / stride
         grid = torch.stack(
             (
                 (2 * gx / max(cols - 1, 1) - 1)[None, :].expand(len(gy), -1),

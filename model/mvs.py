@@ -74,9 +74,11 @@ def mono_offsets(n_mono: int, beta: float = 3.0, dtype=torch.float64) -> Tensor:
     bin k. For n_mono = 5, beta = 3: [-1.9194, -0.5457, 0, 0.5457, 1.9194].
     """
     if n_mono <= 0:
-        return torch.zeros(0, dtype=dtype)
+        return torch.zeros(0, dtype=dtype, device="cpu")
     p_star = math.erf(beta / math.sqrt(2.0))
-    edges = (1.0 - p_star) / 2.0 + p_star * torch.arange(n_mono + 1, dtype=torch.float64) / n_mono
+    edges = (1.0 - p_star) / 2.0 + p_star * torch.arange(
+        n_mono + 1, dtype=torch.float64, device="cpu"
+    ) / n_mono
     probit = math.sqrt(2.0) * torch.special.erfinv(2.0 * edges - 1.0)
     return (0.5 * (probit[:-1] + probit[1:])).to(dtype)
 

@@ -378,7 +378,9 @@ def sweep_depth(
             for d in hyps
         ]
     )  # [K, V, H, W]
-    offsets = torch.linspace(-config.span, config.span, config.candidates, dtype=depth.dtype)
+    offsets = torch.linspace(
+        -config.span, config.span, config.candidates, dtype=depth.dtype, device=depth.device
+    )
     centre = int(torch.argmin(offsets.abs()))
     step = float(offsets[1] - offsets[0]) if len(offsets) > 1 else 0.0
     out = depth.clone()

@@ -92,7 +92,7 @@ def selection_features(
     centre = cost[:, int(torch.argmin(offsets.abs()))]
     span = float(offsets.abs().max().clamp(min=1e-6))
     gray = image.mean(0, keepdim=True)[None]
-    lat = latitude_weights(h, w, dtype=image.dtype)[None]
+    lat = latitude_weights(h, w, device=image.device, dtype=image.dtype)[None]
     feats = torch.cat(
         [
             centre,

@@ -92,10 +92,12 @@ METHODS: dict[str, MethodSpec] = {
 
 @dataclass
 class Models:
-    """Loaders of the shared networks: ``estimator(mode)`` and ``renderer(preset)``."""
+    """Loaders of the shared networks: ``estimator(mode)`` and ``renderer(preset)``, on
+    ``device`` (where `SourceViews` made with ``device=models.device`` put the sources)."""
 
     estimator: Callable[[str], DepthEstimator]
     renderer: Callable[[str], RendererNet]
+    device: torch.device = torch.device("cpu")
 
 
 @dataclass
@@ -118,6 +120,9 @@ class SourceViews:
     filled from the floor around them; the estimated depth there is the floor plane fitted
     around the mask. ``nadir_mask`` given: the images are taken as already filled (a copy of
     prepared views, as `refined` makes).
+
+    ``device``: the sources (and everything derived from them) are moved there first (None:
+    where they are); every stage runs on the device of its input.
     """
 
     images: Tensor  # [V, 3, H, W] in [0, 1]
@@ -132,8 +137,18 @@ class SourceViews:
     nadir: NadirSetting | Tensor = None  # the rig at the nadir: "auto", degrees, a mask, None
     nadir_mask: Tensor | None = None  # [V, 1, H, W] bool, set on construction from ``nadir``
     nadir_notes: list[str] = field(default_factory=list)  # how each source's mask was found
+    device: torch.device | str | None = None  # where the sources go first (None: as given)
 
     def __post_init__(self) -> None:
+        if self.device is not None:
+            self.device = torch.device(self.device)
+            self.images, self.c2w = self.images.to(self.device), self.c2w.to(self.device)
+            if self.gains is not None:
+                self.gains = self.gains.to(self.device)
+            if isinstance(self.nadir, Tensor):
+                self.nadir = self.nadir.to(self.device)
+            if self.nadir_mask is not None:
+                self.nadir_mask = self.nadir_mask.to(self.device)
         if self.gains is None:
             if self.balance:
                 self.images, self.gains = balance_exposure(self.images)
@@ -267,7 +282,7 @@ def render_view(
         raise ValueError(f"unknown method {method!r}: one of {sorted(METHODS)}")
     spec = METHODS[method]
     prepare(method, views, models)
-    tgt_c2w = tgt_c2w.to(views.c2w.dtype)
+    tgt_c2w = tgt_c2w.to(views.c2w)
     if spec.kind is Kind.NEAREST:
         return render_nearest(views.images, views.c2w, tgt_c2w, height)
     if spec.kind is Kind.MESHWARP:
@@ -301,5 +316,5 @@ def render_perspective_view(
     prepare(method, views, models)
     net = models.renderer(spec.renderer)
     cache = views.cache_for(spec, models)
-    tgt = tgt_c2w.to(views.c2w.dtype)
+    tgt = tgt_c2w.to(views.c2w)
     return render_perspective(net, cache, tgt, width, height, fov_deg, quality).rgb

@@ -184,9 +184,9 @@ def from_polar(polar: np.ndarray, h: int, w: int, radius_deg: float, step_deg: f
 # --- detection -----------------------------------------------------------------------------
 
 
-def cap_mask(height: int, width: int, degrees: float) -> Tensor:
+def cap_mask(height: int, width: int, degrees: float, device=None) -> Tensor:
     """[1, H, W] bool: the ERP pixels within ``degrees`` of the nadir."""
-    lat = 90.0 - 180.0 * (torch.arange(height, dtype=torch.float64) + 0.5) / height
+    lat = 90.0 - 180.0 * (torch.arange(height, dtype=torch.float64, device=device) + 0.5) / height
     return (lat < degrees - 90.0).view(1, height, 1).expand(1, height, width).clone()
 
 
@@ -225,12 +225,12 @@ def detect_nadir(image: Tensor | np.ndarray) -> tuple[Tensor, str, float]:
     unlike = (np.linalg.norm(polar - model, axis=-1) > max(MIN_CONTRAST, 3.0 * spread)) & ~ring
     centre = rho <= CENTRE_DEG
     if unlike[centre].mean() < CENTRE_FRACTION:
-        return torch.zeros(1, h, w, dtype=torch.bool), "none", 0.0
+        return torch.zeros(1, h, w, dtype=torch.bool, device="cpu"), "none", 0.0
     _, labels = cv2.connectedComponents(unlike.astype(np.uint8), connectivity=8)
     ids, counts = np.unique(labels[centre & unlike], return_counts=True)
     region = labels == ids[np.argmax(counts)]
     if region.sum() > AMBIGUOUS_FRACTION * (rho < SEARCH_DEG).sum():
-        return cap_mask(h, w, FALLBACK_DEG), "fallback", FALLBACK_DEG
+        return cap_mask(h, w, FALLBACK_DEG, "cpu"), "fallback", FALLBACK_DEG
     # Holes (floor seen between a tripod's legs stays; specks inside the rig do not) and the
     # margin, in the nadir-centred view where the rig is a compact shape.
     k = 2 * int(round(MARGIN_DEG / STEP_DEG)) + 1
@@ -239,7 +239,7 @@ def detect_nadir(image: Tensor | np.ndarray) -> tuple[Tensor, str, float]:
     grown = cv2.dilate(grown, kernel)
     radius = float(rho[grown > 0].max()) + STEP_DEG
     erp = from_polar(grown.astype(np.float32), h, w, outer, STEP_DEG) > 0.25
-    erp |= cap_mask(h, w, 180.0 / h)[0].numpy()  # the bottom row: the nadir itself
+    erp |= cap_mask(h, w, 180.0 / h, "cpu")[0].numpy()  # the bottom row: the nadir itself
     return torch.from_numpy(erp)[None], "detected", radius
 
 
@@ -252,13 +252,14 @@ def nadir_masks(images: Tensor, setting: NadirSetting) -> tuple[Tensor | None, l
         return None, ["off"] * v
     if setting != "auto":
         deg = float(setting)
-        return cap_mask(h, w, deg)[None].expand(v, 1, h, w).clone(), [f"cap {deg:g}"] * v
+        mask = cap_mask(h, w, deg, images.device)[None].expand(v, 1, h, w).clone()
+        return mask, [f"cap {deg:g}"] * v
     masks, notes = [], []
     for img in images:
         m, how, radius = detect_nadir(img)
         masks.append(m)
         notes.append(how if how == "none" else f"{how} {radius:.1f} deg")
-    return torch.stack(masks), notes
+    return torch.stack(masks).to(images.device), notes
 
 
 # --- making the sources forget the rig -----------------------------------------------------
@@ -285,8 +286,8 @@ def inpaint_masked(images: Tensor, masks: Tensor) -> Tensor:
         pm = cv2.dilate(pm[..., 0] if pm.ndim == 3 else pm, np.ones((3, 3), np.uint8))
         filled = cv2.inpaint(pol, pm, 3, cv2.INPAINT_TELEA).astype(np.float32) / 255.0
         back = np.stack([from_polar(filled[..., c], h, w, radius, step) for c in range(3)])
-        sel = torch.from_numpy(m)
-        out[i][:, sel] = torch.from_numpy(back).to(out.dtype)[:, sel]
+        sel = torch.from_numpy(m).to(out.device)
+        out[i][:, sel] = torch.from_numpy(back).to(out)[:, sel]
     return out
 
 
@@ -299,8 +300,8 @@ def fill_floor_depth(depth: Tensor, masks: Tensor, ring_deg: float = 8.0) -> Ten
 
     v, _, h, w = depth.shape
     small = F.interpolate(masks.float(), size=(h, w), mode="area") > 0  # any overlap
-    dirs = erp_directions(h, w, dtype=torch.float64).reshape(-1, 3)
-    lat = 90.0 - 180.0 * (torch.arange(h, dtype=torch.float64) + 0.5) / h
+    dirs = erp_directions(h, w, device=depth.device, dtype=torch.float64).reshape(-1, 3)
+    lat = 90.0 - 180.0 * (torch.arange(h, dtype=torch.float64, device=depth.device) + 0.5) / h
     out = depth.clone()
     for i in range(v):
         m = small[i, 0]
@@ -314,7 +315,7 @@ def fill_floor_depth(depth: Tensor, masks: Tensor, ring_deg: float = 8.0) -> Ten
         if ok.sum() < 16:
             continue
         pts = dirs[ok] * d[ok, None]
-        a = torch.linalg.lstsq(pts, torch.ones(len(pts), 1, dtype=torch.float64)).solution[:, 0]
+        a = torch.linalg.lstsq(pts, torch.ones_like(pts[:, :1])).solution[:, 0]
         normal = a / torch.linalg.vector_norm(a).clamp(min=1e-12)
         if float(normal[1]) > -math.cos(math.radians(30.0)):  # the plane must be below, level
             continue

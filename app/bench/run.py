@@ -109,6 +109,8 @@ def _score(rgb: Tensor, truth: Tensor) -> dict[str, float]:
 def _render(setting, views, c2w, height, models, gl) -> tuple[Tensor, float]:
     t0 = time.perf_counter()
     rgb = render_setting(setting, views, c2w, height, models, gl)
+    if rgb.is_cuda:  # the GPU's work done, not only queued
+        torch.cuda.synchronize(rgb.device)
     return rgb, time.perf_counter() - t0
 
 
@@ -156,11 +158,11 @@ def _prepare_cached(setting: Setting, views: SourceViews, models: Models, cfg) -
         session.prepare_views(views, models, method, quality, cfg.cache_dir, cfg.use_cache)
 
 
-def _triplet_views(folder: Path, refine=None) -> tuple[SourceViews, Tensor, Tensor]:
+def _triplet_views(folder: Path, refine=None, device=None) -> tuple[SourceViews, Tensor, Tensor]:
     from panogrf.app.scene.folder import load_scene
 
     d = load_scene(folder, load_images=True).images
-    views = SourceViews(d.images[[0, 2]], d.c2w[[0, 2]], refine=refine)
+    views = SourceViews(d.images[[0, 2]], d.c2w[[0, 2]], refine=refine, device=device)
     return views, d.c2w[1], d.images[1:2]
 
 
@@ -178,7 +180,7 @@ def run_bench(cfg: BenchConfig, models: Models, log: Callable[[str], None] = pri
     }
     try:
         for n, (b, folder) in enumerate(triplets + real):
-            views, c2w, truth = _triplet_views(folder, cfg.refine)
+            views, c2w, truth = _triplet_views(folder, cfg.refine, models.device)
             line = [f"[{n + 1}/{len(triplets) + len(real)}] {folder.name} ({b or 'real'} m)"]
             for s in cfg.settings:
                 t0 = time.perf_counter()
@@ -200,7 +202,7 @@ def run_bench(cfg: BenchConfig, models: Models, log: Callable[[str], None] = pri
         cases = make_cases(cfg.case_height, cfg.cases, cfg.sweep) if cfg.cases or cfg.sweep else []
         case_out: dict[str, dict[str, Rendered]] = {}
         for case in cases:
-            views = SourceViews(case.images, case.c2w, refine=cfg.refine)
+            views = SourceViews(case.images, case.c2w, refine=cfg.refine, device=models.device)
             case_out[case.name] = {}
             for s in cfg.settings:
                 rgb, sec = _render(s, views, case.target_c2w, cfg.case_height, models, gl)

@@ -102,13 +102,13 @@ def prepare_setting(setting: Setting, views: SourceViews, models: Models, gl: GL
         from panogrf.app.files.images import to_uint8
         from panogrf.renderer.gl_preview import PreviewRenderer
 
-        depth = views.depth_for("full", models)[:, 0].numpy()
+        depth = views.depth_for("full", models)[:, 0].cpu().numpy()
         start = time.perf_counter()
         views.fitted[key] = PreviewRenderer(
             gl.get(),
             to_uint8(views.images),
             depth,
-            views.c2w.numpy(),
+            views.c2w.cpu().numpy(),
             setting.mesh_rows,
         )
         views.seconds[f"mesh:{key}"] = time.perf_counter() - start
@@ -126,7 +126,7 @@ def render_setting(
     prepare_setting(setting, views, models, gl)
     if setting.method != "gl":
         return render_view(setting.method, views, tgt_c2w, height, models, setting.quality)
-    rgb, _ = views.fitted[setting.name].render(tgt_c2w.double().numpy(), height)
+    rgb, _ = views.fitted[setting.name].render(tgt_c2w.double().cpu().numpy(), height)
     return torch.from_numpy(rgb).permute(2, 0, 1).float() / 255.0
 
 

@@ -27,6 +27,7 @@ from panogrf.app.runtime import (
     add_refine_depth,
     metres_list,
     refine_setting,
+    resolve_device,
     thread_count,
 )
 
@@ -153,7 +154,8 @@ def run(args: argparse.Namespace) -> int:
         sweep=args.sweep,
         cases=cases,
     )
-    report = run_bench(cfg, session.default_models(), log=lambda s: print(s, flush=True))
+    models = session.default_models(resolve_device(args.device))
+    report = run_bench(cfg, models, log=lambda s: print(s, flush=True))
     from panogrf.app.bench.report import format_table
 
     written = write_outputs(report, args.out)

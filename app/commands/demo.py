@@ -34,11 +34,13 @@ def register(subparsers) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from panogrf.app.files.images import to_uint8, write_rgb
+    from panogrf.app.runtime import resolve_device
     from panogrf.app.scene.consistency import reprojection_check
     from panogrf.app.scene.folder import load_scene
     from panogrf.app.visualize import colorize_depth, stack_rows
     from panogrf.assets import path as asset_path
 
+    device = resolve_device(args.device)
     root = args.scene or asset_path("demo")
     scene = load_scene(root, load_images=True)
     data = scene.images
@@ -53,13 +55,13 @@ def run(args: argparse.Namespace) -> int:
             f"({r.baseline_m:.2f} m): depth warp {r.psnr_depth_warp:.2f} dB vs rotation only "
             f"{r.psnr_rotation_only:.2f} dB on {r.covered:.0%} of the pixels"
         )
-    estimates = _estimate_depth(data, args.cache_dir, not args.no_cache)
+    estimates = _estimate_depth(data, args.cache_dir, not args.no_cache, device)
     rows = []
     max_depth = float(data.depths.max())
     for i in range(scene.num_views):
         rgb = to_uint8(data.images[i])
         rows += [rgb, colorize_depth(data.depths[i, 0].numpy(), max_depth)]
-        rows.append(colorize_depth(estimates["full"][i, 0].numpy(), max_depth))
+        rows.append(colorize_depth(estimates["full"][i, 0].cpu().numpy(), max_depth))
     try:
         args.out.mkdir(parents=True, exist_ok=True)
         sheet = args.out / "demo_views.png"
@@ -70,12 +72,17 @@ def run(args: argparse.Namespace) -> int:
     from panogrf.renderer.nadir import nadir_setting
 
     nadir = nadir_setting(scene.metadata, args.nadir_cap)
-    _novel_view(data, args.out, args.cache_dir, not args.no_cache, nadir)
+    _novel_view(data, args.out, args.cache_dir, not args.no_cache, nadir, device)
     return 0
 
 
 def _novel_view(
-    data, out: Path, cache_dir: Path | None = None, use_cache: bool = True, nadir="auto"
+    data,
+    out: Path,
+    cache_dir: Path | None = None,
+    use_cache: bool = True,
+    nadir="auto",
+    device="cpu",
 ) -> None:
     """The middle view rendered from the outer two by PanoGRF and the baselines, scored
     against the real middle panorama; then a short preview video along the three views."""
@@ -91,13 +98,17 @@ def _novel_view(
     from panogrf.model import refine
     from panogrf.renderer.methods import SourceViews, render_view
 
-    models = session.default_models()
+    models = session.default_models(device)
     v = data.images.shape[0]
     target = v // 2
     sources = [i for i in range(v) if i != target]
     # As `panogrf render` and `view` by default: the sources' depth refined for the scene.
     views = SourceViews(
-        data.images[sources], data.c2w[sources], refine=refine.PREPARE_REFINE, nadir=nadir
+        data.images[sources],
+        data.c2w[sources],
+        refine=refine.PREPARE_REFINE,
+        nadir=nadir,
+        device=models.device,
     )
     height = data.images.shape[-2]
     print(f"novel view: frame {target} rendered from frames {sources} ({height}x{2 * height}):")
@@ -122,7 +133,7 @@ def _novel_view(
     write_rgb(sheet, stack_rows(rows))
     print(f"wrote {sheet} (real middle view, then PanoGRF, meshwarp, nearest)")
     poses = interpolate_keyframes(data.c2w.numpy().astype(np.float64), 48)
-    walk = SourceViews(data.images, data.c2w, nadir=nadir)
+    walk = SourceViews(data.images, data.c2w, nadir=nadir, device=models.device)
     session.prepare_views(walk, models, "panogrf", "preview", cache_dir, use_cache)
     frames = FrameRenderer(walk, models, "preview")
     video = out / "walk_preview.mp4"
@@ -135,7 +146,9 @@ def _novel_view(
     print(f"wrote {video} ({sink.count} frames of the GL preview walking through the views)")
 
 
-def _estimate_depth(data, cache_dir: Path | None = None, use_cache: bool = True) -> dict:
+def _estimate_depth(
+    data, cache_dir: Path | None = None, use_cache: bool = True, device="cpu"
+) -> dict:
     """Depth of every view by mode, with its error against the ground truth printed."""
     import time
 
@@ -143,17 +156,18 @@ def _estimate_depth(data, cache_dir: Path | None = None, use_cache: bool = True)
     from panogrf.app.weights.networks import NETWORKS, load_depth_estimator
     from panogrf.model.metrics import depth_metrics
 
-    estimator = load_depth_estimator(NETWORKS["full"])
+    estimator = load_depth_estimator(NETWORKS["full"], str(device))
+    images, c2w = data.images.to(device), data.c2w.to(device)
     print("depth estimation (each view uses the others as sources), error vs ground truth:")
     out = {}
     for mode in ("mono", "full"):
         start = time.perf_counter()
         if use_cache:  # shared with `panogrf depth` (the same estimate of the same views)
-            est, cache = estimate_cached(estimator, data.images, data.c2w, mode, cache_dir)
+            est, cache = estimate_cached(estimator, images, c2w, mode, cache_dir)
             how = "" if cache.status == "built" else f", {cache.status}"
         else:
-            est, how = estimator(data.images, data.c2w, mode), ""
-        depth = est.depth
+            est, how = estimator(images, c2w, mode), ""
+        depth = est.depth.cpu()
         seconds = time.perf_counter() - start
         errors = []
         for i in range(depth.shape[0]):

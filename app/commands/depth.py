@@ -11,7 +11,6 @@ from pathlib import Path
 
 import torch
 
-from panogrf.app.errors import UserError
 from panogrf.app.runtime import add_prepare_options
 from panogrf.app.scene.estimate import (
     METRIC_COLUMNS,
@@ -56,26 +55,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--mode", choices=MODES, default="full", help="which estimator (default full)"
     )
-    parser.add_argument("--device", default="cpu", help="torch device, e.g. cuda (default: cpu)")
     add_prepare_options(parser, nadir=False)
     parser.set_defaults(func=run)
 
 
-def _device(name: str) -> torch.device:
-    try:
-        device = torch.device(name)
-    except RuntimeError:
-        raise UserError(f"--device: unknown torch device {name!r} (e.g. cpu, cuda)") from None
-    if device.type == "cuda" and not torch.cuda.is_available():
-        raise UserError(f"--device {name}: CUDA is not available on this machine")
-    return device
-
-
 def run(args: argparse.Namespace) -> int:
+    from panogrf.app.runtime import resolve_device
     from panogrf.app.scene.folder import load_scene
     from panogrf.app.weights import networks as depth_weights
 
-    device = _device(args.device)
+    device = resolve_device(args.device)
     # Scene and output folder problems first: they need no networks.
     prepare_out_dir(args.scene, args.out)
     scene = load_scene(args.scene, load_images=True)

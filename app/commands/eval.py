@@ -32,6 +32,7 @@ from panogrf.app.runtime import (
     add_refine_depth,
     refine_setting,
     refuse_scene_inputs,
+    resolve_device,
     thread_count,
 )
 from panogrf.renderer.methods import METHODS, Kind
@@ -139,7 +140,7 @@ def run(args: argparse.Namespace) -> int:
     scenes, baselines = triplets_by_baseline(args.dataset, baselines, args.limit)
     for _, folder in scenes:  # the report must not replace a scene's own file
         refuse_scene_inputs(args.out, load_scene(folder))
-    models = session.default_models()
+    models = session.default_models(resolve_device(args.device))
     rows = {label(*m): {b: [] for b in baselines} for m in methods}
     seen: dict[float, int] = {b: 0 for b in baselines}
     start_all = time.perf_counter()
@@ -152,6 +153,7 @@ def run(args: argparse.Namespace) -> int:
             data.c2w[[0, 2]],
             refine=refine_setting(args),
             nadir=nadir_setting(scene.metadata, args.nadir_cap),
+            device=models.device,
         )
         index = seen[b]
         seen[b] += 1

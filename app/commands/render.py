@@ -23,6 +23,7 @@ from panogrf.app.runtime import (
     frame_indices,
     refine_setting,
     refuse_scene_inputs,
+    resolve_device,
     thread_count,
 )
 from panogrf.app.scene import session
@@ -157,13 +158,14 @@ def run(args: argparse.Namespace) -> int:
     else:
         tgt = torch.from_numpy(parse_c2w(args.c2w)).to(data.c2w.dtype)
     height = args.height or scene.height
+    models = session.default_models(resolve_device(args.device))
     views = SourceViews(
         data.images[sources],
         data.c2w[sources],
         refine=refine_setting(args),
         nadir=nadir_setting(scene.metadata, args.nadir_cap),
+        device=models.device,
     )
-    models = session.default_models()
     start = time.perf_counter()
     frames = FrameRenderer(views, models, args.quality, args.method)
     try:
@@ -264,16 +266,17 @@ def run_path(args: argparse.Namespace) -> int:
     scene = load_scene(args.scene, load_images=True)
     refuse_scene_inputs(args.out, scene, folder=args.out.suffix.lower() != ".mp4")
     data = scene.images
+    models = session.default_models(resolve_device(args.device))
     views = SourceViews(
         data.images,
         data.c2w,
         refine=refine_setting(args),
         nadir=nadir_setting(scene.metadata, args.nadir_cap),
+        device=models.device,
     )
     warning = path_warning(np.asarray(path.poses, dtype=np.float64), scene.c2w)
     if warning:
         print(warning, flush=True)
-    models = session.default_models()
     frames = FrameRenderer(views, models, args.quality, args.method)
     start = time.perf_counter()
     try:
@@ -288,12 +291,7 @@ def run_path(args: argparse.Namespace) -> int:
         frames.prepare()
         prep = time.perf_counter() - start
         if "full" in views.depth:  # the estimated depth says where the surfaces are
-            depth = views.depth["full"][:, 0].double().numpy()
-            inside = inside_warning(np.asarray(path.poses, np.float64), scene.c2w, depth)
-            if inside:
-                print(inside, flush=True)
-        if "full" in views.depth:  # the estimated depth says where the surfaces are
-            depth = views.depth["full"][:, 0].double().numpy()
+            depth = views.depth["full"][:, 0].double().cpu().numpy()
             inside = inside_warning(np.asarray(path.poses, np.float64), scene.c2w, depth)
             if inside:
                 print(inside, flush=True)

@@ -22,6 +22,7 @@ from panogrf.app.runtime import (
     add_refine_depth,
     frame_indices,
     refine_setting,
+    resolve_device,
     thread_count,
 )
 
@@ -63,10 +64,11 @@ def run_prepare(args: argparse.Namespace) -> int:
     if args.threads:
         torch.set_num_threads(args.threads)
     refine = refine_setting(args)
+    models = session.default_models(resolve_device(args.device))
     start = time.perf_counter()
     if args.sources is None:
         prepared = session.prepare_scene(
-            args.dir, args.cache_dir, refine=refine, log=_quiet, nadir_cap=args.nadir_cap
+            args.dir, args.cache_dir, models, refine=refine, log=_quiet, nadir_cap=args.nadir_cap
         )
         result, views = prepared.cache, prepared.scene.num_views
         what = f"all {views} views"
@@ -84,8 +86,9 @@ def run_prepare(args: argparse.Namespace) -> int:
             data.c2w[args.sources],
             refine=refine,
             nadir=nadir_setting(scene.metadata, args.nadir_cap),
+            device=models.device,
         )
-        result = session.prepare_views(views, session.default_models(), cache_dir=args.cache_dir)
+        result = session.prepare_views(views, models, cache_dir=args.cache_dir)
         what = f"sources {','.join(map(str, args.sources))}"
     if result.path == Path("-"):  # e.g. missing weights were reported before; belt and braces
         raise UserError(f"the scene was prepared but not cached: {result.status}")

@@ -12,6 +12,7 @@ from panogrf.app.runtime import (
     add_prepare_options,
     add_refine_depth,
     refine_setting,
+    resolve_device,
     thread_count,
 )
 
@@ -149,6 +150,7 @@ def _session(args: argparse.Namespace, threads: int) -> int:
         session.prepare_scene,
         args.scene,
         args.cache_dir,
+        session.default_models(resolve_device(args.device)),
         refine=refine_setting(args),
         defer_refine=True,
         use_cache=not args.no_cache,

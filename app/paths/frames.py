@@ -90,7 +90,7 @@ class FrameRenderer:
         if self._preview is None:
             from panogrf.renderer.gl_preview import PreviewRenderer
 
-            depth = self.views.depth_for("full", self.models)[:, 0].numpy()
+            depth = self.views.depth_for("full", self.models)[:, 0].cpu().numpy()
             images = to_uint8(self.views.images)
             self._context()
             mask = self.views.nadir_mask
@@ -98,8 +98,8 @@ class FrameRenderer:
                 self._ctx,
                 images,
                 depth,
-                self.views.c2w.numpy(),
-                masks=None if mask is None else mask[:, 0].numpy(),
+                self.views.c2w.cpu().numpy(),
+                masks=None if mask is None else mask[:, 0].cpu().numpy(),
             )
         return self._preview
 

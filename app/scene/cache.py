@@ -46,8 +46,8 @@ def content_key(
     if setting:
         h.update(setting.encode())
     h.update(str(tuple(images.shape)).encode())
-    h.update((images.clamp(0, 1) * 255).round().to(torch.uint8).numpy().tobytes())
-    h.update(c2w.to(torch.float64).numpy().tobytes())
+    h.update((images.clamp(0, 1) * 255).round().to(torch.uint8).cpu().numpy().tobytes())
+    h.update(c2w.to(torch.float64).cpu().numpy().tobytes())
     for path in weight_files:
         h.update(path.name.encode())
         h.update(path.read_bytes())
@@ -99,8 +99,11 @@ def _cache_path(views: SourceViews, cache_dir: Path | None, weight_files: list[P
     setting = "" if views.refine is None else f"refine {views.refine!r}"
     mask = getattr(views, "nadir_mask", None)  # sources masked at the nadir: keyed by the mask
     if mask is not None:
-        digest = hashlib.sha256(mask.to(torch.uint8).contiguous().numpy().tobytes()).hexdigest()
+        mask = mask.to(torch.uint8).cpu().contiguous()
+        digest = hashlib.sha256(mask.numpy().tobytes()).hexdigest()
         setting += f" nadir {tuple(mask.shape)} {digest}"
+    if views.images.device.type != "cpu":  # another device's arithmetic: its own entry
+        setting += f" on {views.images.device.type}"
     key = content_key(views.images, views.c2w, weight_files, setting)
     return key, cache_dir / f"{key}.safetensors"
 
@@ -130,6 +133,7 @@ def _load(
     try:
         tensors = load_file(str(path))
         why = _problem(tensors, key, views, c)
+        tensors = {k: t.to(views.images.device) for k, t in tensors.items()}
     except (SafetensorError, OSError, ValueError, RuntimeError) as exc:
         why = f"unreadable ({type(exc).__name__})"
     if why is not None:
@@ -170,8 +174,8 @@ def prepare_cached(
         return loaded
     cache = build_maps(views, models)
     tensors = {
-        "depth": cache.depth.contiguous(),
-        "maps": cache.maps.contiguous(),
+        "depth": cache.depth.cpu().contiguous(),
+        "maps": cache.maps.cpu().contiguous(),
         "__key__": torch.tensor(list(key.encode()), dtype=torch.uint8),
     }
     status = "built" if why is None else f"rebuilt: {why}"

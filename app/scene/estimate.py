@@ -202,9 +202,10 @@ def estimate_scene(
             image_file = f"images/{stem}{frame.image_path.suffix.lower()}"
             write_bytes_atomic(out_dir / image_file, frame.image_path.read_bytes())
             depth_file = f"depth/{stem}.png"
-            write_depth(out_dir / depth_file, depth[i, 0].numpy())
+            write_depth(out_dir / depth_file, depth[i, 0].cpu().numpy())
             write_rgb(
-                out_dir / f"preview/{stem}.png", colorize_depth(depth[i, 0].numpy(), preview_max)
+                out_dir / f"preview/{stem}.png",
+                colorize_depth(depth[i, 0].cpu().numpy(), preview_max),
             )
             # Keep the frame's own extra keys (nerfstudio intrinsics, ...), repoint the files.
             frames.append(

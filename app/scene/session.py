@@ -23,6 +23,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+import torch
+
 from panogrf.app.errors import UserError
 from panogrf.app.scene.estimate import DepthRun, estimate_scene
 from panogrf.model.refine import RefineConfig
@@ -51,14 +53,20 @@ class ShippedModels(Models):
     a training's) is prepared afresh and never cached."""
 
 
-def default_models() -> Models:
-    """`Models` that load the shipped weights (each network once per process)."""
+def default_models(device: torch.device | str = "cpu") -> Models:
+    """`Models` that load the shipped weights onto ``device`` (each network once per process
+    and device)."""
     from panogrf.app.weights.networks import NETWORKS, load_depth_estimator, load_renderer
 
-    def estimator(mode: str):
-        return load_depth_estimator(NETWORKS[mode])
+    device = torch.device(device)
 
-    return ShippedModels(estimator=estimator, renderer=load_renderer)
+    def estimator(mode: str):
+        return load_depth_estimator(NETWORKS[mode], str(device))
+
+    def renderer(preset: str):
+        return load_renderer(preset, str(device))
+
+    return ShippedModels(estimator=estimator, renderer=renderer, device=device)
 
 
 def weight_files(method: str = "panogrf") -> list[Path]:
@@ -141,11 +149,13 @@ def _prepare_scene(
 
     from panogrf.app.scene.cache import CacheResult, build_maps, load_cached, prepare_cached
 
-    views = SourceViews(scene.images.images, scene.images.c2w, refine=refine, nadir=nadir)
-    log(f"preparing {scene_dir} ({scene.num_views} views, {scene.width}x{scene.height})...")
-    deferring = defer_refine and refine is not None
     if models is None:
         models = default_models()
+    views = SourceViews(
+        scene.images.images, scene.images.c2w, refine=refine, nadir=nadir, device=models.device
+    )
+    log(f"preparing {scene_dir} ({scene.num_views} views, {scene.width}x{scene.height})...")
+    deferring = defer_refine and refine is not None
     on_disk = use_cache and isinstance(models, ShippedModels)
     result = files = None
     if on_disk:

@@ -97,10 +97,12 @@ class ViewerSetup:
 
         return cls(
             images=to_uint8(views.images),
-            depth=views.depth["full"][:, 0].numpy(),
-            c2w=views.c2w.numpy(),
-            start_pose=views.c2w[start_frame].numpy().astype(np.float64),
-            masks=None if (m := getattr(views, "nadir_mask", None)) is None else m[:, 0].numpy(),
+            depth=views.depth["full"][:, 0].cpu().numpy(),
+            c2w=views.c2w.cpu().numpy(),
+            start_pose=views.c2w[start_frame].cpu().numpy().astype(np.float64),
+            masks=None
+            if (m := getattr(views, "nadir_mask", None)) is None
+            else m[:, 0].cpu().numpy(),
             **kw,
         )
 
@@ -187,7 +189,7 @@ class PanoViewer(ExportsMixin, OverlayMixin, mglw.WindowConfig):
             return
         self.scene_swapped = True
         views = prepared.views
-        depth = views.depth["full"][:, 0].numpy()
+        depth = views.depth["full"][:, 0].cpu().numpy()
         old, self.preview = self.preview, self._make_preview(depth)
         old.release()
         self.setup.depth = depth

@@ -150,7 +150,7 @@ class RenderWorker:
             cache, subsets = self.cache, self._subsets
         if count is None or count >= cache.num_views:
             return cache
-        centres = cache.c2w[:, :3, 3].double().numpy()
+        centres = cache.c2w[:, :3, 3].double().cpu().numpy()
         dist = np.linalg.norm(centres - pose[:3, 3], axis=-1)
         key = tuple(sorted(np.argsort(dist, kind="stable")[:count].tolist()))
         if key not in subsets:
@@ -162,7 +162,7 @@ class RenderWorker:
         otherwise pays for growing the heap and first use of the kernels (a few tenths of a
         second here). 64 rows fill whole chunks of rays, as a real render does."""
         height, quality, sources, *_ = self.levels[0]
-        pose = self.cache.c2w[0].double().numpy()
+        pose = self.cache.c2w[0].double().cpu().numpy()
         render_panorama(
             self.net,
             self._nearest(pose, sources),
@@ -209,7 +209,7 @@ class RenderWorker:
                     if self._generation == gen:
                         self._progress = f
 
-            tgt = torch.from_numpy(pose).to(self.cache.images.dtype)
+            tgt = torch.from_numpy(pose).to(self.cache.images)
             for level, (height, quality, sources, rows, reads) in enumerate(self.levels):
                 # Above ``rows`` the network renders at ``rows`` and the sources add the detail.
                 detail = replace(DEFAULT_DETAIL, net_height=rows, sampling=reads)

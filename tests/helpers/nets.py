@@ -15,9 +15,10 @@ from panogrf.renderer.cache import SceneCache, build_cache
 from panogrf.renderer.methods import Models
 
 
-def random_models() -> Models:
+def random_models(device="cpu") -> Models:
     """`Models` with tiny seeded random networks (depth estimated at 32 rows, its photometric
-    sweep at twice that, as the shipped estimator sweeps at twice its 128 rows)."""
+    sweep at twice that, as the shipped estimator sweeps at twice its 128 rows), on the CPU
+    (``device`` is taken as `panogrf.app.scene.session.default_models` takes it)."""
     torch.manual_seed(0)
     mvs = {m: MVSNet(MVS_PRESETS[m]).eval() for m in ("full", "mvs")}
     sweep = replace(DEFAULT_SWEEP, height=64)

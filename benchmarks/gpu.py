@@ -1,0 +1,250 @@
+"""The chain on a GPU against the CPU: a new scene end to end, renders, memory, the same pixels.
+
+    python benchmarks/gpu.py --data data/loo_lit [--device cuda] [--scenes 6] \
+        [--cpu-scenes 1] [--out benchmarks/results/gpu.json] [--profile DIR]
+
+For each scene folder of three 512x1024 panoramas (the middle one is the target):
+
+- **new scene end to end**: the two outer panoramas read from disk, exposure balance, mode full's
+  depth, the per-scene refinement, the renderer's feature maps and the first `fast` render of
+  the middle view at 512 rows, on ``--device`` (the GPU synchronised before every clock read),
+  with each stage's seconds; the first scene is the cold start (CUDA context, kernels loaded);
+  the table gives the median of the others. The same on the CPU for ``--cpu-scenes`` scenes
+  (this machine's cores: say which).
+- **renders** of a prepared scene: `fast` and `paper` at 512 and 1024 rows, median of 5 after
+  two warm-ups; the viewer's refined view is the `fast` render at 512 rows.
+- **peak memory** on the GPU (torch's allocator) over the whole run.
+- **the same pixels**: on the CPU-measured scenes, the depth's L1 between the devices (metres)
+  and the WS-PSNR of each device's render against the true middle view.
+
+``--profile DIR``: torch's profiler over one warm preparation and one `fast` render, the top
+operators by device time written to DIR. Prints a table last and writes JSON.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import statistics
+import time
+from pathlib import Path
+
+import torch
+
+
+def _sync(device: torch.device) -> None:
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+
+
+def new_scene(folder: Path, models, device: torch.device, rows: int = 512) -> dict:
+    """A new scene prepared from its files and its first render, each stage timed."""
+    from panogrf.app.scene.folder import load_scene
+    from panogrf.model.refine import PREPARE_REFINE
+    from panogrf.renderer.methods import METHODS, SourceViews, render_view
+
+    spec = METHODS["panogrf"]
+    times = {}
+    _sync(device)
+    t0 = time.perf_counter()
+    data = load_scene(folder, load_images=True).images
+    times["read"] = time.perf_counter() - t0
+    t = time.perf_counter()
+    views = SourceViews(data.images[[0, 2]], data.c2w[[0, 2]], refine=PREPARE_REFINE, device=device)
+    _sync(device)
+    times["balance"] = time.perf_counter() - t
+    t = time.perf_counter()
+    views.refine = None  # the estimate first, then the refinement, each timed
+    est = models.estimator(spec.depth_mode)
+    with torch.no_grad():
+        depth = views.depth_for(spec.depth_mode, models)
+    _sync(device)
+    times["depth"] = time.perf_counter() - t
+    t = time.perf_counter()
+    views.refine = PREPARE_REFINE
+    depth = views.refined_depth(depth, spec.depth_mode, models)
+    views.depth[spec.depth_mode] = depth
+    _sync(device)
+    times["refine"] = time.perf_counter() - t
+    t = time.perf_counter()
+    views.cache_for(spec, models)
+    _sync(device)
+    times["maps"] = time.perf_counter() - t
+    t = time.perf_counter()
+    rgb = render_view("panogrf", views, data.c2w[1], rows, models, "fast")
+    _sync(device)
+    times["render"] = time.perf_counter() - t
+    times["total"] = time.perf_counter() - t0
+    del est
+    return {"times": times, "views": views, "rgb": rgb, "data": data}
+
+
+def render_times(views, target, models, device, repeats: int = 5, warm: int = 2, skip=()) -> dict:
+    from panogrf.renderer.methods import render_view
+
+    out = {}
+    for quality in ("fast", "paper"):
+        for rows in (512, 1024):
+            if f"{quality}_{rows}" in skip:
+                continue
+            for _ in range(warm):
+                render_view("panogrf", views, target, rows, models, quality)
+            _sync(device)
+            secs = []
+            for _ in range(repeats):
+                t = time.perf_counter()
+                render_view("panogrf", views, target, rows, models, quality)
+                _sync(device)
+                secs.append(time.perf_counter() - t)
+            out[f"{quality}_{rows}"] = statistics.median(secs)
+    return out
+
+
+def profile(views, data, models, device, out_dir: Path) -> None:
+    from torch.profiler import ProfilerActivity
+    from torch.profiler import profile as torch_profile
+
+    from panogrf.model.refine import PREPARE_REFINE
+    from panogrf.renderer.methods import SourceViews, render_view
+
+    activities = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if device.type == "cuda" else [])
+    sort = "self_cuda_time_total" if device.type == "cuda" else "self_cpu_time_total"
+    out_dir.mkdir(parents=True, exist_ok=True)
+    with torch_profile(activities=activities) as prof:
+        fresh = SourceViews(
+            data.images[[0, 2]], data.c2w[[0, 2]], refine=PREPARE_REFINE, device=device
+        )
+        fresh.cache_for("panogrf", models)
+        _sync(device)
+    (out_dir / "profile_prepare.txt").write_text(
+        prof.key_averages().table(sort_by=sort, row_limit=40)
+    )
+    with torch_profile(activities=activities) as prof:
+        render_view("panogrf", views, data.c2w[1], 512, models, "fast")
+        _sync(device)
+    (out_dir / "profile_render.txt").write_text(
+        prof.key_averages().table(sort_by=sort, row_limit=40)
+    )
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--data", type=Path, required=True, help="a dataset folder")
+    parser.add_argument("--device", default="cuda")
+    parser.add_argument("--scenes", type=int, default=6)
+    parser.add_argument("--cpu-scenes", type=int, default=1)
+    parser.add_argument("--profile", type=Path, default=None)
+    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/gpu.json"))
+    args = parser.parse_args()
+
+    from panogrf.app.runtime import resolve_device
+    from panogrf.app.scene.session import default_models
+    from panogrf.app.scoring import image_scores
+
+    device = resolve_device(args.device)
+    index = json.loads((args.data / "dataset.json").read_text())
+    folders = [args.data / e["folder"] for e in index["scenes"]][: args.scenes]
+    models = default_models(device)
+    cpu_models = default_models("cpu")
+    start = time.perf_counter()
+    if device.type == "cuda":
+        torch.cuda.reset_peak_memory_stats(device)
+    runs = []
+    for i, folder in enumerate(folders):
+        r = new_scene(folder, models, device)
+        row = {"scene": folder.name, "device": r["times"]}
+        truth = r["data"].images[1:2]
+        row["ws_psnr_device"] = image_scores(r["rgb"], truth)["ws_psnr"]
+        if i < args.cpu_scenes and device.type != "cpu":
+            c = new_scene(folder, cpu_models, torch.device("cpu"))
+            row["cpu"] = c["times"]
+            row["ws_psnr_cpu"] = image_scores(c["rgb"], truth)["ws_psnr"]
+            d_dev = r["views"].depth["full"].cpu()
+            row["depth_l1_between"] = float((d_dev - c["views"].depth["full"]).abs().mean())
+        if i == 0:
+            row["renders"] = render_times(r["views"], r["data"].c2w[1], models, device)
+            if device.type != "cpu":
+                row["renders_cpu"] = (
+                    render_times(
+                        c["views"],
+                        r["data"].c2w[1],
+                        cpu_models,
+                        torch.device("cpu"),
+                        repeats=1,
+                        warm=1,
+                        skip=("paper_1024",),
+                    )
+                    if "cpu" in row
+                    else {}
+                )
+            if args.profile is not None:
+                profile(r["views"], r["data"], models, device, args.profile)
+        runs.append(row)
+        print(
+            f"{folder.name}: new scene {r['times']['total']:.3f} s on {device} "
+            + " ".join(f"{k} {v:.3f}" for k, v in r["times"].items() if k != "total")
+            + (f"; CPU {row['cpu']['total']:.2f} s" if "cpu" in row else ""),
+            flush=True,
+        )
+    peak = torch.cuda.max_memory_allocated(device) / 2**20 if device.type == "cuda" else None
+    warm = runs[1:] or runs
+    stages = list(runs[0]["device"])
+    summary = {
+        "new_scene_cold_s": runs[0]["device"]["total"],
+        "new_scene_warm_median_s": statistics.median(r["device"]["total"] for r in warm),
+        "stages_warm_median_s": {
+            k: statistics.median(r["device"][k] for r in warm) for k in stages
+        },
+        "renders_s": runs[0]["renders"],
+        "renders_cpu_s": runs[0].get("renders_cpu", {}),
+        "peak_memory_mib": peak,
+    }
+    cpu_rows = [r for r in runs if "cpu" in r]
+    if cpu_rows:
+        summary["new_scene_cpu_s"] = statistics.median(r["cpu"]["total"] for r in cpu_rows)
+        summary["stages_cpu_s"] = {
+            k: statistics.median(r["cpu"][k] for r in cpu_rows) for k in stages
+        }
+        summary["depth_l1_between_m"] = max(r["depth_l1_between"] for r in cpu_rows)
+        summary["ws_psnr_gap_db"] = max(
+            abs(r["ws_psnr_device"] - r["ws_psnr_cpu"]) for r in cpu_rows
+        )
+    name = torch.cuda.get_device_name(device) if device.type == "cuda" else platform.processor()
+    report = {
+        "what": "a new 512x1024 scene end to end on a GPU against the CPU; renders; memory",
+        "device": f"{device}: {name}",
+        "cpu": f"{platform.machine()}, {torch.get_num_threads()} torch threads",
+        "torch": torch.__version__,
+        "data": str(args.data),
+        "summary": summary,
+        "runs": runs,
+        "seconds": round(time.perf_counter() - start, 1),
+    }
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(report, indent=2))
+    print(f"\n{report['device']}; CPU {report['cpu']}; torch {torch.__version__}; wrote {args.out}")
+    print(f"{'what':>34} | {'device':>10} | {'CPU':>10}")
+    cpu_stages = summary.get("stages_cpu_s", {})
+    print(f"{'new scene, cold (first)':>34} | {summary['new_scene_cold_s']:10.3f} | {'':>10}")
+    cpu_total = summary.get("new_scene_cpu_s")
+    cpu_cell = f"{cpu_total:10.3f}" if cpu_total else f"{'-':>10}"
+    warm_s = summary["new_scene_warm_median_s"]
+    print(f"{'new scene, warm (median)':>34} | {warm_s:10.3f} | {cpu_cell}")
+    for k, v in summary["stages_warm_median_s"].items():
+        c = f"{cpu_stages[k]:10.3f}" if k in cpu_stages else f"{'-':>10}"
+        print(f"{'  ' + k:>34} | {v:10.3f} | {c}")
+    for k, v in summary["renders_s"].items():
+        c = summary["renders_cpu_s"].get(k)
+        c = f"{1000 * c:10.1f}" if c else f"{'-':>10}"
+        print(f"{'render ' + k + ' (ms)':>34} | {1000 * v:10.1f} | {c}")
+    if peak is not None:
+        print(f"{'peak GPU memory (MiB)':>34} | {peak:10.0f} |")
+    if cpu_rows:
+        print(f"{'depth L1 between devices (m)':>34} | {summary['depth_l1_between_m']:10.5f} |")
+        print(f"{'WS-PSNR gap between devices (dB)':>34} | {summary['ws_psnr_gap_db']:10.4f} |")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
