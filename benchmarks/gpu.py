@@ -63,6 +63,7 @@ def new_scene(folder: Path, models, device: torch.device, rows: int = 512) -> di
     times["depth"] = time.perf_counter() - t
     t = time.perf_counter()
     views.refine = PREPARE_REFINE
+    views.plain = depth.clone()  # the estimate before the refinement (`parity`)
     depth = views.refined_depth(depth, spec.depth_mode, models)
     views.depth[spec.depth_mode] = depth
     _sync(device)
@@ -80,12 +81,14 @@ def new_scene(folder: Path, models, device: torch.device, rows: int = 512) -> di
     return {"times": times, "views": views, "rgb": rgb, "data": data}
 
 
-def render_times(views, target, models, device, repeats: int = 5, warm: int = 2, skip=()) -> dict:
+def render_times(
+    views, target, models, device, repeats=5, warm=2, skip=(), rows_list=(512, 1024)
+) -> dict:
     from panogrf.renderer.methods import render_view
 
     out = {}
     for quality in ("fast", "paper"):
-        for rows in (512, 1024):
+        for rows in rows_list:
             if f"{quality}_{rows}" in skip:
                 continue
             for _ in range(warm):
@@ -128,6 +131,31 @@ def profile(views, data, models, device, out_dir: Path) -> None:
     )
 
 
+def parity(folders, models, cpu_models, device) -> list[dict]:
+    """Per scene: the depth's L1 between the devices before and after the refinement, and the
+    WS-PSNR of each device's render of the middle view against the truth."""
+    rows = []
+    for folder in folders:
+        r = new_scene(folder, models, device)
+        c = new_scene(folder, cpu_models, torch.device("cpu"))
+        rows.append({"scene": folder.name} | _compare(r, c))
+        print(rows[-1], flush=True)
+    return rows
+
+
+def _compare(r, c) -> dict:
+    from panogrf.app.scoring import image_scores
+
+    truth = r["data"].images[1:2]
+    dev, cpu = r["views"], c["views"]
+    return {
+        "depth_l1_plain": float((dev.plain.cpu() - cpu.plain).abs().mean()),
+        "depth_l1_refined": float((dev.depth["full"].cpu() - cpu.depth["full"]).abs().mean()),
+        "ws_psnr_device": image_scores(r["rgb"], truth)["ws_psnr"],
+        "ws_psnr_cpu": image_scores(c["rgb"], truth)["ws_psnr"],
+    }
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--data", type=Path, required=True, help="a dataset folder")
@@ -135,6 +163,16 @@ def main() -> int:
     parser.add_argument("--scenes", type=int, default=6)
     parser.add_argument("--cpu-scenes", type=int, default=1)
     parser.add_argument("--profile", type=Path, default=None)
+    parser.add_argument("--tf32", choices=("on", "off"), default="on", help="TF32 convolutions")
+    parser.add_argument(
+        "--parity", action="store_true", help="only the CPU against the device, scene by scene"
+    )
+    parser.add_argument(
+        "--render-rows",
+        type=lambda s: tuple(int(x) for x in s.split(",")),
+        default=(512, 1024),
+        help="rows of the timed renders (default 512,1024)",
+    )
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/gpu.json"))
     args = parser.parse_args()
 
@@ -143,6 +181,14 @@ def main() -> int:
     from panogrf.app.scoring import image_scores
 
     device = resolve_device(args.device)
+    torch.backends.cudnn.allow_tf32 = args.tf32 == "on"
+    torch.backends.cuda.matmul.allow_tf32 = args.tf32 == "on"
+    if args.parity:
+        index = json.loads((args.data / "dataset.json").read_text())
+        folders = [args.data / e["folder"] for e in index["scenes"]][: args.scenes]
+        rows = parity(folders, default_models(device), default_models("cpu"), device)
+        args.out.write_text(json.dumps({"parity": rows, "device": str(device)}, indent=2))
+        return 0
     index = json.loads((args.data / "dataset.json").read_text())
     folders = [args.data / e["folder"] for e in index["scenes"]][: args.scenes]
     models = default_models(device)
@@ -163,7 +209,9 @@ def main() -> int:
             d_dev = r["views"].depth["full"].cpu()
             row["depth_l1_between"] = float((d_dev - c["views"].depth["full"]).abs().mean())
         if i == 0:
-            row["renders"] = render_times(r["views"], r["data"].c2w[1], models, device)
+            row["renders"] = render_times(
+                r["views"], r["data"].c2w[1], models, device, rows_list=args.render_rows
+            )
             if device.type != "cpu":
                 row["renders_cpu"] = (
                     render_times(
@@ -174,6 +222,7 @@ def main() -> int:
                         repeats=1,
                         warm=1,
                         skip=("paper_1024",),
+                        rows_list=args.render_rows,
                     )
                     if "cpu" in row
                     else {}

@@ -59,6 +59,12 @@ def default_models(device: torch.device | str = "cpu") -> Models:
     from panogrf.app.weights.networks import NETWORKS, load_depth_estimator, load_renderer
 
     device = torch.device(device)
+    if device.type == "cuda":
+        # TF32 convolutions move the estimated depth by 2-4 mm against the CPU's; in float32
+        # it is the CPU's within 1e-5 m (benchmarks/results/gpu_parity.json). The networks are
+        # small: the GPU's time goes to launches, not to this arithmetic.
+        torch.backends.cudnn.allow_tf32 = False
+        torch.backends.cuda.matmul.allow_tf32 = False
 
     def estimator(mode: str):
         return load_depth_estimator(NETWORKS[mode], str(device))
