@@ -34,7 +34,8 @@ import torch
 #: name -> (depth mode, estimator attributes, SourceViews keywords, what it leaves out)
 VARIANTS: dict[str, tuple[str, dict, dict, str]] = {
     "shipped": ("full", {}, {}, "every stage"),
-    "-exposure": ("full", {}, {"balance": False}, "exposure balance of the sources"),
+    # "-exposure" (the sources' exposure balance, `SourceViews(balance=False)`) was measured at
+    # 0994b38 (`depth_stages_cpu.json`, `depth_stages_gpu.json`): it bought nothing and left.
     "-canonical": (
         "full",
         {"canonical": False},

@@ -112,9 +112,9 @@ def main() -> None:
         plain = SourceViews(images, data.c2w[SOURCES])
         masks, _ = nadir_masks(plain.images, "auto")
         if variant == "weights only":
-            return SourceViews(plain.images, plain.c2w, gains=plain.gains, nadir_mask=masks)
+            return SourceViews(plain.images, plain.c2w, nadir_mask=masks)
         filled = inpaint_masked(plain.images, masks)
-        return SourceViews(filled, plain.c2w, gains=plain.gains)
+        return SourceViews(filled, plain.c2w)
 
     def preview(views: SourceViews) -> torch.Tensor:
         from panogrf.renderer.gl_preview import PreviewRenderer

@@ -92,7 +92,7 @@ def _with_true_depth(views, data, models):
     est = views.depth_for("full", models)
     gt = data.depths[[0, 2]].float()
     gt = torch.nn.functional.interpolate(gt, size=est.shape[-2:], mode="nearest")
-    out = SourceViews(views.images, views.c2w, gains=views.gains)
+    out = SourceViews(views.images, views.c2w)
     out.depth["full"] = torch.where(gt > 0, gt, est)
     return out
 

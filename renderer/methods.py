@@ -30,7 +30,6 @@ import torch
 from torch import Tensor
 
 from panogrf.model.depth import DepthEstimator
-from panogrf.model.photometric import balance_exposure
 from panogrf.model.refine import RefineConfig, nearest_sources, refine_depth
 from panogrf.model.render_net import RendererNet
 from panogrf.renderer.baselines import render_meshwarp, render_nearest
@@ -104,9 +103,8 @@ class Models:
 class SourceViews:
     """Posed source panoramas of one scene and what is derived from them, memoised.
 
-    The panoramas are brought to a common exposure on construction (`balance_exposure`: real
-    captures change exposure between shots); ``gains`` [V, 3] says what was applied (all 1 for
-    a consistent capture). ``balance=False`` keeps them as given.
+    The panoramas are used as given: an exposure balance between them bought nothing in the
+    leave-one-out of the depth chain (`docs/lean-chain.md`) and left.
 
     ``refine``: the multi-view depth is refined per scene by photometric consistency between
     the sources (`panogrf.model.refine.refine_depth`, each view against its two nearest
@@ -131,8 +129,6 @@ class SourceViews:
     caches: dict[tuple[str, str], SceneCache] = field(default_factory=dict)
     fitted: dict[str, object] = field(default_factory=dict)  # per-scene models (snerf)
     seconds: dict[str, float] = field(default_factory=dict)  # preparation time per item
-    balance: bool = True
-    gains: Tensor | None = None  # [V, 3] exposure gains applied to the given images
     refine: RefineConfig | None = None  # per-scene depth refinement (None: none)
     nadir: NadirSetting | Tensor = None  # the rig at the nadir: "auto", degrees, a mask, None
     nadir_mask: Tensor | None = None  # [V, 1, H, W] bool, set on construction from ``nadir``
@@ -143,17 +139,10 @@ class SourceViews:
         if self.device is not None:
             self.device = torch.device(self.device)
             self.images, self.c2w = self.images.to(self.device), self.c2w.to(self.device)
-            if self.gains is not None:
-                self.gains = self.gains.to(self.device)
             if isinstance(self.nadir, Tensor):
                 self.nadir = self.nadir.to(self.device)
             if self.nadir_mask is not None:
                 self.nadir_mask = self.nadir_mask.to(self.device)
-        if self.gains is None:
-            if self.balance:
-                self.images, self.gains = balance_exposure(self.images)
-            else:
-                self.gains = self.images.new_ones(self.images.shape[0], 3)
         if self.nadir_mask is None and self.nadir is not None:
             start = time.perf_counter()
             if isinstance(self.nadir, Tensor):
@@ -216,7 +205,6 @@ class SourceViews:
         out = SourceViews(
             self.images,
             self.c2w,
-            gains=self.gains,
             refine=refine,
             nadir=self.nadir,
             nadir_mask=self.nadir_mask,

@@ -2,7 +2,12 @@
 # Set up everything on a fresh Debian machine: system GL libraries for headless EGL (and Xvfb for
 # the windowed tests), a virtual environment in .venv, and the package with its CPU torch.
 # Safe to run again: it only installs what is missing.
+#   bash scripts/setup.sh --cuda   then replaces the CPU torch by PyTorch's CUDA build of the same
+#                                  version (PANOGRF_CUDA picks the build, default cu128) for an
+#                                  NVIDIA GPU; every command then runs there (--device auto).
 set -euo pipefail
+CUDA=0
+[ "${1:-}" = "--cuda" ] && CUDA=1
 cd "$(dirname "$0")/.."
 
 APT_PACKAGES=(libegl1 libgl1 libegl-mesa0 libgl1-mesa-dri xvfb xdotool libxrender1)
@@ -28,5 +33,12 @@ if ! .venv/bin/python -c "import panogrf.app.cli, torch, moderngl, pytest, pyren
   echo "setup: installing panogrf and its dependencies into .venv"
   .venv/bin/python -m pip install -q --disable-pip-version-check -e ".[dev]"
   touch .venv/.panogrf-installed
+fi
+if [ "$CUDA" = 1 ] && ! .venv/bin/python -c "import torch, sys; sys.exit(torch.version.cuda is None)"; then
+  build=${PANOGRF_CUDA:-cu128}
+  echo "setup: replacing the CPU torch by the CUDA build ($build)"
+  version=$(.venv/bin/python -c "import torch; print(torch.__version__.split('+')[0])")
+  .venv/bin/python -m pip install -q --disable-pip-version-check --force-reinstall \
+    "torch==$version" --index-url "https://download.pytorch.org/whl/$build"
 fi
 echo "setup: ready (.venv/bin/panogrf)"

@@ -24,7 +24,7 @@ from panogrf.app.files.atomic import atomic_output
 from panogrf.renderer.cache import SceneCache
 from panogrf.renderer.methods import METHODS, Models, SourceViews
 
-FORMAT = "panogrf-scene-cache-5"  # 5: a median after the depth's sweep
+FORMAT = "panogrf-scene-cache-6"  # 6: no exposure balance of the sources
 #: The method whose depth and renderer maps the cache holds.
 METHOD = METHODS["panogrf"]
 #: Largest plausible depth in a cache (metres): far beyond any room or street scene.

@@ -176,7 +176,6 @@ def _prepare_scene(
         views = SourceViews(
             views.images,
             views.c2w,
-            gains=views.gains,
             nadir=views.nadir,
             nadir_mask=views.nadir_mask,
             nadir_notes=views.nadir_notes,

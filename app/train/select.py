@@ -41,7 +41,6 @@ from panogrf.app.train.data import load_triplets
 from panogrf.app.train.loop import Steps, held_back, save_trained
 from panogrf.app.train.renderer import _weights_key
 from panogrf.model.depth import DepthEstimator
-from panogrf.model.photometric import balance_exposure
 from panogrf.model.select import CONSISTENCY, FEATURES, HypothesisSelector, SelectorConfig
 
 
@@ -197,7 +196,7 @@ def fusion_runs(
     for n, i in enumerate(tqdm(indices, desc="recording the fusion", unit="scene")):
         images = data.images[i, [0, 2]].float() / 255.0
         if float(torch.rand(1, generator=gen)) < cfg.photometric:
-            images = balance_exposure(photometric(images, gen))[0]
+            images = photometric(images, gen)
         c2w = data.c2w[i, [0, 2]]
         shifted = float(torch.rand(1, generator=gen)) < cfg.shift
         # Drawn only when asked for, so that runs without them record what they always did.

@@ -109,7 +109,9 @@ def test_eval_on_a_plain_folder_of_scenes_and_on_one_scene(tmp_path, monkeypatch
     def no_network(_):
         raise AssertionError("the nearest method needs no network")
 
-    monkeypatch.setattr(session, "default_models", lambda device=None: Models(no_network, no_network))
+    monkeypatch.setattr(
+        session, "default_models", lambda device=None: Models(no_network, no_network)
+    )
     folder = tmp_path / "mine"
     for name in ("kitchen", "hall"):
         shutil.copytree(DEMO, folder / name)
