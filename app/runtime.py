@@ -91,7 +91,9 @@ def frame_indices(text: str) -> list[int]:
 
 
 def thread_count(text: str) -> int:
-    """argparse type of ``--threads``: 0 (torch's default, every core) or a positive count."""
+    """argparse type of ``--threads``: 0 (torch's default, every core) or a positive count of
+    at most four per core (far more threads crash OpenMP's runtime)."""
+    import os
 
     try:
         value = int(text)
@@ -99,7 +101,36 @@ def thread_count(text: str) -> int:
         raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
     if value < 0:
         raise argparse.ArgumentTypeError(f"expected 0 (all cores) or more, got {value}")
+    cores = os.cpu_count() or 1
+    if value > 4 * cores:
+        raise argparse.ArgumentTypeError(
+            f"expected at most {4 * cores} (4 per core; this machine has {cores}), got {value}"
+        )
     return value
+
+
+def number(kind=float, low=None, high=None, low_open: bool = False):
+    """argparse type of a numeric option: ``kind`` (float or int), finite, at least ``low``
+    (above it when ``low_open``) and at most ``high`` (None: no bound). One line when not."""
+    import math
+
+    def parse(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            what = "a whole number" if kind is int else "a number"
+            raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
+        if not math.isfinite(value):
+            raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+        if low is not None and (value <= low if low_open else value < low):
+            bound = f"more than {low}" if low_open else f"at least {low}"
+            raise argparse.ArgumentTypeError(f"expected {bound}, got {value}")
+        if high is not None and value > high:
+            raise argparse.ArgumentTypeError(f"expected at most {high}, got {value}")
+        return value
+
+    parse.__name__ = kind.__name__  # argparse names the type in its messages
+    return parse
 
 
 def metres_list(text: str) -> tuple[float, ...]:

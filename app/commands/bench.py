@@ -26,6 +26,7 @@ from panogrf.app.runtime import (
     add_prepare_options,
     add_refine_depth,
     metres_list,
+    number,
     refine_setting,
     resolve_device,
     thread_count,
@@ -63,7 +64,7 @@ def register(subparsers) -> None:
     )
     parser.add_argument(
         "--time-budget",
-        type=float,
+        type=number(float, 0.0, low_open=True),
         default=30.0,
         help="seconds: a setting predicted slower at --time-height is not rendered there; its "
         "time is predicted from the --height render (marked * in the table)",

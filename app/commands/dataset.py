@@ -7,7 +7,7 @@ import json
 from pathlib import Path
 
 from panogrf.app.errors import UserError
-from panogrf.app.runtime import metres_list
+from panogrf.app.runtime import metres_list, number
 
 
 def _baselines(text: str) -> tuple[float, ...]:
@@ -84,8 +84,8 @@ def register(subparsers) -> None:
         help="home world: the fraction of scenes whose windows get sheer or lace curtains, "
         "pleated and glowing in front of the glass (default 0)",
     )
-    make.add_argument("--seed", type=int, default=0, help="base seed (default 0)")
-    make.add_argument("--start", type=int, default=0, help="index of the first scene")
+    make.add_argument("--seed", type=number(int, 0), default=0, help="base seed (default 0)")
+    make.add_argument("--start", type=number(int, 0), default=0, help="index of the first scene")
     make.add_argument("--json", action="store_true", help="print the summary as JSON")
     make.add_argument("--no-progress", action="store_true", help="no progress bar")
     make.set_defaults(func=run_make)
@@ -103,7 +103,9 @@ def register(subparsers) -> None:
         "data/train_mix:600:200",
     )
     pack.add_argument("--out", type=Path, required=True, help="the pack (.safetensors)")
-    pack.add_argument("--height", type=int, default=128, help="working height (default 128)")
+    pack.add_argument(
+        "--height", type=number(int, 8, 4096), default=128, help="working height (default 128)"
+    )
     pack.add_argument(
         "--colour-only",
         action="store_true",

@@ -15,6 +15,7 @@ import numpy as np
 from panogrf.app.errors import UserError
 from panogrf.app.files.images import read_rgb
 from panogrf.app.poses import scale as sc
+from panogrf.app.runtime import number
 
 _CONVENTIONS = """\
 Written poses: camera-to-world 4x4, OpenGL camera frame (x right, y up, looking down -z),
@@ -160,7 +161,11 @@ def _add_import(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--out", type=Path, required=True, help="scene folder to write")
     group = parser.add_mutually_exclusive_group()
     group.add_argument("--distance", help="I,J=METRES: views I and J are this far apart")
-    group.add_argument("--scale", type=float, help="multiply the tool's units by this")
+    group.add_argument(
+        "--scale",
+        type=number(float, 0.0, low_open=True),
+        help="multiply the tool's units by this (a positive number)",
+    )
     parser.add_argument(
         "--keep-world", action="store_true", help="keep the tool's world frame (no levelling)"
     )
@@ -205,7 +210,9 @@ def _add_faces(sub: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("panoramas", type=Path, nargs="+", metavar="PANORAMA")
     parser.add_argument("--out", type=Path, required=True, help="output folder")
-    parser.add_argument("--size", type=int, default=0, help="face size in px (default W / 4)")
+    parser.add_argument(
+        "--size", type=number(int, 0, 8192), default=0, help="face size in px (default W / 4)"
+    )
     parser.set_defaults(func=run_faces)
 
 

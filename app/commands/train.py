@@ -6,7 +6,10 @@ import argparse
 from pathlib import Path
 
 from panogrf.app.errors import UserError
-from panogrf.app.runtime import thread_count
+from panogrf.app.runtime import number, thread_count
+
+#: ``--lr``: a positive, finite learning rate.
+LR = number(float, 0.0, 1.0, low_open=True)
 
 
 def register(subparsers) -> None:
@@ -34,7 +37,7 @@ def register(subparsers) -> None:
     depth.add_argument("--out", type=Path, required=True, help="output weights (.safetensors)")
     depth.add_argument("--steps", type=int, default=2500, help="optimiser steps (default 2500)")
     depth.add_argument("--batch", type=int, default=8, help="batch size (default 8)")
-    depth.add_argument("--lr", type=float, default=1e-3, help="initial learning rate")
+    depth.add_argument("--lr", type=LR, default=1e-3, help="initial learning rate")
     depth.add_argument("--height", type=int, default=128, help="working height (default 128)")
     depth.add_argument("--seed", type=int, default=0, help="seed (default 0)")
     depth.add_argument("--mono", type=Path, default=None, help="stage mvs: mono weights")
@@ -130,7 +133,7 @@ def register(subparsers) -> None:
     renderer.add_argument("--steps", type=int, default=2000, help="optimiser steps (default 2000)")
     renderer.add_argument("--scenes", type=int, default=2, help="scenes per step (default 2)")
     renderer.add_argument("--rays", type=int, default=256, help="rays per scene (default 256)")
-    renderer.add_argument("--lr", type=float, default=1e-3, help="initial learning rate")
+    renderer.add_argument("--lr", type=LR, default=1e-3, help="initial learning rate")
     renderer.add_argument(
         "--height", type=int, default=256, help="panorama height (default 256; depth at half)"
     )
@@ -223,7 +226,7 @@ def _fusion_recording_args(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--steps", type=int, default=1500, help="optimiser steps (default 1500)")
     parser.add_argument("--batch", type=int, default=8, help="views per step (default 8)")
-    parser.add_argument("--lr", type=float, default=2e-3, help="initial learning rate")
+    parser.add_argument("--lr", type=LR, default=2e-3, help="initial learning rate")
     parser.add_argument(
         "--mono-shift",
         type=float,

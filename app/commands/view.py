@@ -11,6 +11,7 @@ from panogrf.app.errors import UserError
 from panogrf.app.runtime import (
     add_prepare_options,
     add_refine_depth,
+    number,
     refine_setting,
     resolve_device,
     thread_count,
@@ -80,7 +81,7 @@ def register(subparsers) -> None:
     )
     parser.add_argument(
         "--fixed-step",
-        type=float,
+        type=number(float, 0.0, 10.0, low_open=True),
         default=None,
         help="seconds of camera motion per frame (default: the wall clock)",
     )

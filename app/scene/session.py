@@ -25,7 +25,6 @@ from pathlib import Path
 
 import torch
 
-from panogrf.app.errors import UserError
 from panogrf.app.scene.estimate import DepthRun, estimate_scene
 from panogrf.model.refine import RefineConfig
 from panogrf.renderer.methods import METHODS, Models, SourceViews
@@ -163,12 +162,10 @@ def _prepare_scene(
     log(f"preparing {scene_dir} ({scene.num_views} views, {scene.width}x{scene.height})...")
     deferring = defer_refine and refine is not None
     on_disk = use_cache and isinstance(models, ShippedModels)
+    _check_shipped(models, "panogrf")
     result = files = None
     if on_disk:
         files = weight_files("panogrf")
-        missing = [p.name for p in files if not p.exists()]
-        if missing:
-            raise UserError(f"missing weights {missing}: reproduce them with `panogrf train`")
         if deferring:
             result, _ = load_cached(views, models, cache_dir, files)
     pending = None
@@ -224,6 +221,15 @@ def refine_prepared(prepared: PreparedScene, should_stop=None, log=print) -> Pre
     )
 
 
+def _check_shipped(models: Models, method: str) -> None:
+    """The weights files ``method`` reads, checked before any work (there, complete, finite:
+    `panogrf.app.weights.networks.check_weights`) when ``models`` load them."""
+    if isinstance(models, ShippedModels):
+        from panogrf.app.weights.networks import check_weights
+
+        check_weights(weight_files(method))
+
+
 def uses_cache(method: str, quality: str = "fast") -> bool:
     """Whether ``method`` at ``quality`` reads what the scene cache holds: PanoGRF's depth
     (mode full, refined as the views say) and its feature maps. The GL preview and meshwarp
@@ -267,6 +273,9 @@ def _prepare_views(views, models, method, quality, cache_dir, use_cache):
 
     start = time.perf_counter()
     spec = METHODS[method]
+    _check_shipped(models, method)
+    if uses_cache(method, quality):  # its depth and maps are PanoGRF's
+        _check_shipped(models, "panogrf")
     result = None
     if not uses_cache(method, quality):
         why = f"not cached: {method} does not read PanoGRF's depth"
@@ -275,11 +284,7 @@ def _prepare_views(views, models, method, quality, cache_dir, use_cache):
     elif not isinstance(models, ShippedModels):
         why = "not cached: given networks"
     else:
-        files = weight_files("panogrf")
-        missing = [p.name for p in files if not p.exists()]
-        if missing:
-            raise UserError(f"missing weights {missing}: reproduce them with `panogrf train`")
-        result = prepare_cached(views, models, cache_dir, files)
+        result = prepare_cached(views, models, cache_dir, weight_files("panogrf"))
     if quality == "preview":
         views.depth_for(METHODS["panogrf"].depth_mode, models)
     elif spec.kind is Kind.NEURAL:

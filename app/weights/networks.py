@@ -13,7 +13,7 @@ from functools import lru_cache
 from pathlib import Path
 
 import torch
-from safetensors import safe_open
+from safetensors import SafetensorError, safe_open
 from safetensors.torch import load_file
 
 from panogrf.app.errors import UserError
@@ -64,13 +64,57 @@ def weights_path(name: str) -> Path:
 
 
 def _metadata(path: Path) -> dict:
-    with safe_open(str(path), framework="pt") as f:
-        return f.metadata() or {}
+    try:
+        with safe_open(str(path), framework="pt") as f:
+            return f.metadata() or {}
+    except (SafetensorError, OSError, ValueError) as exc:
+        raise UserError(f"{path}: {_unreadable(exc)}") from None
+
+
+def _unreadable(exc: Exception) -> str:
+    return (
+        f"not a complete weights file ({type(exc).__name__}): restore it, or reproduce it "
+        "with `panogrf train` (see docs/weights.md)"
+    )
+
+
+def read_weights(path: Path) -> dict[str, torch.Tensor]:
+    """The tensors of the weights file ``path``, checked: there, readable, complete and finite
+    (NaN or infinite weights give NaN-free but meaningless outputs: refused); a `UserError`
+    naming the file otherwise."""
+    if not path.exists():
+        raise UserError(f"missing weights {path}: reproduce them with `panogrf train` (see README)")
+    try:
+        tensors = load_file(str(path))
+    except (SafetensorError, OSError, ValueError, RuntimeError) as exc:
+        raise UserError(f"{path}: {_unreadable(exc)}") from None
+    bad = [k for k, t in tensors.items() if t.is_floating_point() and not bool(t.isfinite().all())]
+    if bad:
+        more = f" and {len(bad) - 1} more" if len(bad) > 1 else ""
+        raise UserError(
+            f"{path}: non-finite values (NaN or inf) in {bad[0]}{more}: restore the file, or "
+            "reproduce it with `panogrf train`"
+        )
+    return tensors
+
+
+_CHECKED: set[tuple[str, int, int]] = set()  # files found sound: (path, mtime, size)
+
+
+def check_weights(paths: list[Path]) -> None:
+    """Every file of ``paths`` checked as `read_weights` does, before any work starts (each
+    file once per process while it is unchanged)."""
+    for path in paths:
+        stat = path.stat() if path.exists() else None
+        key = (str(path), stat.st_mtime_ns, stat.st_size) if stat else None
+        if key in _CHECKED:
+            continue
+        read_weights(path)
+        _CHECKED.add(key)
 
 
 def _load(module: torch.nn.Module, path: Path, expected_config: dict) -> None:
-    if not path.exists():
-        raise UserError(f"missing weights {path}: reproduce them with `panogrf train` (see README)")
+    tensors = read_weights(path)
     stored = json.loads(_metadata(path).get("config", "{}"))
     # Tuples become lists in JSON; compare as JSON. A field added to a config after the weights
     # were trained is absent from their metadata: it matches when the code has it at its default.
@@ -80,7 +124,7 @@ def _load(module: torch.nn.Module, path: Path, expected_config: dict) -> None:
     stored = {**{k: v for k, v in ADDED_DEFAULTS.items() if k in expected}, **stored}
     if stored and expected != stored:
         raise UserError(f"{path}: trained with config {stored}, the code expects {expected_config}")
-    module.load_state_dict(load_file(str(path)))
+    module.load_state_dict(tensors)
     module.eval().requires_grad_(False)
 
 
