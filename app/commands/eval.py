@@ -19,6 +19,7 @@ default). Slow methods can run on the first N scenes of every baseline only (``-
 from __future__ import annotations
 
 import argparse
+import math
 import platform
 import statistics
 import time
@@ -191,7 +192,7 @@ def run(args: argparse.Namespace) -> int:
         for b, items in per_b.items():
             if not items:
                 continue
-            results[name][str(b)] = {m: statistics.fmean(x[m] for x in items) for m in METRICS}
+            results[name][str(b)] = _means(items)
             results[name][str(b)]["scenes"] = len(items)
             results[name][str(b)]["render_ms_median"] = statistics.median(
                 x["render_ms"] for x in items
@@ -224,6 +225,20 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _means(items: list[dict]) -> dict:
+    """Each metric's mean over the scenes where it is defined (SSIM and LPIPS are not below
+    their minimum sizes); ``undefined``: how many scenes each mean left out, where any."""
+    out, left_out = {}, {}
+    for m in METRICS:
+        values = [x[m] for x in items if x[m] is not None and math.isfinite(x[m])]
+        out[m] = statistics.fmean(values) if values else math.nan
+        if len(values) < len(items):
+            left_out[m] = len(items) - len(values)
+    if left_out:
+        out["undefined"] = left_out
+    return out
+
+
 def format_table(results: dict, baselines: list[float]) -> str:
     """The results as a text table: a row per baseline and method."""
     head = (
@@ -240,4 +255,6 @@ def format_table(results: dict, baselines: list[float]) -> str:
                 f"{b:8.1f}  {name:<16} {r['scenes']:3d} {r['psnr']:7.2f} {r['ws_psnr']:8.2f} "
                 f"{r['ssim']:7.4f} {r['lpips']:7.4f} {r['render_ms_median']:9.0f}"
             )
+            for m, n in r.get("undefined", {}).items():
+                lines.append(f"{'':8}  {name:<16} {m}: {n} scene(s) too small to score, left out")
     return "\n".join(lines)

@@ -181,15 +181,30 @@ def run_faces(args: argparse.Namespace) -> int:
     from panogrf.app.files.images import write_rgb
     from panogrf.model.cubemap import FACE_NAMES, erp_to_cubemap
 
+    seen: dict[str, Path] = {}
+    for path in args.panoramas:  # OUT/<stem>/: two panoramas of one stem would share it
+        if path.stem in seen:
+            raise UserError(
+                f"{path} and {seen[path.stem]} share the name {path.stem!r}: their faces would "
+                "land in one folder, the second over the first; rename one"
+            )
+        seen[path.stem] = path
+    if args.out.exists() and not args.out.is_dir():
+        raise UserError(f"--out {args.out}: is a file, not a folder")
     images = read_panoramas(args.panoramas)
     size = args.size or images.shape[3] // 4
-    for path, img in zip(args.panoramas, images, strict=True):
-        erp = torch.from_numpy(img).double()[None] / 255.0
-        faces = erp_to_cubemap(erp, size)[0]
-        folder = args.out / path.stem
-        folder.mkdir(parents=True, exist_ok=True)
-        for name, face in zip(FACE_NAMES, faces, strict=True):
-            write_rgb(folder / f"{name}.png", face.permute(1, 2, 0).numpy())
+    if size < 8:
+        raise UserError(f"--size {size}: faces need at least 8 px")
+    try:
+        for path, img in zip(args.panoramas, images, strict=True):
+            erp = torch.from_numpy(img).double()[None] / 255.0
+            faces = erp_to_cubemap(erp, size)[0]
+            folder = args.out / path.stem
+            folder.mkdir(parents=True, exist_ok=True)
+            for name, face in zip(FACE_NAMES, faces, strict=True):
+                write_rgb(folder / f"{name}.png", face.permute(1, 2, 0).numpy())
+    except OSError as exc:
+        raise UserError(f"cannot write {args.out}: {exc.strerror or exc}") from None
     print(
         f"wrote {len(images)} x 6 faces of {size}x{size} px (90 deg, f = {size / 2} px) "
         f"to {args.out}/<panorama>/<face>.png"

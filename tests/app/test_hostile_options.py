@@ -82,3 +82,38 @@ def test_broken_weights_are_refused_before_any_work(name, how, tmp_path, monkeyp
     assert len(err) == 1 and name in err[0], err
     assert ("non-finite" in err[0]) == (how == "nan")
     assert not out.exists()
+
+
+def test_faces_of_two_panoramas_of_one_name_are_refused(tmp_path, capsys):
+    """S5: a/x.png and b/x.png would write their faces into one folder, the second over the
+    first, while the summary claimed both."""
+    from panogrf.app.files.images import write_rgb
+
+    for sub in ("a", "b"):
+        (tmp_path / sub).mkdir()
+        write_rgb(tmp_path / sub / "x.png", torch.zeros(32, 64, 3, dtype=torch.uint8).numpy())
+    out = tmp_path / "faces"
+    argv = ["scene", "faces", str(tmp_path / "a/x.png"), str(tmp_path / "b/x.png")]
+    assert main([*argv, "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "share the name 'x'" in err[0]
+    assert not out.exists()
+    (tmp_path / "file").write_text("x")
+    assert main(["scene", "faces", str(tmp_path / "a/x.png"), "--out", str(tmp_path / "file")]) == 2
+    assert "is a file" in capsys.readouterr().err
+
+
+def test_eval_means_leave_out_what_a_small_scene_cannot_score():
+    """S8: one scene too small for SSIM and LPIPS made both means NaN (null) for all."""
+    from panogrf.app.commands.eval import _means, format_table
+
+    items = [
+        {"psnr": 30.0, "ws_psnr": 29.0, "ssim": 0.9, "lpips": 0.1},
+        {"psnr": 20.0, "ws_psnr": 19.0, "ssim": float("nan"), "lpips": float("nan")},
+    ]
+    means = _means(items)
+    assert means["psnr"] == 25.0 and means["ssim"] == 0.9 and means["lpips"] == 0.1
+    assert means["undefined"] == {"ssim": 1, "lpips": 1}
+    row = means | {"scenes": 2, "render_ms_median": 1.0}
+    table = format_table({"panogrf": {"1.0": row}}, [1.0])
+    assert "lpips: 1 scene(s) too small to score, left out" in table
