@@ -212,6 +212,10 @@ class PanoViewer(ExportsMixin, OverlayMixin, mglw.WindowConfig):
             code = getattr(k, name, None)
             if code is not None:
                 out[code] = name
+        # moderngl-window's pyglet keys name the braces `{` `}` as the brackets: the keys
+        # `[` and `]` themselves (their ASCII codes in pyglet) did nothing in a real window.
+        if getattr(k, "LEFT_BRACKET", None) == ord("{"):
+            out[ord("[")], out[ord("]")] = "LEFT_BRACKET", "RIGHT_BRACKET"
         return out
 
     def say(self, text: str) -> None:
@@ -285,8 +289,14 @@ class PanoViewer(ExportsMixin, OverlayMixin, mglw.WindowConfig):
     request_export = False
 
     def on_mouse_drag_event(self, x, y, dx, dy) -> None:
-        # Panorama mode shows every direction: only the heading turns it (module docstring).
-        self.camera.look(-dx * DRAG_SPEED, -dy * DRAG_SPEED if self.perspective else 0.0)
+        # The image follows the cursor, as in every 360° photo viewer: dragging right turns the
+        # camera left. Panorama mode shows every direction: only the heading turns it.
+        self.camera.look(dx * DRAG_SPEED, dy * DRAG_SPEED if self.perspective else 0.0)
+
+    def on_mouse_scroll_event(self, x_offset: float, y_offset: float) -> None:
+        """The wheel zooms: up narrows the field of view, as `=` does."""
+        cam = self.camera
+        cam.fov = float(np.clip(cam.fov - 5 * y_offset, 20, 140))
 
     def _apply_held(self, dt: float) -> None:
         h, cam = self.held, self.camera

@@ -128,3 +128,24 @@ def test_waiting_for_a_result_wakes_when_a_level_is_done():
         assert worker.latest().generation == gen
     finally:
         worker.stop()
+
+
+def test_brackets_drag_and_wheel_act_as_in_360_viewers():
+    """`[` and `]` change the speed in a real (pyglet) window, whose key table names the braces
+    as the brackets; dragging moves the image with the cursor; the wheel zooms."""
+    from types import SimpleNamespace
+
+    from panogrf.app.viewer.camera import FlyCamera
+    from panogrf.app.viewer.window import PanoViewer
+
+    pyglet_keys = SimpleNamespace(LEFT_BRACKET=ord("{"), RIGHT_BRACKET=ord("}"), W=ord("w"))
+    keymap = PanoViewer._make_keymap(SimpleNamespace(wnd=SimpleNamespace(keys=pyglet_keys)))
+    assert keymap[ord("[")] == "LEFT_BRACKET" and keymap[ord("]")] == "RIGHT_BRACKET"
+    viewer = SimpleNamespace(camera=FlyCamera.from_c2w(np.eye(4)), perspective=True)
+    yaw, pitch = viewer.camera.yaw, viewer.camera.pitch
+    PanoViewer.on_mouse_drag_event(viewer, 0, 0, 10, 10)  # right and down
+    assert viewer.camera.yaw > yaw  # turned left: the image moved right, with the cursor
+    assert viewer.camera.pitch > pitch  # looked up: the image moved down
+    fov = viewer.camera.fov
+    PanoViewer.on_mouse_scroll_event(viewer, 0, 1)
+    assert viewer.camera.fov == fov - 5
