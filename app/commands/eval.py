@@ -111,7 +111,7 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from panogrf.app.files.atomic import check_output, json_text, nan_to_null, write_json_atomic
+    from panogrf.app.files.atomic import check_output
     from panogrf.app.scene import session
     from panogrf.app.scene.datasets import triplets_by_baseline
     from panogrf.app.scene.folder import load_scene
@@ -138,7 +138,12 @@ def run(args: argparse.Namespace) -> int:
     if args.threads:
         torch.set_num_threads(args.threads)
     check_output(args.out)  # before the work: an hour of rendering must not end unwritable
-    scenes, baselines = triplets_by_baseline(args.dataset, baselines, args.limit)
+    skipped: list[dict] = []  # broken scenes: reported, the others scored
+    scenes, baselines = triplets_by_baseline(args.dataset, baselines, args.limit, skipped)
+    for broken in skipped:
+        print(f"skipping {broken['why']}", flush=True)
+    if not scenes:
+        raise UserError(f"{args.dataset}: no scene can be scored")
     for _, folder in scenes:  # the report must not replace a scene's own file
         refuse_scene_inputs(args.out, load_scene(folder))
     models = session.default_models(resolve_device(args.device))
@@ -146,46 +151,66 @@ def run(args: argparse.Namespace) -> int:
     seen: dict[float, int] = {b: 0 for b in baselines}
     start_all = time.perf_counter()
     for n, (b, folder) in enumerate(scenes, 1):
-        scene = load_scene(folder, load_images=True)
-        data = scene.images
-        height = args.height or scene.height
-        views = SourceViews(
-            data.images[[0, 2]],
-            data.c2w[[0, 2]],
-            refine=refine_setting(args),
-            nadir=nadir_setting(scene.metadata, args.nadir_cap),
-            device=models.device,
-        )
-        index = seen[b]
-        seen[b] += 1
-        line = [f"[{n}/{len(scenes)}] {folder.name} ({b} m)"]
-        for method, quality in methods:
-            name = label(method, quality)
-            if (name in subset or method in subset) and index >= args.subset_size:
-                continue
-            before = dict(views.seconds)
-            t0 = time.perf_counter()
-            cache = session.prepare_views(
-                views, models, method, quality, args.cache_dir, not args.no_cache
+        try:
+            scene = load_scene(folder, load_images=True)
+            data = scene.images
+            height = args.height or scene.height
+            views = SourceViews(
+                data.images[[0, 2]],
+                data.c2w[[0, 2]],
+                refine=refine_setting(args),
+                nadir=nadir_setting(scene.metadata, args.nadir_cap),
+                device=models.device,
             )
-            prep = time.perf_counter() - t0
-            t0 = time.perf_counter()
-            rgb = render_view(method, views, data.c2w[1], height, models, quality)
-            ms = 1000 * (time.perf_counter() - t0)
-            scores = image_scores(rgb, data.images[1:2])
-            new = {k: v for k, v in views.seconds.items() if k not in before}
-            rows[name][b].append(
-                scores
-                | {
-                    "render_ms": ms,
-                    "prepare_s": prep,
-                    "prepared": new,
-                    "cache": cache.status,
-                    "scene": folder.name,
-                }
-            )
-            line.append(f"{name} {scores['ws_psnr']:.2f}")
-        print("  ".join(line), flush=True)
+            index = seen[b]
+            seen[b] += 1
+            line = [f"[{n}/{len(scenes)}] {folder.name} ({b} m)"]
+            for method, quality in methods:
+                name = label(method, quality)
+                if (name in subset or method in subset) and index >= args.subset_size:
+                    continue
+                before = dict(views.seconds)
+                t0 = time.perf_counter()
+                cache = session.prepare_views(
+                    views, models, method, quality, args.cache_dir, not args.no_cache
+                )
+                prep = time.perf_counter() - t0
+                t0 = time.perf_counter()
+                rgb = render_view(method, views, data.c2w[1], height, models, quality)
+                ms = 1000 * (time.perf_counter() - t0)
+                scores = image_scores(rgb, data.images[1:2])
+                new = {k: v for k, v in views.seconds.items() if k not in before}
+                rows[name][b].append(
+                    scores
+                    | {
+                        "render_ms": ms,
+                        "prepare_s": prep,
+                        "prepared": new,
+                        "cache": cache.status,
+                        "scene": folder.name,
+                    }
+                )
+                line.append(f"{name} {scores['ws_psnr']:.2f}")
+            print("  ".join(line), flush=True)
+        except (UserError, OSError) as exc:  # a scene that breaks: reported, the others scored
+            why = f"{exc.strerror}" if isinstance(exc, OSError) and exc.strerror else str(exc)
+            print(f"[{n}/{len(scenes)}] {folder.name}: skipped ({why})", flush=True)
+            skipped.append({"scene": str(folder), "why": why})
+            for per_b in rows.values():  # a half-scored scene counts for no method
+                per_b[b] = [r for r in per_b[b] if r["scene"] != folder.name]
+        _write(args, _report(args, methods, subset, rows, skipped, start_all), final=False)
+    report = _report(args, methods, subset, rows, skipped, start_all)
+    print(format_table(report["results"], baselines))
+    _write(args, report)
+    print(f"wrote {args.out}")
+    if skipped:
+        print(f"{len(skipped)} scene(s) skipped: " + "; ".join(x["scene"] for x in skipped))
+        return 1
+    return 0
+
+
+def _report(args, methods, subset, rows, skipped, start_all) -> dict:
+    """The report of the scenes scored so far."""
     results = {}
     for name, per_b in rows.items():
         results[name] = {}
@@ -211,18 +236,26 @@ def run(args: argparse.Namespace) -> int:
         "per_scene": {k: {str(b): v for b, v in per_b.items()} for k, per_b in rows.items()},
         "machine": f"{platform.machine()}, {torch.get_num_threads()} torch threads, CPU",
         "seconds": round(time.perf_counter() - start_all, 1),
+        "skipped": skipped,
     }
+    return report
+
+
+def _write(args, report: dict, final: bool = True) -> None:
+    """``report`` to ``--out``, atomically: after every scene (what was scored survives a
+    later failure) and at the end."""
+    from panogrf.app.files.atomic import json_text, nan_to_null, write_json_atomic
+
     report = nan_to_null(report)  # a metric undefined at this size (LPIPS below 31 rows)
-    print(format_table(results, baselines))
     try:
         write_json_atomic(args.out, report)
     except OSError as exc:  # e.g. the disk filled up meanwhile: the results go to stdout
+        if not final:
+            return
         print(json_text(report))
         raise UserError(
             f"cannot write {args.out} ({exc.strerror or exc}); the results are printed above"
         ) from None
-    print(f"wrote {args.out}")
-    return 0
 
 
 def _means(items: list[dict]) -> dict:

@@ -61,24 +61,31 @@ def read_index(index_path: Path) -> list[Path]:
 
 
 def triplets_by_baseline(
-    root: Path, baselines: list[float] | None, limit: int | None
+    root: Path, baselines: list[float] | None, limit: int | None, broken: list | None = None
 ) -> tuple[list[tuple[float, Path]], list[float]]:
     """(baseline, folder) of every scene to score, and the baselines scored.
 
     Without ``baselines``: 1.0, 1.5 and 2.0 m for a dataset, every baseline found for a plain
-    folder of scenes.
+    folder of scenes. A scene that is broken (or has not three views) raises its `UserError`,
+    or, with a ``broken`` list, is appended to it as {"scene", "why"} and left out.
     """
     from panogrf.app.scene.folder import load_scene
 
     folders, indexed = scene_folders(root)
     found = []
     for folder in folders:
-        scene = load_scene(folder)
-        if scene.num_views != 3:
-            raise UserError(
-                f"{folder}: expected three views (the middle one is scored), found "
-                f"{scene.num_views}"
-            )
+        try:
+            scene = load_scene(folder)
+            if scene.num_views != 3:
+                raise UserError(
+                    f"{folder}: expected three views (the middle one is scored), found "
+                    f"{scene.num_views}"
+                )
+        except UserError as exc:
+            if broken is None:
+                raise
+            broken.append({"scene": str(folder), "why": str(exc)})
+            continue
         c = scene.c2w[:, :3, 3]
         found.append((round(float(((c[2] - c[0]) ** 2).sum() ** 0.5), 1), folder))
     if baselines is None:

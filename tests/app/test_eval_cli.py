@@ -74,3 +74,34 @@ def test_failed_write_prints_the_results(dataset, tmp_path, monkeypatch, capsys)
     report = json.loads(captured.out[captured.out.index("\n{") :])
     assert set(report["results"]) == {"nearest"}
     assert not (tmp_path / "r.json").exists()
+
+
+def test_broken_scenes_are_reported_and_the_others_scored(tmp_path, monkeypatch, capsys):
+    """Issue 57 D3: a scene broken from the start, or one that breaks mid-run, is named and
+    left out; the others are scored and written; the exit says the run was incomplete."""
+    from panogrf.app.errors import UserError
+    from panogrf.app.scene import folder as scene_folder
+
+    root = tmp_path / "data"
+    root.mkdir()
+    for name in ("a", "b", "c"):
+        shutil.copytree(DEMO, root / name)
+    (root / "b" / "transforms.json").write_text("{ not json")
+    (root / "dataset.json").write_text(
+        json.dumps({"scenes": [{"folder": n} for n in ("a", "b", "c")]})
+    )
+    load = scene_folder.load_scene
+
+    def breaks_mid_run(path, **kw):
+        if kw.get("load_images") and str(path).endswith("c"):
+            raise UserError(f"{path}: images/frame_001.png is unreadable")
+        return load(path, **kw)
+
+    monkeypatch.setattr(scene_folder, "load_scene", breaks_mid_run)
+    out = tmp_path / "r.json"
+    assert cli.main(_nearest(root, out, 16)) == 1
+    report = json.loads(out.read_text())
+    assert next(iter(report["results"]["nearest"].values()))["scenes"] == 1
+    assert [s["scene"][-1] for s in report["skipped"]] == ["b", "c"]
+    printed = capsys.readouterr().out
+    assert "skipping" in printed and "unreadable" in printed
