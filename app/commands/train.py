@@ -306,8 +306,7 @@ def run_renderer(args: argparse.Namespace) -> int:
     from panogrf.app.train.renderer import TrainRendererConfig, train_renderer
     from panogrf.app.weights.networks import load_depth_estimator
 
-    if args.out.suffix != ".safetensors":
-        raise UserError(f"--out must end in .safetensors, got {args.out}")
+    _check_weights_out(args.out)
     if args.steps < 1 or args.scenes < 1 or args.rays < 1:
         raise UserError("--steps, --scenes and --rays must be at least 1")
     if args.height % 64:
@@ -348,8 +347,7 @@ def run_depth(args: argparse.Namespace) -> int:
 
     from panogrf.app.train.depth import TrainDepthConfig, train_mono, train_mvs
 
-    if args.out.suffix != ".safetensors":
-        raise UserError(f"--out must end in .safetensors, got {args.out}")
+    _check_weights_out(args.out)
     if args.steps < 1 or args.batch < 1:
         raise UserError("--steps and --batch must be at least 1")
     if args.height % 32:
@@ -406,12 +404,21 @@ def run_depth(args: argparse.Namespace) -> int:
     return 0
 
 
+def _check_weights_out(out: Path) -> None:
+    """Refuse, before any training, a ``--out`` the weights could not be written to (issue
+    57, T14: the steps trained, then the weights were lost)."""
+    from panogrf.app.files.atomic import check_writable
+
+    if out.suffix != ".safetensors":
+        raise UserError(f"--out must end in .safetensors, got {out}")
+    check_writable(out)
+
+
 def _check_fusion_args(args: argparse.Namespace) -> None:
     """Refuse the fusion trainings' arguments out of range (`_fusion_recording_args`)."""
     import torch
 
-    if args.out.suffix != ".safetensors":
-        raise UserError(f"--out must end in .safetensors, got {args.out}")
+    _check_weights_out(args.out)
     if args.steps < 1 or args.batch < 1 or args.scenes < 1:
         raise UserError("--steps, --batch and --scenes must be at least 1")
     if not 0 <= args.mono_shift <= 1:

@@ -225,6 +225,21 @@ def write_json_atomic(path: str | os.PathLike[str], data: object) -> None:
     write_bytes_atomic(path, (json_text(data) + "\n").encode("utf-8"))
 
 
+def check_writable(path: str | os.PathLike[str], option: str = "--out") -> Path:
+    """`check_output`, then a probe: a file created and removed beside ``path`` (a folder the
+    permission bits call writable may still refuse files: /proc, a read-only mount)."""
+    path = check_output(path, option)
+    probe = path.parent / f".panogrf-probe-{os.getpid()}"
+    try:
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as exc:
+        raise UserError(
+            f"{option}: cannot write in {path.parent} ({exc.strerror or exc})"
+        ) from None
+    return path
+
+
 def check_output(path: str | os.PathLike[str], option: str = "--out", folder: bool = False) -> Path:
     """Refuse, before any work, an output that cannot be written: a missing or read-only
     folder, or a folder where a file is wanted (and a file where a folder is wanted)."""

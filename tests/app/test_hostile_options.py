@@ -117,3 +117,17 @@ def test_eval_means_leave_out_what_a_small_scene_cannot_score():
     row = means | {"scenes": 2, "render_ms_median": 1.0}
     table = format_table({"panogrf": {"1.0": row}}, [1.0])
     assert "lpips: 1 scene(s) too small to score, left out" in table
+
+
+@pytest.mark.parametrize("out", ["/proc/m.safetensors", "folder.safetensors"])
+def test_train_refuses_an_unwritable_out_before_training(out, tmp_path, monkeypatch, capsys):
+    """T14: the steps trained, then the weights could not be written and were lost."""
+    import panogrf.app.train.loop as loop
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "folder.safetensors").mkdir()
+    monkeypatch.setattr(loop, "save_weights", lambda *a, **k: pytest.fail("trained first"))
+    argv = ["train", "depth", "--data", str(tmp_path), "--stage", "mono", "--out", out]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--out" in err[0]
