@@ -24,7 +24,7 @@ from panogrf.app.files.atomic import atomic_output
 from panogrf.renderer.cache import SceneCache
 from panogrf.renderer.methods import METHODS, Models, SourceViews
 
-FORMAT = "panogrf-scene-cache-6"  # 6: no exposure balance of the sources
+FORMAT = "panogrf-scene-cache-7"  # 6: no exposure balance of the sources; 7: a checksum
 #: The method whose depth and renderer maps the cache holds.
 METHOD = METHODS["panogrf"]
 #: Largest plausible depth in a cache (metres): far beyond any room or street scene.
@@ -52,6 +52,17 @@ def content_key(
         h.update(path.name.encode())
         h.update(path.read_bytes())
     return h.hexdigest()[:32]
+
+
+def _checksum(tensors: dict[str, torch.Tensor]) -> str:
+    """SHA-256 of the tensors' names, shapes and bytes (in name order): written with the cache,
+    checked on every load, so changed numbers are never shown as the scene."""
+    h = hashlib.sha256()
+    for name in sorted(tensors):
+        t = tensors[name].detach().cpu().contiguous()
+        h.update(f"{name} {tuple(t.shape)} {t.dtype}".encode())
+        h.update(t.view(torch.uint8).numpy().tobytes() if t.numel() else b"")
+    return h.hexdigest()
 
 
 @dataclass
@@ -132,7 +143,11 @@ def _load(
     c = models.renderer(METHOD.renderer).config.feature_channels
     try:
         tensors = load_file(str(path))
+        with safe_open_metadata(path) as meta:
+            stored = meta.get("sha256")
         why = _problem(tensors, key, views, c)
+        if why is None and stored != _checksum(tensors):
+            why = "checksum mismatch (the file was changed)"
         tensors = {k: t.to(views.images.device) for k, t in tensors.items()}
     except (SafetensorError, OSError, ValueError, RuntimeError) as exc:
         why = f"unreadable ({type(exc).__name__})"
@@ -182,7 +197,8 @@ def prepare_cached(
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         with atomic_output(path) as tmp:
-            save_file(tensors, str(tmp), metadata={"format": FORMAT})
+            meta = {"format": FORMAT, "sha256": _checksum(tensors)}
+            save_file(tensors, str(tmp), metadata=meta)
     # A read-only or full disk (safetensors reports it as its own error) costs the cache only.
     except (OSError, SafetensorError) as exc:
         reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc

@@ -184,3 +184,27 @@ def test_a_refined_scene_has_its_own_cache_and_its_own_depth(tmp_path):
     r3 = prepare_cached(again, models, tmp_path / "cache", [weights])
     assert r3.status == "loaded" and r3.path == r2.path
     assert torch.equal(again.depth["full"], refined.depth["full"])
+
+
+def test_plausible_but_changed_numbers_are_caught_by_the_checksum(tmp_path):
+    """Issue 57 S6: a cache rewritten with plausible numbers (its key and metadata kept), or
+    one flipped byte in its feature maps, was loaded and shown as the scene."""
+    from safetensors import safe_open
+
+    weights = tmp_path / "w"
+    weights.write_bytes(b"w")
+    models = _models()
+    r = prepare_cached(_views(), models, tmp_path, [weights])
+    good = load_file(str(r.path))
+    with safe_open(str(r.path), framework="pt") as f:
+        meta = f.metadata()
+    maps = good["maps"].clone()
+    maps[0, 0, 0, 0] += 1e-3  # one feature, slightly off
+    depth = torch.full_like(good["depth"], 0.3)  # depth 0.3 m everywhere, maps to match
+    flat = torch.cat((good["maps"][:, :-1], depth), 1)
+    for change in ({"maps": maps}, {"depth": depth, "maps": flat}):
+        save_file(good | change, str(r.path), metadata=meta)
+        views = _views()
+        status = prepare_cached(views, models, tmp_path, [weights]).status
+        assert status == "rebuilt: checksum mismatch (the file was changed)", status
+        assert torch.equal(views.depth["full"], good["depth"])
