@@ -143,12 +143,8 @@ def estimate_scene(
     Raises `UserError`
     for an invalid scene or an output folder that cannot or must not be written.
     """
-    from panogrf.app.files.images import (
-        write_bytes_atomic,
-        write_depth,
-        write_json_atomic,
-        write_rgb,
-    )
+    from panogrf.app.files.atomic import atomic_output
+    from panogrf.app.files.images import write_depth, write_json_atomic, write_rgb
     from panogrf.app.scene.folder import TRANSFORMS, Scene, load_scene
     from panogrf.app.visualize import colorize_depth
 
@@ -196,23 +192,26 @@ def estimate_scene(
     preview_max = float(depth.max())
     frames = []
     try:
-        for sub in ("images", "depth", "preview"):
-            (out_dir / sub).mkdir(parents=True, exist_ok=True)
-        for i, (frame, stem) in enumerate(zip(scene.frames, stems, strict=True)):
-            image_file = f"images/{stem}{frame.image_path.suffix.lower()}"
-            write_bytes_atomic(out_dir / image_file, frame.image_path.read_bytes())
-            depth_file = f"depth/{stem}.png"
-            write_depth(out_dir / depth_file, depth[i, 0].cpu().numpy())
-            write_rgb(
-                out_dir / f"preview/{stem}.png",
-                colorize_depth(depth[i, 0].cpu().numpy(), preview_max),
-            )
-            # Keep the frame's own extra keys (nerfstudio intrinsics, ...), repoint the files.
-            frames.append(
-                {**raw["frames"][i], "file_path": image_file, "depth_file_path": depth_file}
-            )
-        top = {k: v for k, v in raw.items() if k != "frames"}
-        write_json_atomic(out_dir / TRANSFORMS, {**top, METADATA_KEY: meta, "frames": frames})
+        # The whole output is written beside it and swapped in at once: a full disk or a kill
+        # leaves the earlier output whole, never views of two runs (issue 57, D1).
+        with atomic_output(out_dir, directory=True) as tmp:
+            for sub in ("images", "depth", "preview"):
+                (tmp / sub).mkdir()
+            for i, (frame, stem) in enumerate(zip(scene.frames, stems, strict=True)):
+                image_file = f"images/{stem}{frame.image_path.suffix.lower()}"
+                (tmp / image_file).write_bytes(frame.image_path.read_bytes())
+                depth_file = f"depth/{stem}.png"
+                write_depth(tmp / depth_file, depth[i, 0].cpu().numpy())
+                write_rgb(
+                    tmp / f"preview/{stem}.png",
+                    colorize_depth(depth[i, 0].cpu().numpy(), preview_max),
+                )
+                # Keep the frame's own extra keys (nerfstudio intrinsics, ...), repoint files.
+                frames.append(
+                    {**raw["frames"][i], "file_path": image_file, "depth_file_path": depth_file}
+                )
+            top = {k: v for k, v in raw.items() if k != "frames"}
+            write_json_atomic(tmp / TRANSFORMS, {**top, METADATA_KEY: meta, "frames": frames})
     except OSError as exc:
         raise UserError(f"cannot write to {out_dir}: {exc.strerror or exc}") from None
 

@@ -294,3 +294,32 @@ def test_cli_with_the_shipped_weights(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "depth error vs ground truth" in out and "mean" in out
     assert check_scene(tmp_path / "out") == []
+
+
+def test_a_failed_rerun_leaves_the_earlier_output_whole(
+    tmp_path, capsys, random_weights, monkeypatch
+):
+    """Issue 57 D1: a disk filling up after the first view of a rerun left new and old views
+    side by side under the old transforms.json; the output is now swapped in whole."""
+    import errno
+
+    from panogrf.app.files import images
+
+    out = tmp_path / "out"
+    assert cli.main(["depth", str(DEMO), "--out", str(out)]) == 0
+    before = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    write = images.write_depth
+    calls = []
+
+    def fills_up(path, depth):
+        calls.append(path)
+        if len(calls) > 1:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        write(path, depth)
+
+    monkeypatch.setattr(images, "write_depth", fills_up)
+    assert cli.main(["depth", str(DEMO), "--out", str(out), "--mode", "mono"]) == 2
+    assert "No space left on device" in capsys.readouterr().err
+    after = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    assert after == before  # every file the earlier run wrote, none of the failed one's
+    assert [p.name for p in tmp_path.iterdir()] == ["out"]  # no temporary left
