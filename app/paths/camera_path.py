@@ -198,6 +198,10 @@ def read_camera_path(path: str | os.PathLike[str]) -> CameraPath:
         data = json.loads(path.read_text(encoding="utf-8"))
     except UnicodeDecodeError:
         raise UserError(f"{path}: not UTF-8 text") from None
+    except OSError as exc:
+        raise UserError(f"{path}: cannot be read ({exc.strerror or exc})") from None
+    except RecursionError:
+        raise UserError(f"{path}: nested too deeply to be a camera path") from None
     except json.JSONDecodeError as exc:
         raise UserError(
             f"{path}: invalid JSON at line {exc.lineno}, column {exc.colno}: {exc.msg}"

@@ -69,11 +69,21 @@ def number_array(value: Any) -> np.ndarray:
         raise ValueError("is not a rectangular list of numbers") from None
 
 
+#: Largest camera position (metres from the world's origin) a scene may hold: a geo-referenced
+#: capture is within 1e7 m of its grid's origin; far larger numbers are a broken export.
+MAX_POSITION_M = 1e9
+
+
 def pose_problems(m: np.ndarray, tol: float = POSE_TOLERANCE) -> list[str]:
-    """Problems of a [4, 4] camera-to-world matrix: finite, rigid (R^T R = I, det +1), last row."""
+    """Problems of a [4, 4] camera-to-world matrix: finite, rigid (R^T R = I, det +1), last row,
+    a position within `MAX_POSITION_M`."""
     if not np.isfinite(m).all():
         return ["contains NaN or infinite values"]
     problems = []
+    if np.abs(m[:3, 3]).max() > MAX_POSITION_M:
+        problems.append(
+            f"position {_fmt_row(m[:3, 3])} is farther than {MAX_POSITION_M:g} m from the origin"
+        )
     if np.abs(m[3] - (0.0, 0.0, 0.0, 1.0)).max() > tol:
         problems.append(f"last row is {_fmt_row(m[3])}, expected [0, 0, 0, 1]")
     r = m[:3, :3]
@@ -152,6 +162,8 @@ def _inspect_frame(root: Path, i: int, frame: Any, keep: bool, problems: list, n
             notes.extend(f"{where} ({found.file_path}): {n}" for n in image_notes)
         except ImageReadError as exc:
             problems.append(f"{where}.file_path ({found.file_path}): {exc.reason}")
+        except OSError as exc:  # a name too long, a folder it cannot enter
+            problems.append(f"{where}.file_path ({_short(found.file_path)}): {_os_reason(exc)}")
 
     key = f"{where}.transform_matrix"
     if "transform_matrix" not in frame:
@@ -182,7 +194,15 @@ def _inspect_frame(root: Path, i: int, frame: Any, keep: bool, problems: list, n
                 )
         except ImageReadError as exc:
             problems.append(f"{where}.depth_file_path ({found.depth_file}): {exc.reason}")
+        except OSError as exc:
+            problems.append(
+                f"{where}.depth_file_path ({_short(found.depth_file)}): {_os_reason(exc)}"
+            )
     return found
+
+
+def _os_reason(exc: OSError) -> str:
+    return f"cannot be read ({(exc.strerror or str(exc)).lower()})"
 
 
 def _check_sizes(found: list[_Found], w: int | None, h: int | None, problems: list[str]) -> None:
@@ -237,6 +257,12 @@ def _read_transforms(root: Path, problems: list[str]) -> dict | None:
         data = json.loads(path.read_text(encoding="utf-8"))
     except UnicodeDecodeError:
         problems.append(f"{TRANSFORMS}: not UTF-8 text")
+        return None
+    except OSError as exc:  # unreadable: permissions, a folder of that name
+        problems.append(f"{TRANSFORMS}: {_os_reason(exc)}")
+        return None
+    except RecursionError:
+        problems.append(f"{TRANSFORMS}: nested too deeply to be a scene")
         return None
     except json.JSONDecodeError as exc:
         problems.append(

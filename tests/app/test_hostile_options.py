@@ -131,3 +131,52 @@ def test_train_refuses_an_unwritable_out_before_training(out, tmp_path, monkeypa
     assert main(argv) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--out" in err[0]
+
+
+def _demo_copy(tmp_path, change=None, text=None):
+    import json
+
+    scene = tmp_path / "scene"
+    shutil.copytree(asset_path("demo"), scene)
+    path = scene / "transforms.json"
+    if text is not None:
+        path.write_text(text)
+    else:
+        data = json.loads(path.read_text())
+        change(data)
+        path.write_text(json.dumps(data))
+    return scene
+
+
+def _far(data):
+    data["frames"][0]["transform_matrix"][0][3] = 1e300
+
+
+def _long_name(data):
+    data["frames"][0]["file_path"] = "images/" + "x" * 300 + ".png"
+
+
+@pytest.mark.parametrize(
+    "change, text, expected",
+    [
+        (_far, None, "farther than 1e+09 m"),  # T1: an overflow in the check
+        (_long_name, None, "file name too long"),  # T2
+        (None, "[" * 200_000, "nested too deeply"),  # T3: RecursionError
+    ],
+)
+def test_scene_check_names_the_problem_instead_of_a_traceback(
+    change, text, expected, tmp_path, capsys
+):
+    scene = _demo_copy(tmp_path, change, text)
+    assert main(["scene", "check", str(scene)]) == 1  # scene check: 1 for an invalid scene
+    out = capsys.readouterr()
+    assert expected in out.out + out.err and "Traceback" not in out.out + out.err
+
+
+def test_a_camera_path_nested_too_deeply_is_one_line(tmp_path, capsys):
+    path = tmp_path / "path.json"
+    path.write_text("[" * 200_000)
+    argv = ["render", str(asset_path("demo")), "--camera-path", str(path)]
+    assert main([*argv, "--out", str(tmp_path / "x.mp4")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "nested too deeply" in err[0]
