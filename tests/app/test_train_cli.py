@@ -119,6 +119,7 @@ def test_train_renderer_errors(tmp_path, capsys):
     assert "multiple of 64" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 @pytest.mark.gl
 def test_train_select_smoke(tiny_train, tmp_path, capsys):
     """The selector records the shipped networks' fusion on a few scenes (cached beside the
@@ -176,6 +177,7 @@ def test_train_select_smoke(tiny_train, tmp_path, capsys):
     assert load_depth_estimator(("full", "mvs")).selector is not None
 
 
+@pytest.mark.slow
 @pytest.mark.gl
 def test_train_blend_smoke(tiny_train, tmp_path, capsys):
     """The blend records the shipped pipeline's fusion on a few scenes (cached beside the data,

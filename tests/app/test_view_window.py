@@ -62,6 +62,7 @@ def xvfb():
     proc.wait(10)
 
 
+@pytest.mark.slow
 def test_window_moves_on_key_presses(xvfb, tmp_path):
     env = {**os.environ, "DISPLAY": xvfb}
     log = tmp_path / "viewer.log"
@@ -123,6 +124,7 @@ def test_window_moves_on_key_presses(xvfb, tmp_path):
     assert diff > 5.0, diff
 
 
+@pytest.mark.slow
 def test_headless_session_writes_screenshots_and_a_camera_path(tmp_path):
     out_path = tmp_path / "path.json"
     cmd = [
@@ -176,6 +178,7 @@ def test_view_errors(tmp_path):
     assert run.returncode == 2 and "--moving-rows" in run.stderr
 
 
+@pytest.mark.slow
 def test_headless_session_survives_a_failed_save_and_plays_in_real_time(tmp_path):
     """O into a missing folder is reported and the session goes on; P plays the 2 s transition
     in real time (20 steps of 0.05 s: half way); F writes a clean 2:1 panorama; the wide
@@ -255,6 +258,7 @@ def test_every_refinement_level_reaches_the_screen(tmp_path, capsys):
     assert "refined level 1/2" in out and "refined level 2/2" in out, out
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("script", "frames", "sharp", "rows"),
     [
