@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 
@@ -175,6 +176,8 @@ def run(args: argparse.Namespace) -> int:
         )
         frames.prepare()
         prep = time.perf_counter() - start
+        if args.target_frame is None:  # a pose of one's own: warned as a camera path's frame
+            _warn_pose(tgt.double().numpy(), data.c2w[sources].double().numpy(), views)
         start = time.perf_counter()
         rgb = frames.panorama(tgt.numpy(), height)
         seconds = time.perf_counter() - start
@@ -214,6 +217,32 @@ def run(args: argparse.Namespace) -> int:
             f"WS-PSNR {m['ws_psnr']:.2f} dB, SSIM {m['ssim']:.4f}, LPIPS {m['lpips']:.4f}"
         )
     return 0
+
+
+def _warn_pose(tgt: np.ndarray, sources: np.ndarray, views) -> None:
+    """The warnings a camera path's frame gets, for one ``--c2w`` pose [4, 4] (issue 57, S2):
+    far from every source, or behind the surface its nearest source sees. On stderr: stdout
+    may be ``--json``."""
+    from panogrf.app.scene import coverage as cv
+
+    if cv.uncovered(tgt[None], sources)[0]:
+        far = float(cv.nearest_source_distance(tgt[None], sources)[0])
+        print(
+            f"warning: the --c2w pose is {far:.2f} m from the nearest source, outside the region "
+            f"the sources cover ({cv.covered_radius(sources):.2f} m): expect holes and stretched "
+            "geometry",
+            file=sys.stderr,
+        )
+    if "full" in views.depth:
+        depth = views.depth["full"][:, 0].double().cpu().numpy()
+        hit = cv.behind_surface(tgt[:3, 3], sources, depth)
+        if hit is not None:
+            k, dist, surface = hit
+            print(
+                f"warning: the --c2w pose is behind a surface (inside an object or beyond a "
+                f"wall): {dist:.2f} m from source {k}, whose surface there is {surface:.2f} m away",
+                file=sys.stderr,
+            )
 
 
 def _json_safe(data):

@@ -117,6 +117,12 @@ def run_import(args: argparse.Namespace) -> int:
         s = 1.0
         lines.append("scale: the tool's own units, taken as metres (no --distance or --scale)")
     c2w = sc.scale_centres(c2w, s)
+    from panogrf.app.scene.check import poses_problems
+
+    problems = poses_problems(c2w)  # never write a scene its own check rejects (issue 57, S3)
+    if problems:
+        more = f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""
+        raise UserError(f"{args.pose_file}: the imported poses make no scene: {problems[0]}{more}")
     names = [Path(f).stem for f in files]
     if len(set(names)) != len(names):
         names = [f"view_{k:03d}" for k in range(len(files))]

@@ -242,6 +242,19 @@ def _check_separation(found: list[_Found], problems: list[str]) -> None:
         )
 
 
+def poses_problems(c2w: np.ndarray) -> list[str]:
+    """What `panogrf scene check` would say of these poses [V, 4, 4] (each a rigid pose within
+    reach, no two views at one position): a writer checks them before it writes a scene."""
+    problems: list[str] = []
+    found = []
+    for i, m in enumerate(np.asarray(c2w, np.float64)):
+        bad = pose_problems(m)
+        problems.extend(f"frames[{i}].transform_matrix: {p}" for p in bad)
+        found.append(_Found(c2w=None if bad else m))
+    _check_separation(found, problems)
+    return problems
+
+
 def _read_transforms(root: Path, problems: list[str]) -> dict | None:
     if not root.exists():
         problems.append(f"scene folder not found: {root}")

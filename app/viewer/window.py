@@ -34,7 +34,7 @@ import moderngl_window as mglw
 import numpy as np
 
 from panogrf.app.viewer import recording, screen
-from panogrf.app.viewer.camera import FlyCamera
+from panogrf.app.viewer.camera import FlyCamera, walk_speed
 from panogrf.app.viewer.exports import ExportsMixin
 from panogrf.app.viewer.overlay import OverlayMixin
 from panogrf.app.viewer.refinement import Refinement
@@ -140,7 +140,7 @@ class PanoViewer(ExportsMixin, OverlayMixin, mglw.WindowConfig):
         self.shown_level: int | None = None  # the refined level on screen (None: not refined)
         self.overlay_tex = None
         self.overlay_img = None
-        self.camera = FlyCamera.from_c2w(s.start_pose)
+        self.camera = FlyCamera.from_c2w(s.start_pose, speed=walk_speed(s.c2w))
         self.mode = "refined"
         self.perspective = False
         self.show_overlay = True
@@ -267,7 +267,9 @@ class PanoViewer(ExportsMixin, OverlayMixin, mglw.WindowConfig):
             self._go_to(self.setup.c2w[self.source_index])
             self.say(f"at source view {self.source_index} (Tab: next source)")
         elif name == "R":
-            self.camera = FlyCamera.from_c2w(self.setup.start_pose)
+            self.camera = FlyCamera.from_c2w(
+                self.setup.start_pose, speed=walk_speed(self.setup.c2w)
+            )
             self.say("view reset to the start")
         elif name in ("K", "C", "G", "BACKSPACE", "DELETE", "COMMA", "PERIOD"):
             message, go_to = self.path.edit(name, self.view_pose(), cam.fov)

@@ -144,3 +144,24 @@ def test_import_count_mismatch(tmp_path, capsys):
     assert "3 poses but 2 --images" in capsys.readouterr().err
     with pytest.raises(UserError):
         im.read_poses("bogus", pose_file)
+
+
+@pytest.mark.parametrize("how", ["duplicate", "tiny scale"])
+def test_import_never_writes_a_scene_its_check_rejects(tmp_path, capsys, how):
+    """Issue 57 S3: duplicate poses, or a --scale that puts every view within a millimetre,
+    were written as a scene that `scene check` then refused."""
+    c2w = _poses()
+    extra = []
+    if how == "duplicate":
+        c2w[2] = c2w[1]
+    else:
+        extra = ["--scale", "1e-6"]
+    pose_file = tmp_path / "t.txt"
+    im.write_tum(pose_file, c2w)
+    paths = _panoramas(tmp_path / "images", ["a", "b", "c"])
+    out = tmp_path / "s"
+    args = ["scene", "import", "--format", "tum", str(pose_file), "--out", str(out)]
+    assert cli.main([*args, "--images", *map(str, paths), *extra]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "views at the same position" in err[0], err
+    assert not (out / "transforms.json").exists()

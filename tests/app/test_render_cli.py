@@ -265,3 +265,15 @@ def test_outputs_never_replace_the_scene_they_are_made_from(random_nets, tmp_pat
         "frame_001.png",
         "frame_002.png",
     ]
+
+
+def test_a_pose_far_from_every_source_is_warned(random_nets, tmp_path, capsys):
+    """Issue 57 S2: `--c2w` far from every source gave a grey panorama and exit 0, silently,
+    while the same pose in a camera path warned."""
+    c2w = "1 0 0 0.2 0 1 0 1.5 0 0 1 0.1 0 0 0 1"  # the demo's sources are about 8 m away
+    out = tmp_path / "p.png"
+    argv = ["render", str(DEMO), "--out", str(out), "--c2w", c2w, "--height", "16", "--json"]
+    assert cli.main(argv) == 0
+    captured = capsys.readouterr()
+    json.loads(captured.out)  # stdout stays the JSON summary
+    assert "warning: the --c2w pose is" in captured.err and "outside the region" in captured.err

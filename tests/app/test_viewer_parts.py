@@ -149,3 +149,17 @@ def test_brackets_drag_and_wheel_act_as_in_360_viewers():
     fov = viewer.camera.fov
     PanoViewer.on_mouse_scroll_event(viewer, 0, 1)
     assert viewer.camera.fov == fov - 5
+
+
+def test_the_first_walking_speed_follows_the_sources_spacing():
+    from panogrf.app.viewer.camera import walk_speed
+
+    def line(*xs):
+        c2w = np.repeat(np.eye(4)[None], len(xs), 0)
+        c2w[:, 0, 3] = xs
+        return c2w
+
+    assert walk_speed(line(0.0, 1.0)) == 0.5  # two seconds from one source to the next
+    assert walk_speed(line(0.0, 0.3, 0.6)) == pytest.approx(0.15)
+    assert walk_speed(line(0.0, 40.0)) == 1.0 and walk_speed(line(0.0, 0.01)) == 0.1
+    assert walk_speed(line(0.0)) == 0.5
