@@ -130,9 +130,12 @@ def read_opensfm(path: str | Path) -> ImportedPoses:
     if len(data) > 1:
         notes.append(f"{len(data)} reconstructions; used the largest ({max(sizes)} shots)")
     cameras = rec.get("cameras") or {}
+    shots = rec.get("shots") or {}
+    if not isinstance(cameras, dict) or not isinstance(shots, dict):
+        raise UserError(f'{path}: "cameras" and "shots" must be objects keyed by name')
     names, poses = [], []
-    for name in sorted(rec.get("shots") or {}):
-        shot = rec["shots"][name]
+    for name in sorted(shots):
+        shot = shots[name]
         try:
             camera = cameras[shot["camera"]]
             r = np.asarray(shot["rotation"], float)
@@ -141,6 +144,8 @@ def read_opensfm(path: str | Path) -> ImportedPoses:
             raise UserError(
                 f"{path}: shot {name!r} lacks camera, rotation or translation"
             ) from None
+        if not isinstance(camera, dict):
+            raise UserError(f"{path}: camera {shot['camera']!r} is not an object")
         kind = camera.get("projection_type")
         if kind not in _SPHERICAL:
             raise UserError(
@@ -200,6 +205,11 @@ def read_colmap(path: str | Path) -> ImportedPoses:
             qw, qx, qy, qz, tx, ty, tz = (float(x) for x in parts[1:8])
         except ValueError:
             raise UserError(f"{path}: image {parts[0]}: pose values are not numbers") from None
+        values = np.array([qw, qx, qy, qz, tx, ty, tz])
+        if not np.isfinite(values).all():
+            raise UserError(f"{path}: image {parts[0]}: pose values must be finite numbers")
+        if abs(np.linalg.norm(values[:4]) - 1) > 1e-3:
+            raise UserError(f"{path}: image {parts[0]}: the quaternion is not unit length")
         name = " ".join(parts[9:])
         match = _FACE_NAME.match(name)
         if match is None:

@@ -123,6 +123,17 @@ def test_readers_agree_with_the_conventions():
             "spherical",
         ),
         ("colmap", "1 1 0 0 0 0 0 0 1 photo.jpg\n\n", "no image named"),
+        # issue 57, T8-T9: each was a traceback
+        ("colmap", "1 0 0 0 0 0 0 0 1 a/front.png\n\n", "not unit length"),
+        ("colmap", "1 nan 0 0 0 0 0 0 1 a/front.png\n\n", "finite"),
+        ("colmap", "1 1 0 0 0 0 0 inf 1 a/front.png\n\n", "finite"),
+        (
+            "opensfm",
+            '[{"cameras": {"pano": "spherical"}, "shots": '
+            '{"a.jpg": {"camera": "pano", "rotation": [0,0,0], "translation": [0,0,0]}}}]',
+            "is not an object",
+        ),
+        ("opensfm", '[{"cameras": {}, "shots": [["a.jpg"]]}]', "objects keyed by name"),
     ],
 )
 def test_bad_pose_files_are_one_line_errors_naming_the_file(tmp_path, capsys, fmt, text, message):
