@@ -206,6 +206,9 @@ def run_pack(args: argparse.Namespace) -> int:
 
     if args.out.suffix != ".safetensors":
         raise UserError(f"--out must end in .safetensors, got {args.out}")
+    from panogrf.app.files.atomic import check_writable
+
+    check_writable(args.out)  # a folder of that name, a missing or read-only folder (T13)
     if args.height % 32:
         raise UserError(f"--height must be a multiple of 32, got {args.height}")
     summary = pack_scenes(args.sources, args.out, args.height, depth=not args.colour_only)

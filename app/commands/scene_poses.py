@@ -126,7 +126,11 @@ def run_import(args: argparse.Namespace) -> int:
     names = [Path(f).stem for f in files]
     if len(set(names)) != len(names):
         names = [f"view_{k:03d}" for k in range(len(files))]
-    write_scene(args.out, c2w, images, names=names, metadata={"poses": {"imported": args.format}})
+    try:
+        meta = {"poses": {"imported": args.format}}
+        write_scene(args.out, c2w, images, names=names, metadata=meta)
+    except OSError as exc:  # a full disk (T10)
+        raise UserError(f"cannot write {args.out}: {exc.strerror or exc}") from None
     lines += [f"  {n}" for n in poses.notes]
     lines.append(f"baselines (m): {_baselines(c2w)}")
     lines.append(f"wrote {args.out}")
@@ -364,7 +368,10 @@ def run_from_panoramas(args: argparse.Namespace) -> int:
             "report": REPORT,
         }
     }
-    write_scene(args.out, metric.c2w, images[keep], names=names, metadata=meta)
+    try:
+        write_scene(args.out, metric.c2w, images[keep], names=names, metadata=meta)
+    except OSError as exc:
+        raise UserError(f"cannot write {args.out}: {exc.strerror or exc}") from None
     report = _report_json(files, est, lines)
     report["scale"] = metric.lines
     try:

@@ -72,6 +72,9 @@ def test_pack_refuses_bad_input_and_keeps_what_was_there(two_sets, tmp_path, cap
     assert pack.read_bytes() == b"an earlier pack"
     assert main(["dataset", "pack", "--out", str(tmp_path / "p.npz"), str(a)]) == 2
     assert "--out must end in .safetensors" in capsys.readouterr().err
+    (tmp_path / "dir.safetensors").mkdir()  # issue 57 T13: a folder of that name
+    assert main(["dataset", "pack", "--out", str(tmp_path / "dir.safetensors"), str(a)]) == 2
+    assert "is a folder" in capsys.readouterr().err
     with pytest.raises(UserError, match="not a readable pack"):
         read_packs(pack, 32)
     good = tmp_path / "good.safetensors"
