@@ -211,7 +211,10 @@ def run_pack(args: argparse.Namespace) -> int:
     check_writable(args.out)  # a folder of that name, a missing or read-only folder (T13)
     if args.height % 32:
         raise UserError(f"--height must be a multiple of 32, got {args.height}")
-    summary = pack_scenes(args.sources, args.out, args.height, depth=not args.colour_only)
+    try:
+        summary = pack_scenes(args.sources, args.out, args.height, depth=not args.colour_only)
+    except OSError as exc:  # a full disk: the earlier pack, if any, is intact (atomic write)
+        raise UserError(f"cannot write {args.out}: {exc.strerror or exc}") from None
     print(f"{args.out}: {summary['scenes']} scenes, {summary['bytes'] / 1e6:.1f} MB")
     return 0
 

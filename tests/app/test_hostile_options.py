@@ -180,3 +180,31 @@ def test_a_camera_path_nested_too_deeply_is_one_line(tmp_path, capsys):
     assert main([*argv, "--out", str(tmp_path / "x.mp4")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "nested too deeply" in err[0]
+
+
+def test_a_full_disk_is_one_line_for_pack_and_import(tmp_path, capsys):
+    """T10, T13: `dataset pack` and `scene import` onto a full disk gave tracebacks."""
+    from helpers.disk import fill, tiny_tmpfs
+
+    from panogrf.app.poses import importers as im
+    from panogrf.app.scene.folder import load_scene
+
+    demo = asset_path("demo")
+    pose_file = tmp_path / "t.txt"
+    im.write_tum(pose_file, load_scene(demo).c2w)
+    images = [str(p) for p in sorted((demo / "images").glob("*.png"))]
+    data = tmp_path / "data"
+    data.mkdir()
+    shutil.copytree(demo, data / "a")
+    (data / "dataset.json").write_text('{"scenes": [{"folder": "a"}]}')
+    with tiny_tmpfs(tmp_path / "disk") as disk:
+        fill(disk)
+        argv = ["scene", "import", "--format", "tum", str(pose_file), "--images", *images]
+        assert main([*argv, "--out", str(disk / "s")]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "No space left" in err[0], err
+        (disk / "ballast").unlink()
+        fill(disk)  # room for the probe file only
+        assert main(["dataset", "pack", str(data), "--out", str(disk / "p.safetensors")]) == 2
+        err = capsys.readouterr().err  # the loading progress bar, then the error
+        assert "No space left" in err.strip().splitlines()[-1] and "Traceback" not in err, err
