@@ -208,7 +208,11 @@ def run_pack(args: argparse.Namespace) -> int:
         raise UserError(f"--out must end in .safetensors, got {args.out}")
     from panogrf.app.files.atomic import check_writable
 
-    check_writable(args.out)  # a folder of that name, a missing or read-only folder (T13)
+    try:  # the pack's folder is made for it, as before
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UserError(f"--out: cannot make {args.out.parent} ({exc.strerror or exc})") from None
+    check_writable(args.out)  # a folder of that name, a read-only place (T13)
     if args.height % 32:
         raise UserError(f"--height must be a multiple of 32, got {args.height}")
     try:
