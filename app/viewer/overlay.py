@@ -70,7 +70,8 @@ class OverlayMixin:
         fps = len(recent) / max(sum(recent), 1e-6) if recent else 0.0
         status = self.refinement.status_text()
         levels = self.refinement.levels
-        shown = screen.shown_label(self.mode, self.shown_level, levels, self.source_index)
+        refining = self.refinement.worker is not None
+        shown = screen.shown_label(self.mode, self.shown_level, levels, self.source_index, refining)
         view = f"perspective {self.camera.fov:.0f} deg" if self.perspective else "panorama"
         lines = [
             f"pos {p[0]:+.2f} {p[1]:+.2f} {p[2]:+.2f} m  speed {self.camera.speed:.2f} m/s",

@@ -51,8 +51,11 @@ def refine_status(worker_on: bool, requested: bool, done: int, fraction: float, 
     return f"refining level {done + 1}/{total} ({fraction:.0%}), {overall:.0%} overall"
 
 
-def shown_label(mode: str, refined_level: int | None, levels: int, source: int) -> str:
-    """What the screen shows: "refined" only when the refined frame itself is drawn."""
+def shown_label(
+    mode: str, refined_level: int | None, levels: int, source: int, refining: bool = True
+) -> str:
+    """What the screen shows: "refined" only when the refined frame itself is drawn;
+    ``refining`` False: there is no refinement (``--no-refine``) to wait for."""
     if mode == "sources":
         return f"source view {source}"
     if refined_level is not None:
@@ -60,7 +63,7 @@ def shown_label(mode: str, refined_level: int | None, levels: int, source: int) 
     if mode == "distance":
         return "distance (GL preview)"
     if mode == "refined":
-        return "GL preview (refined frame not ready)"
+        return "GL preview" if not refining else "GL preview (refined frame not ready)"
     return "GL preview"
 
 

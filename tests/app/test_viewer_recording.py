@@ -78,6 +78,8 @@ def test_letterbox_keeps_two_to_one():
 def test_overlay_says_refined_only_when_shown_with_overall_progress():
     levels = [(256, "draft", 2), (512, "fast", None)]
     assert screen.shown_label("refined", None, 2, 0).startswith("GL preview")
+    # --no-refine: nothing to wait for, so no "not ready" beside "refinement off" (issue 55)
+    assert screen.shown_label("refined", None, 0, 0, refining=False) == "GL preview"
     assert screen.shown_label("preview", None, 2, 0) == "GL preview"
     assert screen.shown_label("refined", 0, 2, 0) == "refined level 1/2"
     assert screen.shown_label("sources", None, 2, 3) == "source view 3"
