@@ -56,7 +56,6 @@ def new_scene(folder: Path, models, device: torch.device, rows: int = 512) -> di
     times["balance"] = time.perf_counter() - t
     t = time.perf_counter()
     views.refine = None  # the estimate first, then the refinement, each timed
-    est = models.estimator(spec.depth_mode)
     with torch.no_grad():
         depth = views.depth_for(spec.depth_mode, models)
     _sync(device)
@@ -77,7 +76,6 @@ def new_scene(folder: Path, models, device: torch.device, rows: int = 512) -> di
     _sync(device)
     times["render"] = time.perf_counter() - t
     times["total"] = time.perf_counter() - t0
-    del est
     return {"times": times, "views": views, "rgb": rgb, "data": data}
 
 

@@ -88,7 +88,7 @@ class DepthEstimator(nn.Module):
         mode, and no fusion)."""
         self.fusion_sweep = DEFAULT_SWEEP
         """The sweep of mode "full": it fuses the mono-guided and the unguided MVS depth (each
-        pixel keeps the one its sources agree with) and searches around it. Measured in round 7
+        pixel keeps the one its sources agree with) and searches around it. Measured
         (`benchmarks/depth_fusion.py`, `depth_fusion_round7.json`): on 36 validation scenes
         (12 of them home rooms 3-5 m apart; the worlds also scaled by 0.7 and 1.4) a short
         search (`SHORT_SWEEP`, +-0.15 in log depth) with the monocular depth as a third
@@ -101,7 +101,7 @@ class DepthEstimator(nn.Module):
         self.median = 7
         """Side of the median filter after the sweep (modes "full" and "mvs"), in pixels of
         the working resolution (1: none); see `median_filter`. Chosen on the validation scenes
-        (`benchmarks/depth_fusion.py`, round 8; mean L1 of the wide, classic and home sets):
+        (`benchmarks/depth_fusion.py`; mean L1 of the wide, classic and home sets):
         full 0.1745 m without, 0.1595 with 5, 0.1553 with 7, 0.1545 with 9 (flat from 7 on:
         the smaller window keeps more small things); MVS-only 0.2152 / 0.2003 / 0.1954."""
         self.sweep_sources = 2
@@ -121,7 +121,7 @@ class DepthEstimator(nn.Module):
         floor too far for the ceiling it sees, is put right before it places the candidates)
         or "mvs" (the unguided MVS depth itself; the monocular features still go in).
         Measured on the validation scenes (`benchmarks/depth_fusion.py`): neither "aligned" nor
-        "mvs" helps, so "mono" stays ("banded": round 28, `docs/analysis.md`)."""
+        "mvs" helps, so "mono" stays ("banded": `docs/analysis.md`)."""
         self.mono_hypothesis = False
         """Mode "full" fused: the monocular depth enters the sweep as a third hypothesis, kept
         where the sources agree with it better than with both MVS depths. Off: it pays on the
@@ -134,8 +134,8 @@ class DepthEstimator(nn.Module):
         rule's choice (0: the selector's everywhere). The rule's doubtful choices are single
         pixels, which the median outvotes; the selector's come in patches, which it keeps.
         Measured on the validation scenes (`depth_select_context_val.json`, mean L1 of the
-        eight columns): 0 0.1609, 0.1 0.1593, 0.2 0.1595. Chosen again in round 18 for round
-        17's selector with cross-view consistency (`depth_select_margin_round18_val.json`): 0
+        eight columns): 0 0.1609, 0.1 0.1593, 0.2 0.1595. Chosen again for the
+        selector with cross-view consistency (`depth_select_margin_round18_val.json`): 0
         0.1552, 0.1 0.1545, 0.2 0.1552."""
         self.record: list[dict] | None = None
         """When a list, mode "full" fused appends, per reference view, the selector's input

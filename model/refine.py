@@ -75,21 +75,21 @@ class RefineConfig:
 
 #: The refinement of a scene's cached depth at preparation (`SourceViews.refine`; on by
 #: default in view, render and eval, ``--no-refine-depth`` to skip it), after the networks, the
-#: sweep and the median. Round 11 chose the smoothness on 12 validation scenes at 512 rows
+#: sweep and the median. The smoothness was chosen on 12 validation scenes at 512 rows
 #: (PanoGRF fast, middle view from the outer two; WS-PSNR / LPIPS / full-depth L1 m): without
 #: 27.21 / 0.095 / 0.126; smoothness 0.2 27.47 / 0.089 / 0.111; 0.5 27.53 / 0.088 / 0.109; 1.0
-#: 27.58 / 0.088 / 0.110; 2.0 27.52; 4.0 27.47. Round 16 chose the schedule on 12 new
+#: 27.58 / 0.088 / 0.110; 2.0 27.52; 4.0 27.47. The schedule was chosen on 12 new
 #: validation scenes (`python benchmarks/refine_depth.py --data data/val_refine_classic
 #: data/val_refine_home`, refine_depth_val.json; median refinement s per scene of two views
 #: on 2 cores): none 27.41 / 0.0918 / 0.116; 60 steps at 256 rows 27.83 / 0.0847 / 0.104, 3.50
 #: s; **30 at 128 rows then 30 at 256 27.84 / 0.0847 / 0.105, 2.47 s**; 45 + 15 27.82 / 0.0848
 #: / 0.107, 2.03 s; 60 at 128 27.65 / 0.0876 / 0.115, 1.37 s; 30 at 256 27.80 / 0.0847 /
 #: 0.104, 1.71 s (the cheapest within 0.03 dB, 0.002 LPIPS and 0.003 m of 60 steps wins:
-#: 30 at 256 missed by 0.003 dB). Round 17 measured steps at 512 rows after them (``fine``; the
+#: 30 at 256 missed by 0.003 dB). Steps at 512 rows were measured after them (``fine``; the
 #: same scenes, refine_fine_val.json; it needed +0.10 dB to ship): 5 27.87 / 0.0841 / 0.103,
 #: 1.43x the time; 10 27.87 / 0.0837 / 0.102, 1.95x; 20 27.90 / 0.0833 / 0.101, 2.86x; 30 + 15
 #: + 10 27.83 / 0.0839 / 0.103, 1.56x: +0.03 to +0.06 dB for 1.4 to 2.9 times the time, so
-#: ``fine`` stays 0. Round 19 added the free-space term (``free_space``), chosen on the same
+#: ``fine`` stays 0. The free-space term was added (``free_space``), chosen on the same
 #: scenes, once as they are and once with the monocular network out of its domain (``python
 #: benchmarks/refine_depth.py ... [--mono-shift]``, refine_free_space*_val*.json; the rule,
 #: set before the runs: the lowest mean depth L1 of the two, at least 0.002 m below the shipped

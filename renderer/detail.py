@@ -84,7 +84,7 @@ class DetailConfig:
 #: draft 25.61 / 0.152 -> 25.68 / 0.141, at the same cost. Measured and dropped: a softmax that
 #: picks the best-agreeing source (scale 0.03: 26.36 / 0.120, 0.01: 26.07 / 0.120) and a gain
 #: on the transferred band (1.25: 26.19 / 0.108, 1.5: 25.41 / 0.114).
-#: The projection depth (round 11; `--ladder ...:network` / `...:splat`, detail_projection_val.json,
+#: The projection depth (`--ladder ...:network` / `...:splat`, detail_projection_val.json,
 #: the same 12 scenes, WS-PSNR / LPIPS / median s): fast at 256 26.82 / 0.106 / 1.03 with the
 #: network's depth, 27.21 / 0.095 / 1.13 splatted (median 5: 27.21 / 0.097, 9: 27.19 / 0.094);
 #: the viewer's draft at 128 25.61 / 0.143 -> 26.43 / 0.109, its fast level at 128 26.66 /

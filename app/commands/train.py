@@ -161,7 +161,7 @@ def register(subparsers) -> None:
     renderer.add_argument(
         "--no-surface-loss",
         action="store_true",
-        help="train only the composited colours (not the surface colour; round 1's behaviour)",
+        help="train only the composited colours (not the surface colour)",
     )
     renderer.set_defaults(func=run_renderer)
 
@@ -185,12 +185,12 @@ def register(subparsers) -> None:
     select.add_argument(
         "--no-context",
         action="store_true",
-        help="no scene-wide summary in the selector (round 14's: local only)",
+        help="no scene-wide summary in the selector (local features only)",
     )
     select.add_argument(
         "--no-consistency",
         action="store_true",
-        help="the selector does not see the cross-view consistency of the search ends (round 15's)",
+        help="the selector does not see the cross-view consistency of the search ends",
     )
     _run_args(select)
     select.set_defaults(func=run_select)

@@ -198,7 +198,7 @@ def mono_wrong_heights(
     """While inside, ``estimator``'s monocular depth has its ceiling and floor at wrong heights
     (`wrong_heights`, one draw per call of the network); its features stay as computed.
     ``shared``: one draw on entry for every view and call instead, so the views read the same
-    wrong room and agree with each other, as a real capture's views do (round 25: a per-view
+    wrong room and agree with each other, as a real capture's views do (a per-view
     draw makes the views disagree, which the fusion's cross-view check sees)."""
     if not shared:
         return mono_depth_changed(estimator, lambda depth: wrong_heights(depth, gen, strength))
@@ -268,8 +268,8 @@ def seen_warped(forward, images: Tensor, up_log: Tensor, down_log: Tensor) -> Mo
 def mono_warped_room(estimator, gen: torch.Generator, strength: float = WARP_STRENGTH):
     """While inside, ``estimator``'s monocular network sees every panorama as a room of other
     heights (`seen_warped`, log factors uniform in +-``strength`` above and below the camera),
-    as on a real room whose proportions the network did not learn (the triplet's ceiling,
-    round 20): one draw on entry for every view and call, so the views see the same wrong
+    as on a real room whose proportions the network did not learn (the triplet's ceiling):
+    one draw on entry for every view and call, so the views see the same wrong
     room."""
     up, down = room_factors(gen, 1, strength=strength)
 

@@ -89,10 +89,10 @@ class TrainDepthConfig:
     mono_features_shift: float = 0.0
     """Stage mvs, mono-guided: fraction of pairs whose monocular *features* come from the
     reference seen out of its domain (`out_of_domain`) while the monocular depth stays the one
-    of the reference as it is (then corrupted as the other options say). Round 30 found the
-    guided network reads the features more than its prior: given the true depth as the prior,
-    it was still behind the unguided network on the real triplet, led by the features of a
-    real image (`benchmarks/depth_fusion.py --mono-true`)."""
+    of the reference as it is (then corrupted as the other options say). Measured
+    (`docs/analysis.md`): the guided network reads the features more than its prior: given the
+    true depth as the prior, it was still behind the unguided network on the real triplet, led
+    by the features of a real image (`benchmarks/depth_fusion.py --mono-true`)."""
     trunk: int = 0
     """Frozen pretrained AlexNet convolutions feeding the network (`MonoDepthConfig.trunk`,
     `MVSConfig.trunk`), filled from the bundled LPIPS weights."""

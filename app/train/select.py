@@ -9,8 +9,8 @@ input out of its domain (`out_of_domain`: blended with another scene's panoramas
 prior, and the mono-guided depth with it, is wrong as on a real capture; when asked, on a
 fraction of the others (``features_shift``) only its features are those of the input out of
 its domain, its depth right, which leads the mono-guided network astray as a real image's
-features do (round 30); on some the views are put through `photometric` (then balanced as at
-preparation). The records are cached beside the data, keyed by the depth weights, the scenes
+features do; on some the views are put through `photometric` (as a real capture's
+exposure changes). The records are cached beside the data, keyed by the depth weights, the scenes
 and these settings.
 
 The label of a pixel is which search end is nearer the truth (in the canonical world), its
@@ -69,7 +69,7 @@ class FusionRecordingConfig:
     features_shift: float = 0.0
     """Fraction of the scenes not under ``shift`` whose monocular network gives the features
     of its input seen out of its domain and the depth of the input as it is
-    (`mono_out_of_domain` ``features_only``; round 30: on a real capture the mono-guided
+    (`mono_out_of_domain` ``features_only``: on a real capture the mono-guided
     network is led astray by these features more than by the depth)."""
     height: int = 256
     """Rows the panoramas are loaded at (the sweep's resolution)."""

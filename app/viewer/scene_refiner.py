@@ -28,8 +28,8 @@ class SceneRefiner:
         and libgomp then puts idle workers to sleep between kernels, slowing both threads
         (`panogrf.app.viewer.torch_threads`). On the bundled scene, beside an idle render
         worker: 10.3-12.2 s on one thread, 14.9-15.0 s on two (diagnostic runs); alone in a
-        thread on two, 7.3 s (`benchmarks/viewer.py`; round 18's refinement, round 19's with
-        the free-space term 8.1 s, 11.4 s here). One thread also leaves the other core
+        thread on two, 7.3 s (`benchmarks/viewer.py`; the refinement with the free-space
+        term 8.1 s, 11.4 s here). One thread also leaves the other core
         to the window and the render worker. Torch's count is process-wide for threads started
         later, so the caller's count is put back when the refinement ends."""
         self._caller_threads = torch.get_num_threads()

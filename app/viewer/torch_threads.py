@@ -9,10 +9,9 @@ torch's many small element-wise kernels then waits for the workers to wake.
 So if the main thread has run a parallel kernel, its pool stays alive for the whole session,
 and every parallel kernel of the viewer's background threads (the render worker, the depth
 refinement) pays this cost. `benchmarks/viewer.py` measures both arrangements in one process on
-this 2-core machine (`viewer_round18.json`): with the main thread's pool alive, as before
-round 18, the refined 512 x 1024 view came 1.66 s after the camera stopped and the bundled
-scene's depth refinement took 17.8 s in a thread on two torch threads; with the main thread
-serial, 1.01 s and 7.3 s.
+this 2-core machine (`viewer_round18.json`): with the main thread's pool alive, the refined
+512 x 1024 view came 1.66 s after the camera stopped and the bundled scene's depth refinement
+took 17.8 s in a thread on two torch threads; with the main thread serial, 1.01 s and 7.3 s.
 
 `panogrf view` therefore never runs a parallel kernel in the main thread: it sets the main
 thread's torch thread count to one (`serial_main_thread`) before any torch work, prepares the

@@ -34,8 +34,8 @@ from panogrf.renderer.render import render_panorama
 #: above 128 rows costs twice as much for under 0.1 dB. The draft reads the sources' detail
 #: bilinearly, the fast level bicubically (`DetailConfig.sampling`; validation, draft 25.61 /
 #: 0.152 bilinear, 25.68 / 0.141 bicubic): bicubic reads cost about 50-80 ms more per 512-row
-#: frame here, which the first frame (target 0.5 s) cannot spare and the last can. Since round
-#: 11 both read the sources at their own depth splatted into the target (`DEFAULT_DETAIL`'s
+#: frame here, which the first frame (target 0.5 s) cannot spare and the last can. Both
+#: read the sources at their own depth splatted into the target (`DEFAULT_DETAIL`'s
 #: projection; detail_projection_val.json): draft 25.61 / 0.143 / 0.15 -> 26.43 / 0.109 / 0.17,
 #: fast at 128 26.66 / 0.103 / 0.31 -> 26.87 / 0.094 / 0.32.
 LEVELS = ((512, "draft", 2, 128, "bilinear"), (512, "fast", None, 128, "bicubic"))
