@@ -154,10 +154,9 @@ def run(args: argparse.Namespace) -> int:
     if len(set(sources)) != len(sources) or not sources:
         raise UserError(f"--sources must list distinct frames, got {sources}")
     data = scene.images
-    if args.target_frame is not None:
-        tgt = data.c2w[args.target_frame]
-    else:
-        tgt = torch.from_numpy(parse_c2w(args.c2w)).to(data.c2w.dtype)
+    # Poses of the scene's world, in double precision: the renderer takes them relative to the
+    # scene's origin (`SceneImages.origin`), so map-grid coordinates keep their millimetres.
+    tgt = scene.c2w[args.target_frame] if args.target_frame is not None else parse_c2w(args.c2w)
     height = args.height or scene.height
     models = session.default_models(resolve_device(args.device))
     views = SourceViews(
@@ -168,7 +167,7 @@ def run(args: argparse.Namespace) -> int:
         device=models.device,
     )
     start = time.perf_counter()
-    frames = FrameRenderer(views, models, args.quality, args.method)
+    frames = FrameRenderer(views, models, args.quality, args.method, data.origin)
     try:
         frames.check_height(height)
         cache = session.prepare_views(
@@ -177,9 +176,9 @@ def run(args: argparse.Namespace) -> int:
         frames.prepare()
         prep = time.perf_counter() - start
         if args.target_frame is None:  # a pose of one's own: warned as a camera path's frame
-            _warn_pose(tgt.double().numpy(), data.c2w[sources].double().numpy(), views)
+            _warn_pose(tgt, scene.c2w[sources], views)
         start = time.perf_counter()
-        rgb = frames.panorama(tgt.numpy(), height)
+        rgb = frames.panorama(tgt, height)
         seconds = time.perf_counter() - start
     finally:
         frames.release()
@@ -306,7 +305,7 @@ def run_path(args: argparse.Namespace) -> int:
     warning = path_warning(np.asarray(path.poses, dtype=np.float64), scene.c2w)
     if warning:
         print(warning, flush=True)
-    frames = FrameRenderer(views, models, args.quality, args.method)
+    frames = FrameRenderer(views, models, args.quality, args.method, data.origin)
     start = time.perf_counter()
     try:
         erp_rows = max(

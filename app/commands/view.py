@@ -182,6 +182,7 @@ def _session(args: argparse.Namespace, threads: int) -> int:
         script=script,
         sharp=not args.no_sharp,
         scene_refiner=refiner,
+        origin=scene.images.origin,
         **({"moving_height": moving} if moving else {}),
     )
     start = time.perf_counter()

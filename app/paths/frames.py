@@ -47,11 +47,19 @@ class FrameRenderer:
     """Renders camera poses of one scene to uint8 RGB frames; release() frees GL objects."""
 
     def __init__(
-        self, views: SourceViews, models: Models, quality: str, method: str = "panogrf"
+        self,
+        views: SourceViews,
+        models: Models,
+        quality: str,
+        method: str = "panogrf",
+        origin: np.ndarray | None = None,
     ) -> None:
+        """``origin`` [3]: the world point the views' poses are relative to
+        (`SceneImages.origin`); the poses given to `panorama` and `frame` are the world's."""
         if quality not in QUALITIES:
             raise ValueError(f"quality must be one of {QUALITIES}, got {quality!r}")
         self.views, self.models, self.quality, self.method = views, models, quality, method
+        self.origin = np.zeros(3) if origin is None else np.asarray(origin, np.float64)
         self._preview = None
         self._ctx = None
 
@@ -104,12 +112,18 @@ class FrameRenderer:
         return self._preview
 
     def panorama(self, c2w: np.ndarray, height: int) -> torch.Tensor:
-        """The H x 2H panorama [3, H, 2H] in [0, 1] seen from ``c2w``."""
+        """The H x 2H panorama [3, H, 2H] in [0, 1] seen from ``c2w`` (the world's)."""
+        c2w = self._local(c2w)
         if self.quality == "preview":
             rgb, _ = self._preview_renderer().render(c2w, height)
             return torch.from_numpy(rgb).permute(2, 0, 1).float() / 255.0
         tgt = torch.from_numpy(np.asarray(c2w, np.float64)).to(self.views.c2w.dtype)
         return render_view(self.method, self.views, tgt, height, self.models, self.quality)
+
+    def _local(self, c2w: np.ndarray) -> np.ndarray:
+        out = np.array(c2w, np.float64)
+        out[:3, 3] -= self.origin
+        return out
 
     def frame(
         self, c2w: np.ndarray, camera_type: str, width: int, height: int, fov_deg: float
@@ -124,7 +138,7 @@ class FrameRenderer:
             and self.quality != "preview"
             and width * height < pano_rays
         ):
-            tgt = torch.from_numpy(np.asarray(c2w, np.float64))
+            tgt = torch.from_numpy(self._local(c2w))
             rgb = render_perspective_view(
                 self.method, self.views, tgt, width, height, fov_deg, self.models, self.quality
             )

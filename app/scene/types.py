@@ -20,6 +20,20 @@ TRANSFORMS = "transforms.json"
 CAMERA_MODEL = "EQUIRECTANGULAR"
 #: Top-level keys of transforms.json that are not metadata.
 RESERVED_KEYS = ("camera_model", "w", "h", "frames")
+#: Camera centres farther than this from the world's origin (metres; geo-referenced COLMAP,
+#: OpenSfM or SLAM output puts them at map-grid offsets of 1e5-1e7 m) are re-centred before
+#: the poses become single precision, whose spacing there is 1-60 cm; at 1 km it is 0.06 mm.
+RECENTRE_BEYOND_M = 1000.0
+
+
+def scene_origin(c2w: np.ndarray) -> np.ndarray:
+    """[3] float64: the point the model's single-precision poses are taken relative to, the
+    camera centres' mean rounded to whole metres; zeros when every centre lies within
+    `RECENTRE_BEYOND_M` of the world's origin (the poses are then used as they are)."""
+    centres = np.asarray(c2w, np.float64)[:, :3, 3]
+    if not np.abs(centres).max(initial=0.0) > RECENTRE_BEYOND_M:
+        return np.zeros(3)
+    return np.round(centres.mean(0))
 
 
 @dataclass(frozen=True, eq=False)
@@ -46,10 +60,25 @@ class SceneImages:
     """[V, 4, 4] camera-to-world, OpenGL, metres."""
     depths: torch.Tensor | None
     """[V, 1, H, W] spherical depth in metres, 0 = unknown; None when no view has depth."""
+    origin: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    """[3] float64: the world point ``c2w`` is relative to (`scene_origin`): a pose of the
+    scene's world is ``local(pose)`` here, and one of here is ``world(pose)`` there."""
 
     def to(self, device: torch.device | str) -> SceneImages:
         depths = None if self.depths is None else self.depths.to(device)
-        return SceneImages(self.images.to(device), self.c2w.to(device), depths)
+        return SceneImages(self.images.to(device), self.c2w.to(device), depths, self.origin)
+
+    def local(self, c2w: np.ndarray) -> np.ndarray:
+        """World camera-to-world pose(s) [..., 4, 4] -> this container's frame, float64."""
+        out = np.array(c2w, np.float64)
+        out[..., :3, 3] -= self.origin
+        return out
+
+    def world(self, c2w: np.ndarray) -> np.ndarray:
+        """Pose(s) [..., 4, 4] of this container's frame -> the scene's world, float64."""
+        out = np.array(c2w, np.float64)
+        out[..., :3, 3] += self.origin
+        return out
 
     @classmethod
     def from_arrays(
@@ -60,14 +89,19 @@ class SceneImages:
         dtype: torch.dtype,
     ) -> SceneImages:
         """Stack per-view arrays: pixels [H, W, 3] uint8, depths [H, W] metres or None each,
-        c2w [V, 4, 4]; views without depth get zeros (unknown) when any view has depth."""
+        c2w [V, 4, 4] float64; views without depth get zeros (unknown) when any view has depth.
+        Poses far from the world's origin are taken relative to `scene_origin` first, in
+        double precision, so that ``dtype`` keeps their millimetres."""
         images = torch.from_numpy(np.stack(pixels)).permute(0, 3, 1, 2).to(dtype) / 255.0
         depth = None
         if any(d is not None for d in depths):
             h, w = pixels[0].shape[:2]
             filled = [np.zeros((h, w), np.float32) if d is None else d for d in depths]
             depth = torch.from_numpy(np.stack(filled))[:, None].to(dtype)
-        return cls(images.contiguous(), torch.from_numpy(c2w).to(dtype), depth)
+        origin = scene_origin(c2w)
+        local = np.array(c2w, np.float64)
+        local[:, :3, 3] -= origin
+        return cls(images.contiguous(), torch.from_numpy(local).to(dtype), depth, origin)
 
 
 @dataclass(frozen=True, eq=False)

@@ -4,6 +4,7 @@ the session and its keyframes carry on. Mixed into `PanoViewer`, whose state it 
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from pathlib import Path
@@ -23,12 +24,14 @@ class ExportsMixin:
             self.say("no keyframes to save (K adds one)")
             return
         w, h = self.wnd.buffer_size
+        keys = [dataclasses.replace(k, c2w=self.setup.world(k.c2w)) for k in self.path.keys]
         path = recording.recorded_path(
-            self.path.keys, self.perspective, self.setup.preview_height, self.setup.fps, w / h
+            keys, self.perspective, self.setup.preview_height, self.setup.fps, w / h
         )
         ok, message = recording.save_path_file(self.setup.path_out, path)
         self.say(message)
-        warning = path_warning(path.poses, self.setup.c2w) if ok else None
+        sources = np.stack([self.setup.world(c) for c in self.setup.c2w])
+        warning = path_warning(path.poses, sources) if ok else None
         if warning:
             self.say(warning)
 
@@ -46,7 +49,7 @@ class ExportsMixin:
         if not ok:
             self.say(f"cannot save the screenshot {out}: {problem}")
             return
-        c = FlyCamera.from_c2w(self.view_pose())
+        c = FlyCamera.from_c2w(self.setup.world(self.view_pose()))
         p = c.position
         self.say(
             f"screenshot {out} at {p[0]:+.3f} {p[1]:+.3f} {p[2]:+.3f} "

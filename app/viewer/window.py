@@ -89,6 +89,15 @@ class ViewerSetup:
     # Each source's rig at the nadir ([V, H, W] bool, `SourceViews.nadir_mask`; None: none):
     # the preview draws none of a source's mesh there.
     masks: np.ndarray | None = None
+    # The world point the poses above are relative to (`SceneImages.origin`): saved camera
+    # paths and printed positions are the world's.
+    origin: np.ndarray = field(default_factory=lambda: np.zeros(3))
+
+    def world(self, c2w: np.ndarray) -> np.ndarray:
+        """A pose [4, 4] of the viewer's frame -> the scene's world (float64)."""
+        out = np.array(c2w, np.float64)
+        out[:3, 3] += self.origin
+        return out
 
     @classmethod
     def from_views(cls, views, start_frame: int = 0, **kw) -> ViewerSetup:
