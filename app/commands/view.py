@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 import time
 from pathlib import Path
@@ -64,6 +65,13 @@ def register(subparsers) -> None:
         type=Path,
         default=Path("camera_path.json"),
         help="where O saves the camera path (default camera_path.json)",
+    )
+    parser.add_argument(
+        "--camera-path",
+        type=Path,
+        default=None,
+        help="start with the keyframes of this camera path (one O saved, or any nerfstudio "
+        "camera_path.json; in the scene's world): P plays it, keys edit it, O saves it",
     )
     parser.add_argument(
         "--screenshot-dir",
@@ -142,6 +150,12 @@ def _session(args: argparse.Namespace, threads: int) -> int:
         script = parse_script(args.script)
     except ValueError as exc:
         raise UserError(f"--script: {exc}") from None
+    keyframes = []
+    if args.camera_path is not None:  # read first: a bad file fails before minutes of work
+        from panogrf.app.paths.camera_path import read_camera_path
+        from panogrf.app.viewer.recording import keyframes_from_path
+
+        keyframes = keyframes_from_path(read_camera_path(args.camera_path))
     from panogrf.app.scene import session
 
     # The refined scene when it is cached; else the plain one now and the refinement in the
@@ -183,6 +197,8 @@ def _session(args: argparse.Namespace, threads: int) -> int:
         sharp=not args.no_sharp,
         scene_refiner=refiner,
         origin=scene.images.origin,
+        keyframes=[dataclasses.replace(k, c2w=scene.images.local(k.c2w)) for k in keyframes],
+        keyframes_from=str(args.camera_path),
         **({"moving_height": moving} if moving else {}),
     )
     start = time.perf_counter()

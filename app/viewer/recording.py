@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from panogrf.app.paths.camera_path import CameraPath, write_camera_path
+from panogrf.app.paths.camera_path import DEFAULT_FOV_DEG, CameraPath, write_camera_path
 from panogrf.app.paths.trajectory import frame_times, sample_keyframes, sample_values
 
 #: Seconds of a new keyframe's transition to the next one (nerfstudio's default).
@@ -148,6 +148,38 @@ def save_image_file(out: Path, rgb: np.ndarray) -> tuple[bool, str | None]:
         except (OSError, ValueError) as exc:
             problem = _reason(exc)
     return problem is None, problem
+
+
+#: A camera path without nerfstudio keyframes gives at most this many of its cameras as keyframes
+#: (evenly spaced, the last one kept), each held for its share of the path's duration.
+MAX_LOADED_KEYFRAMES = 64
+
+
+def keyframes_from_path(path: CameraPath) -> list[Keyframe]:
+    """The keyframes of a camera path read back (`read_camera_path`), in its world: nerfstudio's
+    own keyframes (``matrix`` column-major, ``fov``, ``override_transition_sec``; what the
+    viewer's O saves) where it holds them, else cameras of the path itself."""
+    keys = []
+    for k in path.keyframes if isinstance(path.keyframes, list) else []:
+        try:
+            m = np.asarray(k["matrix"], np.float64).reshape(4, 4).T
+            fov = float(k.get("fov", DEFAULT_FOV_DEG))
+            sec = float(k.get("override_transition_sec") or DEFAULT_TRANSITION_S)
+        except (TypeError, KeyError, ValueError):
+            keys = []  # not the keyframes this viewer writes: fall back on the cameras
+            break
+        if not (np.isfinite(m).all() and np.isfinite(fov) and np.isfinite(sec)):
+            keys = []
+            break
+        keys.append(Keyframe(m, fov, max(RETIME_STEP_S, sec)))
+    if keys:
+        return keys
+    n = len(path.poses)
+    pick = np.unique(np.linspace(0, n - 1, min(n, MAX_LOADED_KEYFRAMES)).round().astype(int))
+    seconds = path.seconds if path.seconds else n / path.fps
+    step = seconds / (len(pick) - 1) if len(pick) > 1 and seconds > 0 else DEFAULT_TRANSITION_S
+    fov = path.fov if path.fov is not None else np.full(n, DEFAULT_FOV_DEG)
+    return [Keyframe(np.array(path.poses[i], np.float64), float(fov[i]), step) for i in pick]
 
 
 class KeyframeSession:

@@ -92,6 +92,10 @@ class ViewerSetup:
     # The world point the poses above are relative to (`SceneImages.origin`): saved camera
     # paths and printed positions are the world's.
     origin: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    # Keyframes to start with (a saved camera path read back, `--camera-path`), in the
+    # viewer's frame, and where they came from (for the first message).
+    keyframes: list = field(default_factory=list)
+    keyframes_from: str = ""
 
     def world(self, c2w: np.ndarray) -> np.ndarray:
         """A pose [4, 4] of the viewer's frame -> the scene's world (float64)."""
@@ -171,6 +175,14 @@ class PanoViewer(ExportsMixin, OverlayMixin, mglw.WindowConfig):
         self.last_overlay = 0.0
         self.messages: list[str] = []
         self._keymap = self._make_keymap()
+        if s.keyframes:
+            self.path.keys = [
+                recording.Keyframe(k.c2w.copy(), k.fov, k.transition) for k in s.keyframes
+            ]
+            self.say(
+                f"{len(s.keyframes)} keyframes from {s.keyframes_from} (P plays them, G goes to "
+                "each, O saves)"
+            )
 
     # -- helpers -------------------------------------------------------------------------------
     def _make_preview(self, depth: np.ndarray):

@@ -160,6 +160,24 @@ def test_headless_session_writes_screenshots_and_a_camera_path(tmp_path):
     path = read_camera_path(out_path)
     assert len(path) > 3 and path.camera_type == "equirectangular"
     assert len(path.keyframes) == 3
+    # Read back: the session starts with the three keyframes, plays them and saves them again.
+    again = tmp_path / "again.json"
+    cmd[cmd.index("--script") + 1] = "p,wait*5,o"
+    cmd[cmd.index("--path-out") + 1] = str(again)
+    cmd[cmd.index("--frames") + 1] = "10"
+    run = subprocess.run(
+        [*cmd, "--camera-path", str(out_path)], capture_output=True, text=True, timeout=300
+    )
+    assert run.returncode == 0, run.stderr
+    assert f"3 keyframes from {out_path}" in run.stdout and "playing 3 keyframes" in run.stdout
+    assert read_camera_path(again).keyframes == path.keyframes
+    run = subprocess.run(
+        [*cmd, "--camera-path", str(tmp_path / "none.json")],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert run.returncode == 2 and "none.json: camera path file not found" in run.stderr
 
 
 def test_view_errors(tmp_path):

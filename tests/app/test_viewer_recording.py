@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -39,6 +40,27 @@ def test_recorded_path_keeps_each_keyframes_fov_time_and_one_aspect(tmp_path):
     back = read_camera_path(tmp_path / "p.json")
     assert back.seconds == pytest.approx(len(back) / back.fps)
     assert np.allclose(back.fov, path.fov)
+
+
+def test_a_saved_path_reads_back_as_its_keyframes_and_any_path_as_its_cameras(tmp_path):
+    """What O saves comes back as the same keyframes (pose, fov, transition); a path without
+    keyframes (written by hand, by another tool) gives at most MAX_LOADED_KEYFRAMES of its
+    cameras, first and last kept, timed to the path's duration."""
+    path = recording.recorded_path(KEYS, perspective=True, pano_height=256, fps=10, aspect=2.0)
+    assert recording.save_path_file(tmp_path / "p.json", path)[0]
+    back = recording.keyframes_from_path(read_camera_path(tmp_path / "p.json"))
+    assert len(back) == len(KEYS)
+    for a, b in zip(back, KEYS, strict=True):
+        assert np.allclose(a.c2w, b.c2w) and a.fov == b.fov and a.transition == b.transition
+    path = recording.recorded_path(KEYS, perspective=True, pano_height=256, fps=30, aspect=2.0)
+    path = dataclasses.replace(path, keyframes=None)
+    cams = recording.keyframes_from_path(path)
+    assert len(cams) == recording.MAX_LOADED_KEYFRAMES < len(path)
+    assert np.allclose(cams[0].c2w, path.poses[0]) and np.allclose(cams[-1].c2w, path.poses[-1])
+    total = sum(k.transition for k in cams[:-1])
+    assert total == pytest.approx(path.seconds)
+    path = dataclasses.replace(path, keyframes=[{"matrix": "not a matrix"}])  # another tool's
+    assert len(recording.keyframes_from_path(path)) == recording.MAX_LOADED_KEYFRAMES
 
 
 def test_playback_pose_at_a_time_follows_the_transitions():
