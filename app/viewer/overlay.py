@@ -80,7 +80,7 @@ class OverlayMixin:
             *([refiner.status_text()] if (refiner := self.setup.scene_refiner) else []),
             self.path.status(),
             *self._coverage_lines(pose),
-            *self.messages,
+            *self.messages.lines(time.perf_counter()),
         ]
         img = screen.overlay_image(lines, legend=self.mode == "distance")
         self.overlay_img = img

@@ -89,19 +89,75 @@ def turbo_bar(width: int, height: int) -> np.ndarray:
     return np.repeat(rgba[None], height, axis=0)
 
 
+#: The overlay's font (OpenCV's Hershey simplex at this scale) and its margin, pixels.
+FONT, FONT_SCALE, MARGIN = cv2.FONT_HERSHEY_SIMPLEX, 0.45, 6
+#: A message stays on the overlay this long (seconds); at most this many of its lines show.
+MESSAGE_SECONDS, MESSAGE_LINES = 8.0, 4
+
+
+def text_width(text: str) -> int:
+    """Pixels ``text`` takes on the overlay."""
+    return cv2.getTextSize(text, FONT, FONT_SCALE, 1)[0][0]
+
+
+def wrap_to_width(line: str, width: int = OVERLAY_WIDTH - 2 * MARGIN) -> list[str]:
+    """``line`` broken at spaces into lines of at most ``width`` pixels (a word longer than
+    that is broken inside)."""
+    out, current = [], ""
+    for word in line.split():
+        while text_width(word) > width:  # a path or a number longer than the box
+            cut = max(1, max(k for k in range(1, len(word) + 1) if text_width(word[:k]) <= width))
+            if current:
+                out.append(current)
+                current = ""
+            out.append(word[:cut])
+            word = word[cut:]
+        trial = f"{current} {word}" if current else word
+        if current and text_width(trial) > width:
+            out.append(current)
+            current = word
+        else:
+            current = trial
+    if current or not out:
+        out.append(current)
+    return out
+
+
+class Messages:
+    """The overlay's messages: whole messages only (never the tail of one), the newest last,
+    at most `MESSAGE_LINES` wrapped lines, each gone `MESSAGE_SECONDS` after it was said; a
+    message said again replaces its earlier copy."""
+
+    def __init__(self) -> None:
+        self.items: list[tuple[float, str]] = []
+
+    def add(self, text: str, now: float) -> None:
+        self.items = [(t, m) for t, m in self.items if m != text] + [(now, text)]
+
+    def lines(self, now: float) -> list[str]:
+        self.items = [(t, m) for t, m in self.items if now - t < MESSAGE_SECONDS]
+        shown: list[str] = []
+        for _, text in reversed(self.items):
+            wrapped = wrap_to_width(text)
+            if shown and len(shown) + len(wrapped) > MESSAGE_LINES:
+                break
+            shown = wrapped[:MESSAGE_LINES] + shown
+        return shown
+
+
 def overlay_image(lines: list[str], legend: bool = False) -> np.ndarray:
-    """The overlay: white text on a translucent box, RGBA uint8; ``legend`` adds the distance
-    colour map under the text (0 m to `MAX_DISTANCE_M`, black where no source saw)."""
+    """The overlay: white text on a translucent box, RGBA uint8, each line wrapped inside it;
+    ``legend`` adds the distance colour map under the text (0 m to `MAX_DISTANCE_M`, black
+    where no source saw)."""
+    lines = [part for line in lines for part in wrap_to_width(line)]
     rows = len(lines) + (1 if legend else 0)
     img = np.zeros((ROW * rows + 8, OVERLAY_WIDTH, 4), np.uint8)
     img[..., 3] = 140
-    texts = [(line, 6, ROW * i + 17) for i, line in enumerate(lines)]
+    texts = [(line, MARGIN, ROW * i + 17) for i, line in enumerate(lines)]
     if legend:
         y = ROW * len(lines)
         img[y + 5 : y + 17, 40:240] = turbo_bar(200, 12)
         texts += [("0 m", 6, y + 17), (f"{MAX_DISTANCE_M:.0f} m+   black: unseen", 246, y + 17)]
     for line, x, y in texts:
-        cv2.putText(
-            img, line, (x, y), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255, 255), 1, cv2.LINE_AA
-        )
+        cv2.putText(img, line, (x, y), FONT, FONT_SCALE, (255, 255, 255, 255), 1, cv2.LINE_AA)
     return img

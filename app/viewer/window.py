@@ -24,7 +24,6 @@ H toggle the overlay, Esc quit.
 from __future__ import annotations
 
 import math
-import textwrap
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -173,7 +172,7 @@ class PanoViewer(ExportsMixin, OverlayMixin, mglw.WindowConfig):
         self.preview_out = None
         self.script = ScriptPlayer(s.script)
         self.last_overlay = 0.0
-        self.messages: list[str] = []
+        self.messages = screen.Messages()
         self._keymap = self._make_keymap()
         if s.keyframes:
             self.path.keys = [
@@ -241,7 +240,7 @@ class PanoViewer(ExportsMixin, OverlayMixin, mglw.WindowConfig):
 
     def say(self, text: str) -> None:
         """A message on the overlay (wrapped, the last few lines) and in the terminal."""
-        self.messages = (self.messages + textwrap.wrap(text, 72))[-4:]
+        self.messages.add(text, time.perf_counter())
         self.setup.log(text)
 
     def view_pose(self) -> np.ndarray:

@@ -97,6 +97,34 @@ def test_letterbox_keeps_two_to_one():
     assert screen.letterbox(1600, 400) == (400, 0, 800, 400)  # bars left and right
 
 
+def test_overlay_lines_wrap_inside_the_box():
+    long = "cannot save the camera path /a/very/long/folder/" + "x" * 120 + " : no such folder"
+    lines = screen.wrap_to_width(long)
+    assert len(lines) > 2 and " ".join(lines).replace(" ", "") == long.replace(" ", "")
+    box = screen.OVERLAY_WIDTH - 2 * screen.MARGIN
+    assert all(screen.text_width(line) <= box for line in lines)
+    img = screen.overlay_image(["pos +0.00 +0.00 +0.00 m", long])
+    assert img.shape[0] == screen.ROW * (1 + len(lines)) + 8
+    assert screen.wrap_to_width("") == [""]
+
+
+def test_overlay_messages_are_whole_recent_and_said_once():
+    """Old messages expire, a long one is never cut to its tail, a repeated one shows once."""
+    m = screen.Messages()
+    m.add("playing 3 keyframes, 6.0 s", now=0.0)
+    long = "a message long enough to need three lines on the overlay " * 3
+    m.add(long, now=1.0)
+    m.add("keyframe 2 added (fov 75 deg)", now=2.0)
+    shown = m.lines(now=2.5)
+    wrapped = screen.wrap_to_width(long)
+    assert len(wrapped) == 3 and shown == [*wrapped, "keyframe 2 added (fov 75 deg)"]
+    assert "playing" not in " ".join(shown)  # it would have fitted only as a fragment
+    m.add("keyframe 2 added (fov 75 deg)", now=3.0)
+    assert m.lines(now=3.0).count("keyframe 2 added (fov 75 deg)") == 1
+    assert m.lines(now=1.0 + screen.MESSAGE_SECONDS + 0.1) == ["keyframe 2 added (fov 75 deg)"]
+    assert m.lines(now=100.0) == []
+
+
 def test_overlay_says_refined_only_when_shown_with_overall_progress():
     levels = [(256, "draft", 2), (512, "fast", None)]
     assert screen.shown_label("refined", None, 2, 0).startswith("GL preview")
