@@ -89,9 +89,8 @@ def main() -> None:
     estimator = load_depth_estimator(("full", "mvs"))
     start = time.perf_counter()
     results = {mode: evaluate(estimator, data, mode, baselines) for mode in ("mono", "mvs", "full")}
-    estimator.fuse = False  # round 2's full mode: the mono-guided network and the sweep alone
-    results["full_no_fusion"] = evaluate(estimator, data, "full", baselines)
-    estimator.fuse = True
+    # Round 2's full mode: the mono-guided network and the sweep alone.
+    results["full_no_fusion"] = evaluate(estimator.configured(fuse=False), data, "full", baselines)
 
     full_net = estimator.mvs["full"]
     sweep = {}
@@ -99,7 +98,7 @@ def main() -> None:
         cfg = dataclasses.replace(full_net.config, n_mono=n_mono, n_uni=64 - n_mono)
         net = MVSNet(cfg)
         net.load_state_dict(full_net.state_dict())
-        swept = DepthEstimator(estimator.mono, {"full": net.eval()}, estimator.working_height)
+        swept = DepthEstimator(estimator.mono, {"full": net.eval()}, estimator.config)
         sweep[str(n_mono)] = evaluate(swept, data, "full", [1.0]).get("1.0")
     seconds = time.perf_counter() - start
 

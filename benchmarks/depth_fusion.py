@@ -8,16 +8,14 @@ generator with seeds no training run used (``panogrf dataset make --split train 
 classic and ``--seed 90001 --world home``), never on the test split or a real capture. For every
 scene the first and last views are estimated, each the other's source, and compared with the
 ground truth on 0 < gt <= d_max. Rows: mono; MVS-only (with the sweep); full without fusion
-(mono-guided network and the sweep, round 2); full fused with the mono-guided network's
-candidates placed by another prior (``DepthEstimator.guide``: the monocular depth aligned to
-the unguided MVS depth, or the unguided MVS depth itself); full fused in the canonical world
-(``DepthEstimator.canonical``: the world scaled to the monocular network's sense of size);
+(mono-guided network and the sweep, round 2); full fused in the canonical world
+(``DepthConfig.canonical``: the world scaled to the monocular network's sense of size);
 full fused with the unguided depth
 at each ``switch_gain`` (how much better the unguided depth must match to replace the
 mono-guided one); without any sweep; with mode full's search at +-0, +-0.15 and +-0.25 in log
-depth (``DepthEstimator.fusion_sweep``), each with and without the monocular depth as a third
+depth (``DepthConfig.fusion_sweep``), each with and without the monocular depth as a third
 hypothesis; round 8's rows: the wide search with a stronger prior (far moves need more
-evidence), and a median after the sweep (``DepthEstimator.median``, in modes full and mvs);
+evidence), and a median after the sweep (``DepthConfig.median``, in modes full and mvs);
 round 14's: the learned choice of each pixel's hypothesis (``DepthEstimator.selector``, when
 ``depth_select.safetensors`` is among the weights); round 24's: the monocular depth blended
 back in (``DepthEstimator.blend``, when ``depth_blend.safetensors`` is).
@@ -165,15 +163,20 @@ def _mono_out_of_domain(estimator, partner, seed: int, features_only: bool = Fal
     return mono_out_of_domain(estimator, partner, gen, features_only)
 
 
-def _reset(estimator) -> None:
+def _base(estimator):
     """The settings each row starts from (the canonical world off: rows name what they add)."""
-    estimator.fuse, estimator.switch_gain, estimator.guide = True, 0.0, "mono"
-    estimator.canonical = False
-    estimator.mono_hypothesis = False
-    estimator.selector, estimator.select_margin = None, 0.0
-    estimator.sweep, estimator.fusion_sweep = DEFAULT_SWEEP, DEFAULT_SWEEP
-    estimator.median = 1
-    estimator.blend = None
+    return estimator.configured(
+        fuse=True,
+        switch_gain=0.0,
+        canonical=False,
+        mono_hypothesis=False,
+        selector=None,
+        select_margin=0.0,
+        sweep=DEFAULT_SWEEP,
+        fusion_sweep=DEFAULT_SWEEP,
+        median=1,
+        blend=None,
+    )
 
 
 def main() -> None:
@@ -273,9 +276,6 @@ def main() -> None:
             name = f"full, fused, canonical world, median 7, selector, margin 0.1, blend{suffix}"
             settings.append((name, "full", wide | canonical | attrs))
             if not suffix:
-                # Round 28: the prior put right band by band of elevation before it guides.
-                banded = f"{name}, banded guide"
-                settings.append((banded, "full", wide | canonical | attrs | {"guide": "banded"}))
                 # Round 28: the shipped chain in the metric world (no canonical world).
                 metric = name.replace("canonical world", "metric world")
                 settings.append((metric, "full", wide | attrs))
@@ -301,16 +301,14 @@ def main() -> None:
         column += f" mono-{mono}" if mono != "clean" else ""
         columns.append(column)
         for name, mode, attrs in settings:
-            _reset(estimator)
-            for key, value in attrs.items():
-                setattr(estimator, key, value)
-            errors, seconds, bands = _pairs(estimator, data, mode, scale, mono)
+            errors, seconds, bands = _pairs(
+                _base(estimator).configured(**attrs), data, mode, scale, mono
+            )
             row = results.setdefault(name, {"l1": {}, "seconds": [], "bands": {}})
             row["l1"][column] = statistics.fmean(errors)
             row["seconds"] += seconds
             row["bands"][column] = bands
             print(f"{column} {name}: L1 {statistics.fmean(errors):.4f}", flush=True)
-        _reset(estimator)
     names = columns
     lines = [
         "| setting | " + " | ".join(names) + " | mean | s / pair |",

@@ -77,16 +77,18 @@ def scene_folders(paths: list[Path]) -> list[Path]:
 
 
 @contextmanager
-def attributes(obj, values: dict):
-    """``obj`` with ``values`` set, put back after."""
-    old = {k: getattr(obj, k) for k in values}
-    for k, v in values.items():
-        setattr(obj, k, v)
+def estimator_as(models, mode: str, estimator):
+    """``models`` giving ``estimator`` for ``mode``, as before after."""
+    old = models.estimator
+
+    def pick(m):
+        return estimator if m == mode else old(m)
+
+    object.__setattr__(models, "estimator", pick)
     try:
-        yield obj
+        yield models
     finally:
-        for k, v in old.items():
-            setattr(obj, k, v)
+        object.__setattr__(models, "estimator", old)
 
 
 def middle_first(data, rows: int):
@@ -121,7 +123,7 @@ def run_variant(name, data, models, rows: int):
     kw = {"refine": PREPARE_REFINE} | view_kw
     est = models.estimator(mode)
     spec = MethodSpec("panogrf", mode, "panogrf", METHODS["panogrf"].kind)
-    with attributes(est, attrs):
+    with estimator_as(models, mode, est.configured(**attrs)):
         t0 = time.perf_counter()
         views = SourceViews(data.images[[0, 2]], data.c2w[[0, 2]], device=models.device, **kw)
         views.cache_for(spec, models)

@@ -37,10 +37,8 @@ def _run_eval(fusion: str, argv: list[str]) -> int:
     if attrs:
         init = depth.DepthEstimator.__init__
 
-        def _init(self, *args, **kwargs):
-            init(self, *args, **kwargs)
-            for key, value in attrs.items():
-                setattr(self, key, value)
+        def _init(self, mono, mvs, config=None, **kwargs):
+            init(self, mono, mvs, config, **(kwargs | attrs))
 
         depth.DepthEstimator.__init__ = _init
     from panogrf.app.cli import main

@@ -32,8 +32,6 @@ from pathlib import Path
 
 import torch
 
-from panogrf.model.depth import GUIDES
-
 KEYS = ("ws_psnr", "ssim", "lpips", "depth_l1")
 
 
@@ -89,17 +87,10 @@ def main() -> int:
         help="estimate the depth with the monocular network out of its domain",
     )
     parser.add_argument(
-        "--guide",
-        choices=GUIDES,
-        default=None,
-        help="the prior that places the mono-guided network's candidates "
-        "(`DepthEstimator.guide`; default: as shipped)",
-    )
-    parser.add_argument(
         "--metric-world",
         action="store_true",
         help="the MVS networks and the sweep in the metric world, not the canonical one "
-        "(`DepthEstimator.canonical` off)",
+        "(`DepthConfig.canonical` off)",
     )
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/refine_depth.json"))
     args = parser.parse_args()
@@ -116,10 +107,12 @@ def main() -> int:
     names = [s.strip() for s in args.settings.split("|") if s.strip()]
     settings = {name: parse_setting(name) for name in names}
     models = default_models()
-    if args.guide is not None:
-        models.estimator("full").guide = args.guide
     if args.metric_world:
-        models.estimator("full").canonical = False
+        metric = models.estimator("full").configured(canonical=False)
+        models = dataclasses.replace(
+            models,
+            estimator=lambda mode, full=models.estimator: metric if mode == "full" else full(mode),
+        )
     d_max = models.estimator("full").d_max
     rows: dict[str, list[dict]] = {name: [] for name in names}
     start = time.perf_counter()
@@ -174,7 +167,6 @@ def main() -> int:
         "data": [str(p) for p in args.data],
         "height": args.height,
         "mono_shift": args.mono_shift,
-        "guide": models.estimator("full").guide,
         "canonical": models.estimator("full").canonical,
         "settings": {name: repr(config) for name, config in settings.items()},
         "table": table,

@@ -22,6 +22,7 @@ does, to keep its depth caches cheap).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import torch
@@ -30,7 +31,7 @@ from torch import Tensor, nn
 
 from panogrf.model.blend import DepthBlend, blend_features, parallax
 from panogrf.model.erp import erp_directions
-from panogrf.model.mono import MonoDepthNet, MonoOutput
+from panogrf.model.mono import MonoDepthNet
 from panogrf.model.mvs import MVSNet
 from panogrf.model.progress import open_stage, stage
 from panogrf.model.refine import (
@@ -48,12 +49,9 @@ from panogrf.model.select import (
 )
 
 MODES = ("full", "mono", "mvs")
-GUIDES = ("mono", "aligned", "banded", "mvs")
-#: Bands of elevation of the "banded" guide (`DepthEstimator._banded`), equal in degrees.
-GUIDE_BANDS = 6
 DEFAULT_SWEEP = SweepConfig()
 #: A short search (0.86x to 1.16x) for mode "full"'s sweep: measured, not the default (see
-#: `DepthEstimator.fusion_sweep`).
+#: `DepthConfig.fusion_sweep`).
 SHORT_SWEEP = SweepConfig(candidates=7, span=0.15)
 
 
@@ -66,98 +64,107 @@ class DepthEstimate:
     warnings: list[str] = field(default_factory=list)
 
 
+@dataclass(frozen=True)
+class DepthConfig:
+    """How `DepthEstimator` estimates depth: fixed at construction (`DepthEstimator.configured`
+    makes an estimator of other settings that shares the networks)."""
+
+    working_height: int = 128
+    """Rows the networks run at (panoramas are resized to it and the depth back)."""
+    min_baseline: float = 0.05
+    """Sources closer than this to the reference (metres) carry no parallax: dropped."""
+    sweep: SweepConfig | None = DEFAULT_SWEEP
+    """The photometric sweep after the MVS network in mode "mvs" (None: no sweep in any mode,
+    and no fusion, median or blend)."""
+    fusion_sweep: SweepConfig = DEFAULT_SWEEP
+    """The sweep of mode "full": it fuses the mono-guided and the unguided MVS depth (each
+    pixel keeps the one its sources agree with) and searches around it. A short search
+    (`SHORT_SWEEP`) with the monocular depth as a third hypothesis has the lower L1 on
+    synthetic rooms (0.139 against 0.172 m), this one on the real triplet (0.173 against 0.231
+    m: a real capture's mono-guided depth is off further than the short search reaches);
+    `benchmarks/depth_fusion.py`."""
+    median: int = 7
+    """Side of the median filter after the sweep (modes "full" and "mvs"), in pixels of the
+    working resolution (1: none; `median_filter`). Mean L1 of the validation sets (full):
+    0.1745 m without, 0.1595 with 5, 0.1553 with 7, 0.1545 with 9."""
+    sweep_sources: int = 2
+    """The sweep compares each view with at most this many of its nearest sources."""
+    fuse: bool = True
+    """Mode "full" with the unguided network loaded: both depths enter the sweep, each pixel
+    keeping the one its sources agree with (see `sweep_depth`'s ``others``)."""
+    switch_gain: float = 0.0
+    """How much better the unguided depth must match to replace the mono-guided one."""
+    mono_hypothesis: bool = False
+    """Mode "full" fused: the monocular depth enters the sweep as a third hypothesis. Off: it
+    pays with the short search only (see ``fusion_sweep``)."""
+    select_margin: float = 0.1
+    """Pixels whose selector probability is within this of one half keep the photometric
+    rule's choice (0: the selector's everywhere): the rule's doubtful choices are single
+    pixels, which the median outvotes; the selector's come in patches. Mean L1 of the
+    validation sets: 0 0.1552, 0.1 0.1545, 0.2 0.1552."""
+    canonical: bool = True
+    """Mode "full" with the unguided network loaded: the MVS networks and the sweep work in the
+    world scaled by k = median(mono / unguided MVS depth) (`_world_scale`), the room sizes the
+    monocular network learned, and the depth is scaled back by 1 / k: the mono prior and the
+    cost volume agree on scale, as in training. One more pass of the unguided network.
+    Mean L1 (classic and home) with the world scaled by 1, 0.7 and 1.4: off 0.156 / 0.210 /
+    0.301, on 0.155 / 0.126 / 0.215."""
+
+
 class DepthEstimator(nn.Module):
-    """Mono network plus the MVS networks by mode ("full": mono-guided, "mvs": MVS only)."""
+    """Mono network plus the MVS networks by mode ("full": mono-guided, "mvs": MVS only).
+
+    Its settings (`DepthConfig`; each readable as an attribute, none settable), the optional
+    learned ``selector`` (`panogrf.model.select`: each pixel's hypothesis in mode "full" fused;
+    None: the photometric rule) and ``blend`` (`panogrf.model.blend`: the fused depth blended
+    with the monocular one; None: no blend), and ``weight_files`` (where the networks came from:
+    what a cached estimate is keyed by) are fixed at construction."""
+
+    _FIXED = ("selector", "blend", "weight_files", "config")
 
     def __init__(
         self,
         mono: MonoDepthNet,
         mvs: dict[str, MVSNet],
-        working_height: int = 128,
-        min_baseline: float = 0.05,
-        sweep: SweepConfig | None = DEFAULT_SWEEP,
+        config: DepthConfig | None = None,
+        *,
+        selector: HypothesisSelector | None = None,
+        blend: DepthBlend | None = None,
+        weight_files: tuple = (),
+        **settings,
     ) -> None:
+        """``settings``: `DepthConfig` fields that override ``config``'s."""
         super().__init__()
         self.mono = mono
         self.mvs = nn.ModuleDict(mvs)
-        self.working_height = working_height
-        self.min_baseline = min_baseline
-        """Sources closer than this to the reference (metres) carry no parallax: dropped."""
-        self.sweep = sweep
-        """The photometric sweep after the MVS network in mode "mvs" (None: no sweep in any
-        mode, and no fusion)."""
-        self.fusion_sweep = DEFAULT_SWEEP
-        """The sweep of mode "full": it fuses the mono-guided and the unguided MVS depth (each
-        pixel keeps the one its sources agree with) and searches around it. Measured
-        (`benchmarks/depth_fusion.py`, `depth_fusion_round7.json`): on 36 validation scenes
-        (12 of them home rooms 3-5 m apart; the worlds also scaled by 0.7 and 1.4) a short
-        search (`SHORT_SWEEP`, +-0.15 in log depth) with the monocular depth as a third
-        hypothesis has the lower mean L1, 0.139 m against 0.172 for this +-0.5, and it also
-        does with the monocular depth made wrong in shape (0.182 against 0.201). On the real
-        triplet it is the other way round (full 0.231 against 0.173 m; 0.202 for +-0.25 and
-        0.218 for +-0.15 without the monocular hypothesis): a real capture's mono-guided depth
-        is off further than the short search reaches. The two disagree, so the search the
-        real capture needs stays until a validation set with real-capture statistics decides."""
-        self.median = 7
-        """Side of the median filter after the sweep (modes "full" and "mvs"), in pixels of
-        the working resolution (1: none); see `median_filter`. Chosen on the validation scenes
-        (`benchmarks/depth_fusion.py`; mean L1 of the wide, classic and home sets):
-        full 0.1745 m without, 0.1595 with 5, 0.1553 with 7, 0.1545 with 9 (flat from 7 on:
-        the smaller window keeps more small things); MVS-only 0.2152 / 0.2003 / 0.1954."""
-        self.sweep_sources = 2
-        """The sweep compares each view with at most this many of its nearest sources."""
-        self.fuse = True
-        """Mode "full" with the unguided network loaded too: both depths enter the sweep, each
-        pixel keeping the one its sources agree with (see `sweep_depth`'s ``others``)."""
-        self.switch_gain = 0.0
-        """How much better the unguided depth must match to replace the mono-guided one."""
-        self.guide = "mono"
-        """Mode "full" with the unguided network loaded: the depth that places the mono-guided
-        network's candidates: "mono" (the paper), "aligned" (mono scaled per view by its median
-        ratio to the unguided MVS depth: a metric scale from the known poses, not from the room
-        sizes the monocular network learned), "banded" (mono scaled per view by a profile over
-        elevation: the median ratio to the unguided MVS depth in each of `GUIDE_BANDS` bands,
-        interpolated between their centres, `_banded`: a room of the wrong proportions, its
-        floor too far for the ceiling it sees, is put right before it places the candidates)
-        or "mvs" (the unguided MVS depth itself; the monocular features still go in).
-        Measured on the validation scenes (`benchmarks/depth_fusion.py`): neither "aligned" nor
-        "mvs" helps, so "mono" stays ("banded": `docs/analysis.md`)."""
-        self.mono_hypothesis = False
-        """Mode "full" fused: the monocular depth enters the sweep as a third hypothesis, kept
-        where the sources agree with it better than with both MVS depths. Off: it pays on the
-        validation scenes with the short search (see ``fusion_sweep``), not with this one."""
-        self.selector: HypothesisSelector | None = None
-        """Mode "full" fused (two hypotheses): a learned choice of each pixel's hypothesis
-        instead of the sweep's photometric rule (`panogrf.model.select`); None: the rule."""
-        self.select_margin = 0.1
-        """Pixels whose selector probability is within this of one half keep the photometric
-        rule's choice (0: the selector's everywhere). The rule's doubtful choices are single
-        pixels, which the median outvotes; the selector's come in patches, which it keeps.
-        Measured on the validation scenes (`depth_select_context_val.json`, mean L1 of the
-        eight columns): 0 0.1609, 0.1 0.1593, 0.2 0.1595. Chosen again for the
-        selector with cross-view consistency (`depth_select_margin_round18_val.json`): 0
-        0.1552, 0.1 0.1545, 0.2 0.1552."""
-        self.record: list[dict] | None = None
-        """When a list, mode "full" fused appends, per reference view, the selector's input
-        and where the search from each hypothesis ends (the selector's training data)."""
-        self.blend: DepthBlend | None = None
-        """Mode "full" fused: a learned per-pixel blend of the fused depth with the monocular
-        depth after the median (`panogrf.model.blend`); None: the fused depth as it is."""
-        self.blend_record: list[dict] | None = None
-        """When a list, mode "full" fused appends, per reference view, the blend's input and
-        the two depths it blends (its training data); the depth is not blended then."""
-        self.canonical = True
-        """Mode "full" with the unguided network loaded: the MVS networks and the sweep work in
-        the world scaled by k = median(mono / unguided MVS depth) (`_world_scale`), the room
-        sizes the monocular network learned, and the depth is scaled back by 1 / k. A monocular
-        network cannot know the metric size of a room from one image, while the poses fix it;
-        in the canonical world the mono prior and the cost volume agree on scale, as in
-        training. Costs one more pass of the unguided network (in the canonical world).
-        Measured on the validation scenes with the world scaled by 1, 0.7 and 1.4 (the same
-        images; `benchmarks/depth_fusion.py --scales 1,0.7,1.4`, mean L1 in metres of classic
-        and home): off 0.156 / 0.210 / 0.301 (MVS-only 0.189 / 0.190 / 0.300), on 0.155 /
-        0.126 / 0.215; the first unguided pass scaled by k instead of run again: 0.155 /
-        0.147 / 0.231."""
+        self.selector = selector
+        self.blend = blend
+        self.weight_files = tuple(weight_files)
+        self.config = dataclasses.replace(config or DepthConfig(), **settings)
+        self._frozen = True
+
+    def __setattr__(self, name: str, value) -> None:
+        if name in self._FIXED and self.__dict__.get("_frozen"):
+            raise AttributeError(
+                f"DepthEstimator.{name} is fixed at construction: use configured({name}=...)"
+            )
+        super().__setattr__(name, value)
+
+    def configured(self, **changes) -> DepthEstimator:
+        """An estimator with other settings (`DepthConfig` fields, ``selector``, ``blend``)
+        sharing this one's networks, in the same mode (training or evaluation); with settings
+        other than these it has no ``weight_files`` (its estimates are never cached)."""
+        parts = {k: changes.pop(k, getattr(self, k)) for k in ("selector", "blend")}
+        config = dataclasses.replace(self.config, **changes)
+        same = config == self.config and all(parts[k] is getattr(self, k) for k in parts)
+        return DepthEstimator(
+            self.mono,
+            dict(self.mvs),
+            config,
+            # Estimates are cached under the weights files' key only as the files configure it.
+            weight_files=self.weight_files if same else (),
+            **parts,
+        ).train(self.training)
 
     @property
     def d_max(self) -> float:
@@ -233,41 +240,6 @@ class DepthEstimator(nn.Module):
                 step()
         return depth, confidence
 
-    def _aligned(self, mono: Tensor, mvs: Tensor, sources: list[list[int]]) -> Tensor:
-        """``mono`` [V, 1, h, w] scaled per view with sources by median(mvs / mono) over the
-        pixels inside the depth range (the scale kept within 0.5-2): `_banded` with one band."""
-        return self._banded(mono, mvs, sources, bands=1)
-
-    def _banded(
-        self, mono: Tensor, mvs: Tensor, sources: list[list[int]], bands: int = GUIDE_BANDS
-    ) -> Tensor:
-        """``mono`` [V, 1, h, w] scaled per view with sources by a profile over elevation: the
-        median of mvs / mono over the pixels inside the depth range in each of ``bands``
-        equal bands of elevation (a band with fewer than 1 % of its pixels inside: the view's
-        median), linearly interpolated in elevation between the band centres (constant beyond
-        the outer ones), kept within 0.5-2."""
-        out = mono.clone()
-        h = mono.shape[-2]
-        band = (torch.arange(h, device=mono.device) * bands) // h  # band of each row
-        centres = (
-            torch.arange(bands, dtype=mono.dtype, device=mono.device) + 0.5
-        ) * h / bands - 0.5
-        rows = torch.arange(h, dtype=mono.dtype, device=mono.device)
-        for v, src in enumerate(sources):
-            ok = (mvs[v, 0] < 0.98 * self.d_max) & (mono[v, 0] > 0.05)
-            if not src or int(ok.sum()) == 0:
-                continue
-            ratio = mvs[v, 0] / mono[v, 0].clamp(min=0.05)
-            overall = ratio[ok].median()
-            scales = []
-            for b in range(bands):
-                inside = ok & (band == b)[:, None]
-                needed = max(1.0, 0.01 * int((band == b).sum()) * mono.shape[-1])
-                scales.append(ratio[inside].median() if int(inside.sum()) >= needed else overall)
-            profile = _interp(rows, centres, torch.stack(scales)).clamp(0.5, 2.0)
-            out[v] = (mono[v] * profile.to(mono)[:, None]).clamp(0.05, self.d_max)
-        return out
-
     def _world_scale(self, mono: Tensor, mvs: Tensor, sources: list[list[int]]) -> float:
         """k = median(mono / mvs) over the pixels of views with sources that are inside the
         depth range in both (1 when there are none), kept within 0.25-4."""
@@ -280,7 +252,7 @@ class DepthEstimator(nn.Module):
             return 1.0
         return float((mono[ok] / mvs[ok]).median().clamp(0.25, 4.0))
 
-    def _blended(self, pixels, c2w, depth, mono, sources, scale: float) -> Tensor:
+    def _blended(self, pixels, c2w, depth, mono, sources, scale: float, blend_record) -> Tensor:
         """``depth`` [V, 1, h, w] blended with the monocular depth ``mono`` by `blend`, every
         view with sources (``sources``: those the sweep compared it with); recorded into
         ``blend_record`` instead when that is a list."""
@@ -311,8 +283,8 @@ class DepthEstimator(nn.Module):
                     parallax(log_pair[0], c2w, r, sources[r]),
                     rows,
                 )
-                if self.blend_record is not None:
-                    self.blend_record.append(
+                if blend_record is not None:
+                    blend_record.append(
                         {"view": r, "features": feats, "logs": log_pair, "scale": scale}
                     )
                 else:
@@ -321,25 +293,35 @@ class DepthEstimator(nn.Module):
                 progress.advance()
         return out
 
-    def _chooser(self, pixels: Tensor, mono: Tensor, confidence: Tensor) -> _SelectorChooser:
+    def _chooser(
+        self, pixels: Tensor, mono: Tensor, confidence: Tensor, record
+    ) -> _SelectorChooser:
         """`sweep_depth`'s ``chooser`` for the two fused hypotheses: the selector's choice
         (or, without one, the photometric rule), made once every view's search ends are
         known (`cross_view_consistency`); the selector's input appended to ``record`` when
         recording. mono, confidence: [V, 1 | 2, h, w] at the working resolution."""
-        return _SelectorChooser(self, pixels, mono, confidence)
+        return _SelectorChooser(self, pixels, mono, confidence, record)
 
     @torch.no_grad()
     def forward(
-        self, images: Tensor, c2w: Tensor, mode: str = "full", detail: Tensor | None = None
+        self,
+        images: Tensor,
+        c2w: Tensor,
+        mode: str = "full",
+        detail: Tensor | None = None,
+        *,
+        record: list[dict] | None = None,
+        blend_record: list[dict] | None = None,
     ) -> DepthEstimate:
         """images [V, 3, H, W] in [0, 1] (W = 2H), c2w [V, 4, 4] -> `DepthEstimate`.
 
         ``detail``: the same panoramas at a higher resolution for the photometric sweep (by
-        default ``images``), when the caller passes working-resolution images."""
+        default ``images``), when the caller passes working-resolution images. Training taps
+        (mode "full" fused): ``record`` gets, per reference view, the selector's input and
+        where the search from each hypothesis ends; ``blend_record`` the blend's input and the
+        two depths it blends (the depth is then not blended)."""
         if mode not in MODES:
             raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
-        if self.guide not in GUIDES:
-            raise ValueError(f"guide must be one of {GUIDES}, got {self.guide!r}")
         if mode != "mono" and mode not in self.mvs:
             raise ValueError(f"no weights loaded for mode {mode!r}")
         v, _, h, w = images.shape
@@ -360,7 +342,6 @@ class DepthEstimator(nn.Module):
                 warnings.append("one view only: monocular depth (no multi-view stereo)")
             sources, notes = self.view_sources(c2w)
             warnings += notes
-            guide = mono
             # Network passes over every view with sources: the unguided one (twice when it
             # first fixes the world's scale), then the guided one.
             canonical = self._canonical(mode)
@@ -380,13 +361,7 @@ class DepthEstimator(nn.Module):
                     )
                 if self._fuses(mode):
                     others = (unguided, mono.depth) if self.mono_hypothesis else (unguided,)
-                if self.guide == "aligned":
-                    guide = MonoOutput(self._aligned(mono.depth, unguided, sources), mono.features)
-                elif self.guide == "banded":
-                    guide = MonoOutput(self._banded(mono.depth, unguided, sources), mono.features)
-                elif self.guide == "mvs":
-                    guide = MonoOutput(self._clean(unguided), mono.features)
-            depth, conf = self._mvs_confidence(mode, small, c2w, guide, sources, depth, step)
+            depth, conf = self._mvs_confidence(mode, small, c2w, mono, sources, depth, step)
             progress.close()
             if len(others) == 1:
                 conf = torch.cat((conf, conf_u), 1)  # [V, 2, h, w]
@@ -396,8 +371,8 @@ class DepthEstimator(nn.Module):
             pixels = images if detail is None else detail
             clean = tuple(self._clean(o) for o in others)
             chooser = None
-            if len(clean) == 1 and (self.selector is not None or self.record is not None):
-                chooser = self._chooser(pixels, mono.depth, conf)
+            if len(clean) == 1 and (self.selector is not None or record is not None):
+                chooser = self._chooser(pixels, mono.depth, conf, record)
             depth = sweep_depth(
                 pixels,
                 c2w,
@@ -410,10 +385,10 @@ class DepthEstimator(nn.Module):
                 chooser=chooser,
             )
             depth = median_filter(depth, self.median)
-            if len(clean) == 1 and (self.blend is not None or self.blend_record is not None):
-                depth = self._blended(pixels, c2w, depth, mono.depth, nearest, scale)
-            if chooser is not None and self.record is not None:
-                for entry in self.record:
+            if len(clean) == 1 and (self.blend is not None or blend_record is not None):
+                depth = self._blended(pixels, c2w, depth, mono.depth, nearest, scale, blend_record)
+            if chooser is not None and record is not None:
+                for entry in record:
                     entry.setdefault("scale", scale)
         canonical_far = None
         if scale != 1.0:
@@ -434,24 +409,13 @@ class DepthEstimator(nn.Module):
         return DepthEstimate(depth, mono_depth, out_of_range, sources, warnings)
 
 
-def _interp(x: Tensor, xp: Tensor, fp: Tensor) -> Tensor:
-    """Piecewise-linear interpolation of (xp, fp) at x (xp increasing; constant beyond its
-    ends), as numpy's interp."""
-    if len(xp) == 1:
-        return fp[0].expand(x.shape)
-    i = torch.searchsorted(xp, x).clamp(1, len(xp) - 1)
-    x0, x1 = xp[i - 1], xp[i]
-    t = ((x - x0) / (x1 - x0)).clamp(0.0, 1.0)
-    return fp[i - 1] + t * (fp[i] - fp[i - 1])
-
-
 class _SelectorChooser:
     """`DepthEstimator._chooser`: each view's selection features and photometric rule are made
     when the sweep reaches it; the choice is made in `finish`, when the cross-view consistency
     of every view's search ends can be measured."""
 
-    def __init__(self, estimator: DepthEstimator, pixels: Tensor, mono: Tensor, confidence):
-        self.est = estimator
+    def __init__(self, estimator: DepthEstimator, pixels: Tensor, mono: Tensor, confidence, record):
+        self.est, self.record = estimator, record
         self.pixels, self.mono, self.confidence = pixels, mono, confidence
         self.rows = estimator.selector.config.rows if estimator.selector is not None else 128
         self.images: dict[int, Tensor] = {}
@@ -480,9 +444,9 @@ class _SelectorChooser:
         out = {}
         for r, (feats, rule) in self.pending.items():
             feats = torch.cat((feats, consistency[r]))
-            if self.est.record is not None:
+            if self.record is not None:
                 pool = dict(size=feats.shape[-2:], mode="area")
-                self.est.record.append(
+                self.record.append(
                     {
                         "view": r,
                         "features": feats,
@@ -497,3 +461,11 @@ class _SelectorChooser:
                     feats, tuple(rule.shape), rule, self.est.select_margin
                 )
         return out
+
+
+def _setting(name: str) -> property:
+    return property(lambda self: getattr(self.config, name), doc=f"``config.{name}``")
+
+
+for _name in DepthConfig.__dataclass_fields__:  # read-only: estimator.median is config.median
+    setattr(DepthEstimator, _name, _setting(_name))

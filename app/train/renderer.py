@@ -119,7 +119,7 @@ def pair_depths(
     file and renamed."""
     # The sweep costs seconds per pair: the renderer trains on the networks' depth alone, in
     # the world as given (the depth its shipped weights were trained on).
-    estimator.sweep, estimator.canonical = None, False
+    estimator = estimator.configured(sweep=None, canonical=False)
     key = _weights_key(estimator)
     names = hashlib.sha256("\n".join(data.names).encode()).hexdigest()[:8]
     path = root / f".depth_full_{key}_{names}_{estimator.working_height}.safetensors"

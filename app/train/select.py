@@ -187,9 +187,9 @@ def canonical_truth(estimator: DepthEstimator, data, i: int, entry: dict, size) 
 def fusion_runs(
     estimator: DepthEstimator, data, indices: list[int], cfg: FusionRecordingConfig, attr: str
 ):
-    """Mode "full" on the first and last views of each scene of ``indices`` with the
-    estimator's recording list ``attr`` ("record": the selector's, "blend_record": the
-    blend's) set, under ``cfg``'s seeded conditions (``photometric``, ``shift``,
+    """Mode "full" on the first and last views of each scene of ``indices`` recording into
+    a new list as the estimator's tap ``attr`` ("record": the selector's, "blend_record": the
+    blend's), under ``cfg``'s seeded conditions (``photometric``, ``shift``,
     ``heights`` and ``features_shift`` fractions, ``seed``): yields (scene index, the
     records)."""
     gen = torch.Generator().manual_seed(cfg.seed)
@@ -205,23 +205,15 @@ def fusion_runs(
             cfg.features_shift > 0 and float(torch.rand(1, generator=gen)) < cfg.features_shift
         )
         partner = data.images[indices[(n + 1) % len(indices)], [0, 2]].float() / 255.0
-        setattr(estimator, attr, [])
-        try:
-            with ExitStack() as stack:
-                if shifted:
-                    stack.enter_context(mono_out_of_domain(estimator, partner, gen))
-                elif features:
-                    stack.enter_context(
-                        mono_out_of_domain(estimator, partner, gen, features_only=True)
-                    )
-                if heights:
-                    stack.enter_context(
-                        mono_wrong_heights(estimator, gen, shared=cfg.heights_shared)
-                    )
-                estimator(images, c2w, "full")
-            records = getattr(estimator, attr)
-        finally:
-            setattr(estimator, attr, None)
+        records: list[dict] = []
+        with ExitStack() as stack:
+            if shifted:
+                stack.enter_context(mono_out_of_domain(estimator, partner, gen))
+            elif features:
+                stack.enter_context(mono_out_of_domain(estimator, partner, gen, features_only=True))
+            if heights:
+                stack.enter_context(mono_wrong_heights(estimator, gen, shared=cfg.heights_shared))
+            estimator(images, c2w, "full", **{attr: records})
         yield i, records
 
 
@@ -230,20 +222,16 @@ def recorded_split(
 ):
     """(records of the seeded sample of ``cfg.scenes`` training scenes, records of the
     held-back ones, the generator that drew the sample, to go on with): ``record(estimator,
-    data, indices, cfg, log)`` runs with the estimator's part ``without`` ("selector",
-    "blend") removed, and given back after."""
+    data, indices, cfg, log)`` runs on an estimator without its part ``without`` ("selector",
+    "blend"), sharing the other networks."""
     torch.manual_seed(cfg.seed)
     data = load_triplets(cfg.data, cfg.height, cfg.limit_scenes)
     train_idx, val_idx = held_back(len(data), cfg.val_scenes)
     gen = torch.Generator().manual_seed(cfg.seed)
     pick = train_idx[torch.randperm(len(train_idx), generator=gen)[: cfg.scenes]]
-    part = getattr(estimator, without)
-    setattr(estimator, without, None)
-    try:
-        train = record(estimator, data, sorted(pick.tolist()), cfg, log)
-        val = record(estimator, data, val_idx.tolist(), cfg, log)
-    finally:
-        setattr(estimator, without, part)
+    estimator = estimator.configured(**{without: None})
+    train = record(estimator, data, sorted(pick.tolist()), cfg, log)
+    val = record(estimator, data, val_idx.tolist(), cfg, log)
     return train, val, gen
 
 

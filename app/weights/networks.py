@@ -193,17 +193,17 @@ def load_depth_estimator(
         net = MVSNet(config)
         _load(net, path, asdict(net.config))
         mvs[mode] = net
-    estimator = DepthEstimator(mono, mvs)
     files = [weights_path(WEIGHTS["mono"]), *(weights_path(WEIGHTS[m]) for m in modes)]
+    selector = blend = None
     if _fuses(modes):
-        estimator.selector = load_selector(weights_path(SELECTOR))
+        selector = load_selector(weights_path(SELECTOR))
         files.append(weights_path(SELECTOR))
         if weights_path(BLEND).exists():
-            estimator.blend = load_blend(weights_path(BLEND))
+            blend = load_blend(weights_path(BLEND))
             files.append(weights_path(BLEND))
     # Where its networks came from: what a cached estimate of it is keyed by
     # (`panogrf.app.scene.cache.estimate_key`).
-    estimator.weight_files = tuple(files)
+    estimator = DepthEstimator(mono, mvs, selector=selector, blend=blend, weight_files=files)
     return estimator.to(device).eval()
 
 

@@ -23,9 +23,8 @@ def random_models(device="cpu") -> Models:
     mvs = {m: MVSNet(MVS_PRESETS[m]).eval() for m in ("full", "mvs")}
     sweep = replace(DEFAULT_SWEEP, height=64)
     est = DepthEstimator(
-        MonoDepthNet(MonoDepthConfig()), mvs, working_height=32, sweep=sweep
+        MonoDepthNet(MonoDepthConfig()), mvs, working_height=32, sweep=sweep, fusion_sweep=sweep
     ).eval()
-    est.fusion_sweep = sweep
     nets = {k: RendererNet(v).eval() for k, v in PRESETS.items()}
     return Models(estimator=lambda mode: est, renderer=lambda preset: nets[preset])
 

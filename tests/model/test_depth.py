@@ -75,11 +75,7 @@ def test_depth_is_the_mvs_networks_output(estimator, mode):
     images = _images(3, WORKING, seed=1)
     c2w = _poses((0, 0, 0), (0.5, 0, 0), (1.0, 0.1, 0))
     # The network alone, in the world as given.
-    sweep, estimator.sweep, estimator.canonical = estimator.sweep, None, False
-    try:
-        est = estimator(images, c2w, mode=mode)
-    finally:
-        estimator.sweep, estimator.canonical = sweep, True
+    est = estimator.configured(sweep=None, canonical=False)(images, c2w, mode=mode)
     assert est.sources == [[1, 2], [0, 2], [0, 1]]
     net = estimator.mvs[mode]
     with torch.no_grad():
@@ -96,20 +92,14 @@ def test_mode_full_sweeps_with_its_own_config(estimator):
     candidate and nothing to fuse, the full depth is the network's, while mode mvs still moves."""
     images = _images(2, WORKING, seed=3)
     c2w = _poses((0, 0, 0), (1.0, 0, 0))
-    saved = estimator.fusion_sweep, estimator.fuse, estimator.canonical, estimator.median
-    try:
-        estimator.fuse, estimator.canonical, estimator.median = False, False, 1
-        estimator.fusion_sweep = SweepConfig(candidates=1, span=0.0)
-        full = estimator(images, c2w, "full").depth
-        sweep, estimator.sweep = estimator.sweep, None
-        try:
-            network = estimator(images, c2w, "full").depth
-            mvs_network = estimator(images, c2w, "mvs").depth
-        finally:
-            estimator.sweep = sweep
-        mvs = estimator(images, c2w, "mvs").depth
-    finally:
-        estimator.fusion_sweep, estimator.fuse, estimator.canonical, estimator.median = saved
+    one = estimator.configured(
+        fuse=False, canonical=False, median=1, fusion_sweep=SweepConfig(candidates=1, span=0.0)
+    )
+    full = one(images, c2w, "full").depth
+    unswept = one.configured(sweep=None)
+    network = unswept(images, c2w, "full").depth
+    mvs_network = unswept(images, c2w, "mvs").depth
+    mvs = one(images, c2w, "mvs").depth
     torch.testing.assert_close(full, network)
     assert not torch.allclose(mvs, mvs_network)
 
@@ -177,61 +167,22 @@ def test_bad_input(estimator):
     assert mono_only(images, c2w, mode="mono").depth.shape == (2, 1, 64, 128)
 
 
-def test_aligned_guide_scales_the_prior_by_the_mvs_ratio(estimator):
-    mono = torch.full((2, 1, 4, 8), 2.0)
-    mvs = torch.full((2, 1, 4, 8), 3.0)
-    mvs[0, 0, 0, 0] = 10.0  # at the top of the range: not counted
-    out = estimator._aligned(mono, mvs, [[1], []])
-    assert torch.allclose(out[0], torch.full((1, 4, 8), 3.0))  # median ratio 1.5
-    assert torch.equal(out[1], mono[1])  # no sources: left as it is
-    far = estimator._aligned(mono, torch.full_like(mono, 9.0), [[1], [0]])
-    assert torch.allclose(far, torch.full_like(mono, 4.0))  # the scale stays within 0.5-2
-
-
-def test_banded_guide_puts_a_room_of_wrong_proportions_right(estimator):
-    """The prior's floor 1.5x too far and its ceiling right, the MVS depth right: the banded
-    guide scales each band by its own ratio (the aligned one cannot: one ratio per view)."""
-    h, w = 12, 24
-    truth = torch.full((2, 1, h, w), 2.0)
-    mono = truth.clone()
-    mono[:, :, h // 2 :] *= 1.5  # the lower half (below the horizon) too far
-    mvs = truth.clone()
-    mvs[0, 0, 0, :3] = 10.0  # at the top of the range: not counted
-    out = estimator._banded(mono, mvs, [[1], []])
-    assert torch.allclose(out[0, 0, :2], truth[0, 0, :2])  # the top band's centre and above
-    assert torch.allclose(out[0, 0, -2:], truth[0, 0, -2:])  # the bottom band's
-    assert torch.allclose(out[0], truth[0], rtol=0.2)  # between the centres: interpolated
-    assert (out[0] - truth[0]).abs().mean() < (mono[0] - truth[0]).abs().mean() / 4
-    assert torch.equal(out[1], mono[1])  # no sources: left as it is
-    aligned = estimator._aligned(mono, mvs, [[1], []])
-    assert (aligned[0] - truth[0]).abs().mean() > (out[0] - truth[0]).abs().mean()
-    # A band with no pixel in range takes the view's median; the scale stays within 0.5-2.
-    mvs_far = torch.full_like(mono, 9.0)
-    mvs_far[:, :, :2] = 20.0  # the top band out of range
-    far = estimator._banded(torch.full_like(mono, 2.0), mvs_far, [[1], [0]])
-    assert torch.allclose(far, torch.full_like(mono, 4.0))
-
-
-@pytest.mark.parametrize("guide", ["aligned", "banded", "mvs"])
-def test_other_guides_change_the_full_depth_and_stay_finite(estimator, guide):
-    images, c2w = _images(2, 64, seed=3), _poses((0, 0, 0), (1.0, 0, 0))
-    base = estimator(images, c2w, "full").depth
-    estimator.guide = guide
-    try:
-        other = estimator(images, c2w, "full")
-    finally:
-        estimator.guide = "mono"
-    _check_finite(other, 2, 64)
-    assert not torch.equal(other.depth, base)
-
-
-def test_unknown_guide_is_refused(estimator):
-    estimator.guide = "oracle"
-    try:
-        with pytest.raises(ValueError, match="guide"):
-            estimator(_images(2, 64), _poses((0, 0, 0), (1.0, 0, 0)), "full")
-    finally:
-        estimator.guide = "mono"
+def test_settings_are_fixed_at_construction_and_configured_shares_the_networks(estimator):
+    """No setting or part is set after construction (training and benchmarks used to, on the
+    cached estimator): `configured` gives another estimator of the same networks instead, and
+    one configured otherwise is not cached under the weights files' key."""
+    for name, value in (("median", 1), ("sweep", None), ("selector", None), ("config", None)):
+        with pytest.raises(AttributeError):
+            setattr(estimator, name, value)
+    assert estimator.median == estimator.config.median == 7
+    loaded = DepthEstimator(estimator.mono, dict(estimator.mvs), weight_files=("a",))
+    other = loaded.configured(median=1, canonical=False)
+    assert other.median == 1 and not other.canonical and loaded.median == 7 and loaded.canonical
+    assert other.mono is loaded.mono and other.mvs["full"] is loaded.mvs["full"]
+    assert other.training == loaded.training and other.weight_files == ()
+    assert loaded.configured().weight_files == ("a",)
+    with pytest.raises(TypeError):
+        loaded.configured(guide="mvs")  # not a setting
 
 
 def test_world_scale_is_the_median_ratio_of_mono_to_mvs_where_both_are_in_range(estimator):
@@ -259,11 +210,9 @@ def test_the_canonical_world_makes_the_depth_follow_the_worlds_scale(estimator):
         base = estimator(images, c2w, "full").depth
         estimator._world_scale = lambda *args: k / s
         other = estimator(images, scaled, "full").depth
-        estimator.canonical = False
-        plain = estimator(images, scaled, "full").depth
+        plain = estimator.configured(canonical=False)(images, scaled, "full").depth
     finally:
         del estimator._world_scale
-        estimator.canonical = True
     torch.testing.assert_close(other, s * base, rtol=1e-4, atol=1e-5)
     assert not torch.allclose(plain, other, rtol=1e-3)
 
@@ -276,15 +225,9 @@ def test_the_median_follows_the_sweep(estimator, mode):
 
     images = _images(2, WORKING, seed=5)
     c2w = _poses((0, 0, 0), (1.0, 0, 0))
-    saved = estimator.median
-    try:
-        estimator.median = 1
-        raw = estimator(images, c2w, mode).depth
-        estimator.median = 7
-        filtered = estimator(images, c2w, mode).depth
-    finally:
-        estimator.median = saved
-    assert saved == 7
+    raw = estimator.configured(median=1)(images, c2w, mode).depth
+    filtered = estimator.configured(median=7)(images, c2w, mode).depth
+    assert estimator.median == 7
     torch.testing.assert_close(filtered, median_filter(raw, 7))
     assert not torch.equal(filtered, raw)
 
@@ -298,12 +241,8 @@ def test_the_selector_chooses_and_the_record_holds_its_input(estimator):
     images = _images(2, WORKING, seed=7)
     c2w = _poses((0, 0, 0), (1.0, 0, 0))
     plain = estimator(images, c2w, "full").depth
-    estimator.record = []
-    try:
-        recorded = estimator(images, c2w, "full").depth
-        record = estimator.record
-    finally:
-        estimator.record = None
+    record: list[dict] = []
+    recorded = estimator(images, c2w, "full", record=record).depth
     torch.testing.assert_close(recorded, plain)
     assert [e["view"] for e in record] == [0, 1]
     rows = SelectorConfig().rows
@@ -315,15 +254,9 @@ def test_the_selector_chooses_and_the_record_holds_its_input(estimator):
     unguided = HypothesisSelector().eval()
     torch.nn.init.zeros_(unguided.net[-1].weight)
     torch.nn.init.constant_(unguided.net[-1].bias, 5.0)
-    estimator.selector = unguided
-    try:
-        chosen = estimator(images, c2w, "full").depth
-        mvs_alone = estimator(images, c2w, "mvs").depth
-    finally:
-        estimator.selector = None
+    chosen = estimator.configured(selector=unguided)(images, c2w, "full").depth
     assert torch.isfinite(chosen).all()
     assert not torch.allclose(chosen, plain)
-    del mvs_alone
 
 
 def test_the_blend_records_its_input_and_moves_the_depth_towards_mono(estimator):
@@ -336,12 +269,8 @@ def test_the_blend_records_its_input_and_moves_the_depth_towards_mono(estimator)
     images = _images(2, WORKING, seed=9)
     c2w = _poses((0, 0, 0), (1.2, 0, 0.3))
     plain = estimator(images, c2w, "full")
-    estimator.blend_record = []
-    try:
-        recorded = estimator(images, c2w, "full").depth
-        record = estimator.blend_record
-    finally:
-        estimator.blend_record = None
+    record: list[dict] = []
+    recorded = estimator(images, c2w, "full", blend_record=record).depth
     torch.testing.assert_close(recorded, plain.depth)
     assert [e["view"] for e in record] == [0, 1]
     for e in record:
@@ -351,12 +280,9 @@ def test_the_blend_records_its_input_and_moves_the_depth_towards_mono(estimator)
     blend = DepthBlend(BlendConfig(channels=8, rows=WORKING)).eval()
     torch.nn.init.zeros_(blend.net[-1].weight)
     torch.nn.init.constant_(blend.net[-1].bias, 30.0)
-    estimator.blend = blend
-    try:
-        towards_mono = estimator(images, c2w, "full")
-        mvs = estimator(images, c2w, "mvs").depth
-    finally:
-        estimator.blend = None
+    blended = estimator.configured(blend=blend)
+    towards_mono = blended(images, c2w, "full")
+    mvs = blended(images, c2w, "mvs").depth
     _check_finite(towards_mono, 2, WORKING)
     metric_mono = (plain.mono / record[0]["scale"]).clamp(0.05, estimator.d_max)
     torch.testing.assert_close(towards_mono.depth, metric_mono, atol=1e-3, rtol=1e-3)
