@@ -156,8 +156,9 @@ class PretrainedTrunk(nn.Module):
 
     ERP wraps in width: the image is padded circularly by ``wrap`` pixels before the trunk and
     the features are resampled at the centres of the 1/4, 1/8, 1/16 grids. Its weights come
-    from the bundled LPIPS AlexNet (``convs.{i}.*``, loaded by the training code) and are stored
-    with the network; they never train (``requires_grad`` off, no batch norm inside).
+    from the bundled LPIPS AlexNet (``convs.{i}.*``), put in by the code that trains or loads the
+    network (weights files leave them out); they never train (``requires_grad`` off, no batch
+    norm inside).
     """
 
     wrap = 64  # > half the receptive field of the third convolution (99 px): seamless

@@ -189,14 +189,10 @@ def train_mono(cfg: TrainDepthConfig, log=print) -> dict:
 
 def _fill_trunk(net: torch.nn.Module, log) -> None:
     """Copy the bundled ImageNet AlexNet convolutions (LPIPS asset) into the frozen trunk."""
-    from safetensors.torch import load_file
-
-    from panogrf import assets
     from panogrf.app.weights.lpips import ASSET_NAME
+    from panogrf.app.weights.networks import trunk_tensors
 
-    alex = load_file(str(assets.path(ASSET_NAME)))
-    state = {k: alex[k].float() for k in net.trunk.state_dict()}  # convs.{i}.weight / bias
-    net.trunk.load_state_dict(state)
+    net.load_state_dict(trunk_tensors(net), strict=False)
     log(f"trunk: {len(net.trunk.convs)} ImageNet AlexNet convolutions from {ASSET_NAME}, frozen")
 
 

@@ -112,9 +112,18 @@ class Steps:
 
 
 def save_weights(module: torch.nn.Module, path: Path, metadata: dict) -> None:
-    """Write a module's state dict as safetensors, atomically, with JSON metadata."""
+    """Write a module's state dict as safetensors, atomically, with JSON metadata; frozen
+    ImageNet trunks are left out (`panogrf.app.weights.networks.trunk_prefixes`: loading puts
+    them back from the LPIPS asset)."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    state = {k: v.detach().contiguous().cpu() for k, v in module.state_dict().items()}
+    from panogrf.app.weights.networks import trunk_prefixes
+
+    frozen = tuple(trunk_prefixes(module))  # the bundled LPIPS AlexNet's: not stored again
+    state = {
+        k: v.detach().contiguous().cpu()
+        for k, v in module.state_dict().items()
+        if not (frozen and k.startswith(frozen))
+    }
     meta = {k: v if isinstance(v, str) else json.dumps(v) for k, v in metadata.items()}
     save_tensors_atomic(path, state, meta)
 

@@ -113,8 +113,35 @@ def check_weights(paths: list[Path]) -> None:
         _CHECKED.add(key)
 
 
+def trunk_prefixes(module: torch.nn.Module) -> list[str]:
+    """State-dict prefixes (``"trunk."``) of the frozen ImageNet trunks inside ``module``: their
+    weights are the bundled LPIPS AlexNet's, never trained, so weights files leave them out."""
+    from panogrf.model.mono import PretrainedTrunk
+
+    return [f"{n}." for n, m in module.named_modules() if isinstance(m, PretrainedTrunk)]
+
+
+def trunk_tensors(module: torch.nn.Module) -> dict[str, torch.Tensor]:
+    """The state of every frozen trunk of ``module`` from the bundled LPIPS AlexNet
+    (``convs.{i}.*``, `panogrf.app.weights.lpips.ASSET_NAME`, checked as `read_weights` does)."""
+    from panogrf.app.weights.lpips import ASSET_NAME
+
+    prefixes = trunk_prefixes(module)
+    if not prefixes:
+        return {}
+    alex = read_weights(asset_path(ASSET_NAME))
+    out = {}
+    for key, t in module.state_dict().items():
+        prefix = next((p for p in prefixes if key.startswith(p)), None)
+        if prefix is not None:
+            out[key] = alex[key[len(prefix) :]].to(t.dtype)
+    return out
+
+
 def _load(module: torch.nn.Module, path: Path, expected_config: dict) -> None:
     tensors = read_weights(path)
+    # Older files carry the trunk themselves: theirs is used.
+    tensors = {**trunk_tensors(module), **tensors} if trunk_prefixes(module) else tensors
     stored = json.loads(_metadata(path).get("config", "{}"))
     # Tuples become lists in JSON; compare as JSON. A field added to a config after the weights
     # were trained is absent from their metadata: it matches when the code has it at its default.
