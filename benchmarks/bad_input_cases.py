@@ -151,6 +151,30 @@ def unchanged(rel: str) -> Callable[[Path, str], str | None]:
     return check
 
 
+#: A geo-referenced world's map-grid offset (metres; issue 57, S1).
+FAR = (5e5, 0.0, 5e6)
+
+
+def moved_far(data: dict, scene: Path) -> None:
+    for frame in data["frames"]:
+        for row, shift in zip(frame["transform_matrix"][:3], FAR, strict=True):
+            row[3] += shift
+
+
+def renders_as_near(w: Path, out: str) -> str | None:
+    """The far scene's scored render (``--json``) is the same as the scene's at the origin."""
+    args = ["render", str(DEMO), "--out", str(w / "near.png"), "--target-frame", "1"]
+    near = subprocess.run([*PANOGRF, *args, *FAR_RENDER], capture_output=True, text=True)
+    if near.returncode != 0:
+        return f"the render at the origin failed: {near.stderr.strip()[-200:]}"
+    a = json.loads(out)["metrics"]["ws_psnr"]
+    b = json.loads(near.stdout)["metrics"]["ws_psnr"]
+    return None if abs(a - b) < 0.05 else f"WS-PSNR {a:.2f} dB far, {b:.2f} dB at the origin"
+
+
+FAR_RENDER = ["--height", "64", "--json", "--quiet", "--no-refine-depth"]
+
+
 def full_disk(out: str, first: list[str]) -> Callable[[Path], None]:
     """A tiny tmpfs at ``disk/`` holding a good ``out`` written by ``panogrf FIRST``, then full."""
 
@@ -249,6 +273,8 @@ def cases() -> list[Case]:
         Case("render --target-frame 99", N, [*r, "x.png", "--target-frame", "99", *q]),
         Case("render --target-frame -1", N, [*r, "x.png", "--target-frame", "-1", *q]),
         Case("render --sources out of range", N, [*r, "x.png", *tgt, "--sources", "0,7", *q]),
+        Case("render a scene 5e6 m from the origin", E, [*r, "x.png", *tgt, *FAR_RENDER],
+             expect="ok", setup=edit_scene(moved_far), check=renders_as_near, slow=True),
         Case("render --c2w NaN", N, [*r, "x.png", "--c2w", C2W.replace("8.5", "nan"), *q]),
         Case("render --c2w 15 numbers", N, [*r, "x.png", "--c2w", C2W[:-2], *q]),
         Case("eval --height -5", N, [*ev[:-2], "--height", "-5"], setup=dataset()),
