@@ -326,7 +326,7 @@ class DepthEstimator(nn.Module):
             raise ValueError(f"no weights loaded for mode {mode!r}")
         v, _, h, w = images.shape
         if w != 2 * h:
-            raise ValueError(f"panoramas must be 2:1, got {h}x{w}")
+            raise ValueError(f"panoramas must be 2:1, got {w}x{h} (width x height)")
         hw = (self.working_height, 2 * self.working_height)
         small = F.interpolate(images, size=hw, mode="area") if (h, w) != hw else images
         with stage("depth: monocular network", 1) as progress:

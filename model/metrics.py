@@ -113,7 +113,7 @@ def ssim(x: Tensor, y: Tensor) -> Tensor:
     b, c, h, w = x.shape
     win = 2 * _SSIM_RADIUS + 1
     if h < win or w < win:
-        raise ValueError(f"ssim: expected images of at least {win}x{win}, got {h}x{w}")
+        raise ValueError(f"ssim: expected images of at least {win}x{win}, got {w}x{h}")
     # Every channel is filtered on its own: fold channels into the batch axis.
     x, y = x.reshape(b * c, 1, h, w), y.reshape(b * c, 1, h, w)
     stats = _gaussian_blur_valid(torch.cat([x, y, x * x, y * y, x * y]))

@@ -283,7 +283,7 @@ class MonoDepthNet(nn.Module):
     def forward(self, image: Tensor) -> MonoOutput:
         b, _, h, w = image.shape
         if w != 2 * h or h % 32:
-            raise ValueError(f"expected W = 2H with H divisible by 32, got {h}x{w}")
+            raise ValueError(f"expected W = 2H with H divisible by 32, got {w}x{h} (W x H)")
         x = (image - self.mean) / self.std
         erp_feats = self.erp_encoder(x)
         cube_feats = self.cube_encoder(self.to_cube(x, h // 2))  # faces of H/2: same sampling

@@ -178,7 +178,7 @@ def run_make(args: argparse.Namespace) -> int:
     else:
         print(
             f"wrote {summary['scenes']} scenes ({summary['panoramas']} panoramas, "
-            f"{summary['height']}x{summary['width']}, "
+            f"{summary['width']}x{summary['height']}, "
             f"at most {summary['max_triangles']} triangles) "
             f"to {args.out} in {summary['seconds']:.1f} s: {summary['panoramas_per_s']:.1f} "
             f"panoramas/s end to end (render {summary['render_panoramas_per_s']:.1f}/s)"

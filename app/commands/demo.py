@@ -111,7 +111,7 @@ def _novel_view(
         device=models.device,
     )
     height = data.images.shape[-2]
-    print(f"novel view: frame {target} rendered from frames {sources} ({height}x{2 * height}):")
+    print(f"novel view: frame {target} rendered from frames {sources} ({2 * height}x{height}):")
     cache = session.prepare_views(views, models, "panogrf", "fast", cache_dir, use_cache)
     print(
         f"  depth of the sources, estimated and refined for the scene, and feature maps: "

@@ -205,7 +205,7 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(_json_safe(summary), indent=2, allow_nan=False))
         return 0
     print(
-        f"wrote {args.out} ({height}x{2 * height}, {args.method}, {args.quality}): "
+        f"wrote {args.out} ({2 * height}x{height}, {args.method}, {args.quality}): "
         f"prepared in {prep:.2f} s (scene cache {cache.status}), rendered in "
         f"{1000 * seconds:.0f} ms"
     )

@@ -157,7 +157,7 @@ class PanoramaRenderer:
         if self._scene_vao is None or self._textures is None:
             raise RuntimeError("call set_textures() and set_scene() before render()")
         if width != 2 * height or height < 2:
-            raise ValueError(f"an ERP must be W = 2H, got {height}x{width}")
+            raise ValueError(f"an ERP must be W = 2H, got {width}x{height} (width x height)")
         face = face_size_for(width)
         _, color_tex, plane_tex, _, atlas_fbo = self._atlas_targets(face)
         rot = np.asarray(c2w, np.float64)[:3, :3]

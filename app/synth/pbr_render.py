@@ -287,7 +287,7 @@ class PyrenderPanoramaRenderer:
         if self._scene is None:
             raise RuntimeError("call set_textures() and set_scene() before render()")
         if width != 2 * height or height < 2:
-            raise ValueError(f"an ERP must be W = 2H, got {height}x{width}")
+            raise ValueError(f"an ERP must be W = 2H, got {width}x{height} (width x height)")
         pr = self._pr
         face = face_size_for(width)
         if self._renderer is None or self._face != face:
