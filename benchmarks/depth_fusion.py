@@ -65,7 +65,7 @@ from panogrf.app.weights.networks import (
 )
 from panogrf.model.depth import DEFAULT_SWEEP
 from panogrf.model.metrics import ELEVATION_BANDS, band_key, depth_l1_by_band, depth_metrics
-from panogrf.model.refine import SweepConfig
+from panogrf.model.sweep import SweepConfig
 
 #: The monocular prior's conditions besides "clean" (`_pairs`'s ``mono``): what each does.
 MONO_CONDITIONS = {

@@ -8,7 +8,7 @@ resized back. Degenerate input never yields NaN:
   view falls back to monocular depth, with a warning;
 - depth at the top of the range (outdoor, or beyond ``d_max``): clamped, and flagged per pixel.
 
-The multi-view modes end with a photometric sweep (`panogrf.model.refine.sweep_depth`): every
+The multi-view modes end with a photometric sweep (`panogrf.model.sweep.sweep_depth`): every
 pixel of the MVS depth may move to the nearby depth at which its nearest sources agree best, at
 twice the working resolution, where they clearly agree better than at the network's depth. The
 cost volume works at a quarter of 128 rows; the sweep puts back the detail a real capture has.
@@ -34,18 +34,18 @@ from panogrf.model.erp import erp_directions
 from panogrf.model.mono import MonoDepthNet
 from panogrf.model.mvs import MVSNet
 from panogrf.model.progress import open_stage, stage
-from panogrf.model.refine import (
-    SweepConfig,
-    cost_at,
-    median_filter,
-    nearest_sources,
-    photometric_choice,
-    sweep_depth,
-)
+from panogrf.model.refine import nearest_sources
 from panogrf.model.select import (
     HypothesisSelector,
     cross_view_consistency,
     selection_features,
+)
+from panogrf.model.sweep import (
+    SweepConfig,
+    cost_at,
+    median_filter,
+    photometric_choice,
+    sweep_depth,
 )
 
 MODES = ("full", "mono", "mvs")

@@ -23,7 +23,7 @@ end reappears in the view's sources (``SelectorConfig.consistency``, `cross_view
 the point it puts in the world, seen from a source, should lie on that source's own depth. The
 photometric curves say how well the colours match, which blank walls and repeated wallpaper
 leave open; this says whether the views agree on the geometry. The choice is therefore made
-once the sweep has every view's search ends (`panogrf.model.refine.Chooser.finish`).
+once the sweep has every view's search ends (`panogrf.model.sweep.Chooser.finish`).
 
 Where its probability is within a margin of one half, the caller keeps the photometric rule's
 choice (`choose`'s ``fallback``; `DepthEstimator.select_margin`).
@@ -41,7 +41,7 @@ from torch import Tensor, nn
 
 from panogrf.model.erp import erp_to_world, latitude_weights, sample_erp, world_to_erp
 from panogrf.model.layers import CircularConv2d
-from panogrf.model.refine import box_mean
+from panogrf.model.sweep import box_mean
 
 #: Channels of `selection_features`.
 FEATURES = 18

@@ -34,9 +34,9 @@ from torch import Tensor
 
 from panogrf.model.erp import direction_to_pixel, erp_directions, sample_padded
 from panogrf.model.layers import circular_pad
-from panogrf.model.refine import median_filter
 from panogrf.model.render_net import RendererNet
 from panogrf.model.splat import proxy_depth
+from panogrf.model.sweep import median_filter
 from panogrf.renderer.cache import SceneCache, resize_erp
 from panogrf.renderer.nadir import mask_factor
 from panogrf.renderer.render import RenderOutput, Sampling, render_panorama

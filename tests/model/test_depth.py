@@ -14,7 +14,7 @@ from panogrf.model.depth import DepthEstimator
 from panogrf.model.erp import rotation_about
 from panogrf.model.mono import MonoDepthConfig, MonoDepthNet
 from panogrf.model.mvs import PRESETS, MVSNet
-from panogrf.model.refine import SweepConfig
+from panogrf.model.sweep import SweepConfig
 
 WORKING = 64  # working height of the estimator in these tests (the default is 128)
 
@@ -221,7 +221,7 @@ def test_the_canonical_world_makes_the_depth_follow_the_worlds_scale(estimator):
 def test_the_median_follows_the_sweep(estimator, mode):
     """After the sweep the depth goes through `median_filter` (``median``), in the canonical
     world or not: the median of the unfiltered depth, at working resolution."""
-    from panogrf.model.refine import median_filter
+    from panogrf.model.sweep import median_filter
 
     images = _images(2, WORKING, seed=5)
     c2w = _poses((0, 0, 0), (1.0, 0, 0))

@@ -11,15 +11,12 @@ import torch
 from panogrf.model.erp import erp_directions
 from panogrf.model.refine import (
     RefineConfig,
-    SweepConfig,
-    box_mean,
     free_space_violation,
-    median_filter,
     photometric_error,
     refine_depth,
-    sweep_depth,
     warp_from,
 )
+from panogrf.model.sweep import SweepConfig, box_mean, median_filter, sweep_depth
 
 RADIUS = 3.0
 
@@ -288,7 +285,7 @@ def test_a_chooser_overrides_the_photometric_choice(scene):
     """``chooser`` decides each pixel's hypothesis: always the second gives the search from the
     second alone; it is handed the cost curves [K, D, H, W], the hypotheses and the search ends
     [K, H, W] and the offsets; `photometric_choice` is the rule it replaces."""
-    from panogrf.model.refine import photometric_choice
+    from panogrf.model.sweep import photometric_choice
 
     images, c2w, depth = scene
     small = torch.nn.functional.interpolate(depth, size=(32, 64), mode="area")
@@ -313,7 +310,7 @@ def test_a_chooser_overrides_the_photometric_choice(scene):
 
 
 def test_photometric_choice_keeps_the_first_on_ties_and_within_the_gain():
-    from panogrf.model.refine import photometric_choice
+    from panogrf.model.sweep import photometric_choice
 
     offsets = torch.linspace(-0.5, 0.5, 5)
     cost = torch.zeros(2, 5, 1, 3)
