@@ -32,7 +32,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from panogrf.model.erp import erp_to_world, latitude_weights
+from panogrf.model.erp import erp_directions, erp_to_world, latitude_weights
 from panogrf.model.select import dilated_trunk, local_std, scene_summary
 
 #: Channels of `blend_features`.
@@ -128,3 +128,58 @@ class DepthBlend(nn.Module):
             )
         a = torch.sigmoid(logit[:, 0])
         return log_fused + a * (log_mono - log_fused)
+
+
+def blend_views(
+    blend: DepthBlend | None,
+    pixels: Tensor,
+    c2w: Tensor,
+    depth: Tensor,
+    mono: Tensor,
+    sources: list[list[int]],
+    sweep,
+    d_max: float,
+    scale: float,
+    record: list[dict] | None = None,
+) -> Tensor:
+    """``depth`` [V, 1, h, w] (clean, metres) blended with the monocular depth ``mono`` by
+    ``blend``, every view with sources (``sources``: those the sweep compared it with; the
+    photometric costs at ``sweep``'s rows, `panogrf.model.sweep.cost_at`); recorded into
+    ``record`` instead (with the world's ``scale``) when that is a list."""
+    from panogrf.model.progress import stage
+    from panogrf.model.select import cross_view_consistency
+    from panogrf.model.sweep import cost_at
+
+    hh, ww = sweep.height, 2 * sweep.height
+    mode = "area" if pixels.shape[-2] > hh else "bilinear"
+    img = F.interpolate(pixels, size=(hh, ww), mode=mode)
+    dirs = erp_directions(hh, ww, device=depth.device, dtype=depth.dtype)
+    d_range = (0.05, d_max)
+    logs = torch.log(torch.stack((depth, mono), 1)[:, :, 0])
+    up = dict(size=(hh, ww), mode="bilinear", align_corners=False)
+    ends = {r: logs[r] for r, src in enumerate(sources) if src}
+    consistency = cross_view_consistency(ends, c2w, sources)
+    rows = blend.config.rows if blend is not None else depth.shape[-2]
+    out = depth.clone()
+    with stage("depth: blend with the monocular depth", len(ends)) as progress:
+        for r, log_pair in ends.items():
+            fine = F.interpolate(log_pair[None], **up)[0]
+            cost = torch.stack(
+                [cost_at(img, c2w, r, sources[r], d, dirs, sweep, d_range) for d in fine]
+            )
+            feats = blend_features(
+                img[r],
+                cost,
+                log_pair[0],
+                log_pair[1],
+                consistency[r],
+                parallax(log_pair[0], c2w, r, sources[r]),
+                rows,
+            )
+            if record is not None:
+                record.append({"view": r, "features": feats, "logs": log_pair, "scale": scale})
+            else:
+                blended = torch.exp(blend.blend(feats[None], log_pair[:1], log_pair[1:]))
+                out[r] = torch.nan_to_num(blended, nan=d_max, posinf=d_max).clamp(0.05, d_max)
+            progress.advance()
+    return out

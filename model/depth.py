@@ -29,22 +29,15 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from panogrf.model.blend import DepthBlend, blend_features, parallax
-from panogrf.model.erp import erp_directions
+from panogrf.model.blend import DepthBlend, blend_views
 from panogrf.model.mono import MonoDepthNet
 from panogrf.model.mvs import MVSNet
 from panogrf.model.progress import open_stage, stage
 from panogrf.model.refine import nearest_sources
-from panogrf.model.select import (
-    HypothesisSelector,
-    cross_view_consistency,
-    selection_features,
-)
+from panogrf.model.select import HypothesisSelector, SelectorChooser
 from panogrf.model.sweep import (
     SweepConfig,
-    cost_at,
     median_filter,
-    photometric_choice,
     sweep_depth,
 )
 
@@ -252,55 +245,18 @@ class DepthEstimator(nn.Module):
             return 1.0
         return float((mono[ok] / mvs[ok]).median().clamp(0.25, 4.0))
 
-    def _blended(self, pixels, c2w, depth, mono, sources, scale: float, blend_record) -> Tensor:
-        """``depth`` [V, 1, h, w] blended with the monocular depth ``mono`` by `blend`, every
-        view with sources (``sources``: those the sweep compared it with); recorded into
-        ``blend_record`` instead when that is a list."""
-        cfg = self.fusion_sweep
-        hh, ww = cfg.height, 2 * cfg.height
-        mode = "area" if pixels.shape[-2] > hh else "bilinear"
-        img = F.interpolate(pixels, size=(hh, ww), mode=mode)
-        dirs = erp_directions(hh, ww, device=depth.device, dtype=depth.dtype)
-        d_range = (0.05, self.d_max)
-        logs = torch.log(torch.stack((self._clean(depth), self._clean(mono)), 1)[:, :, 0])
-        up = dict(size=(hh, ww), mode="bilinear", align_corners=False)
-        ends = {r: logs[r] for r, src in enumerate(sources) if src}
-        consistency = cross_view_consistency(ends, c2w, sources)
-        rows = self.blend.config.rows if self.blend is not None else depth.shape[-2]
-        out = depth.clone()
-        with stage("depth: blend with the monocular depth", len(ends)) as progress:
-            for r, log_pair in ends.items():
-                fine = F.interpolate(log_pair[None], **up)[0]
-                cost = torch.stack(
-                    [cost_at(img, c2w, r, sources[r], d, dirs, cfg, d_range) for d in fine]
-                )
-                feats = blend_features(
-                    img[r],
-                    cost,
-                    log_pair[0],
-                    log_pair[1],
-                    consistency[r],
-                    parallax(log_pair[0], c2w, r, sources[r]),
-                    rows,
-                )
-                if blend_record is not None:
-                    blend_record.append(
-                        {"view": r, "features": feats, "logs": log_pair, "scale": scale}
-                    )
-                else:
-                    blended = self.blend.blend(feats[None], log_pair[:1], log_pair[1:])
-                    out[r] = self._clean(torch.exp(blended))
-                progress.advance()
-        return out
-
-    def _chooser(
-        self, pixels: Tensor, mono: Tensor, confidence: Tensor, record
-    ) -> _SelectorChooser:
-        """`sweep_depth`'s ``chooser`` for the two fused hypotheses: the selector's choice
-        (or, without one, the photometric rule), made once every view's search ends are
-        known (`cross_view_consistency`); the selector's input appended to ``record`` when
-        recording. mono, confidence: [V, 1 | 2, h, w] at the working resolution."""
-        return _SelectorChooser(self, pixels, mono, confidence, record)
+    def _chooser(self, pixels: Tensor, mono: Tensor, confidence: Tensor, record) -> SelectorChooser:
+        """`sweep_depth`'s ``chooser`` for the two fused hypotheses (`SelectorChooser`).
+        mono, confidence: [V, 1 | 2, h, w] at the working resolution."""
+        return SelectorChooser(
+            self.selector,
+            self.select_margin,
+            self.switch_gain,
+            pixels,
+            torch.log(self._clean(mono)),
+            confidence,
+            record,
+        )
 
     @torch.no_grad()
     def forward(
@@ -386,7 +342,18 @@ class DepthEstimator(nn.Module):
             )
             depth = median_filter(depth, self.median)
             if len(clean) == 1 and (self.blend is not None or blend_record is not None):
-                depth = self._blended(pixels, c2w, depth, mono.depth, nearest, scale, blend_record)
+                depth = blend_views(
+                    self.blend,
+                    pixels,
+                    c2w,
+                    self._clean(depth),
+                    self._clean(mono.depth),
+                    nearest,
+                    self.fusion_sweep,
+                    self.d_max,
+                    scale,
+                    blend_record,
+                )
             if chooser is not None and record is not None:
                 for entry in record:
                     entry.setdefault("scale", scale)
@@ -407,60 +374,6 @@ class DepthEstimator(nn.Module):
         if canonical_far is not None:
             out_of_range |= canonical_far
         return DepthEstimate(depth, mono_depth, out_of_range, sources, warnings)
-
-
-class _SelectorChooser:
-    """`DepthEstimator._chooser`: each view's selection features and photometric rule are made
-    when the sweep reaches it; the choice is made in `finish`, when the cross-view consistency
-    of every view's search ends can be measured."""
-
-    def __init__(self, estimator: DepthEstimator, pixels: Tensor, mono: Tensor, confidence, record):
-        self.est, self.record = estimator, record
-        self.pixels, self.mono, self.confidence = pixels, mono, confidence
-        self.rows = estimator.selector.config.rows if estimator.selector is not None else 128
-        self.images: dict[int, Tensor] = {}
-        self.pending: dict[int, tuple[Tensor, Tensor]] = {}  # view -> (features, rule)
-
-    def __call__(self, r: int, cost: Tensor, log_hyp: Tensor, ends: Tensor, offsets: Tensor):
-        hh, ww = cost.shape[-2:]
-        if hh not in self.images:
-            mode = "area" if self.pixels.shape[-2] > hh else "bilinear"
-            self.images[hh] = F.interpolate(self.pixels, size=(hh, ww), mode=mode)
-        up = dict(size=(hh, ww), mode="bilinear", align_corners=False)
-        log_mono = F.interpolate(torch.log(self.est._clean(self.mono[r : r + 1])), **up)[0, 0]
-        conf = F.interpolate(self.confidence[r : r + 1], **up)[0]
-        feats = selection_features(
-            self.images[hh][r], cost, log_hyp, ends, log_mono, conf, offsets, self.rows
-        )
-        self.pending[r] = (feats, photometric_choice(cost, offsets, self.est.switch_gain))
-        return None
-
-    def finish(self, ends: dict[int, Tensor], c2w: Tensor, sources: list[list[int]]):
-        pooled = {
-            r: F.interpolate(ends[r][None], size=feats.shape[-2:], mode="area")[0]
-            for r, (feats, _) in self.pending.items()
-        }
-        consistency = cross_view_consistency(pooled, c2w, sources)
-        out = {}
-        for r, (feats, rule) in self.pending.items():
-            feats = torch.cat((feats, consistency[r]))
-            if self.record is not None:
-                pool = dict(size=feats.shape[-2:], mode="area")
-                self.record.append(
-                    {
-                        "view": r,
-                        "features": feats,
-                        "ends": pooled[r],
-                        "rule": F.interpolate(rule[None, None].to(feats), **pool)[0, 0],
-                    }
-                )
-            if self.est.selector is None:
-                out[r] = rule
-            else:
-                out[r] = self.est.selector.choose(
-                    feats, tuple(rule.shape), rule, self.est.select_margin
-                )
-        return out
 
 
 def _setting(name: str) -> property:

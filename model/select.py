@@ -198,3 +198,70 @@ class HypothesisSelector(nn.Module):
             unsure = (torch.sigmoid(logit[0, 0]) - 0.5).abs() < margin
             choice = torch.where(unsure, fallback, choice)
         return choice
+
+
+class SelectorChooser:
+    """`panogrf.model.sweep.Chooser` of mode "full"'s two hypotheses: each view's selection
+    features and photometric rule are made when the sweep reaches it; the choice is made in
+    `finish`, when the cross-view consistency of every view's search ends can be measured:
+    the ``selector``'s (the rule's within ``margin`` of one half), or without one the rule's.
+    ``record`` (a list): each view's selector input is appended (its training data).
+    log_mono [V, 1, h, w]: the monocular log depth; confidence [V, 2, h, w] the networks'."""
+
+    def __init__(
+        self,
+        selector: HypothesisSelector | None,
+        margin: float,
+        switch_gain: float,
+        pixels: Tensor,
+        log_mono: Tensor,
+        confidence: Tensor,
+        record: list[dict] | None = None,
+    ):
+        self.selector, self.margin, self.switch_gain = selector, margin, switch_gain
+        self.pixels, self.log_mono, self.confidence = pixels, log_mono, confidence
+        self.record = record
+        self.rows = selector.config.rows if selector is not None else 128
+        self.images: dict[int, Tensor] = {}
+        self.pending: dict[int, tuple[Tensor, Tensor]] = {}  # view -> (features, rule)
+
+    def __call__(self, r: int, cost: Tensor, log_hyp: Tensor, ends: Tensor, offsets: Tensor):
+        from panogrf.model.sweep import photometric_choice
+
+        hh, ww = cost.shape[-2:]
+        if hh not in self.images:
+            mode = "area" if self.pixels.shape[-2] > hh else "bilinear"
+            self.images[hh] = F.interpolate(self.pixels, size=(hh, ww), mode=mode)
+        up = dict(size=(hh, ww), mode="bilinear", align_corners=False)
+        log_mono = F.interpolate(self.log_mono[r : r + 1], **up)[0, 0]
+        conf = F.interpolate(self.confidence[r : r + 1], **up)[0]
+        feats = selection_features(
+            self.images[hh][r], cost, log_hyp, ends, log_mono, conf, offsets, self.rows
+        )
+        self.pending[r] = (feats, photometric_choice(cost, offsets, self.switch_gain))
+        return None
+
+    def finish(self, ends: dict[int, Tensor], c2w: Tensor, sources: list[list[int]]):
+        pooled = {
+            r: F.interpolate(ends[r][None], size=feats.shape[-2:], mode="area")[0]
+            for r, (feats, _) in self.pending.items()
+        }
+        consistency = cross_view_consistency(pooled, c2w, sources)
+        out = {}
+        for r, (feats, rule) in self.pending.items():
+            feats = torch.cat((feats, consistency[r]))
+            if self.record is not None:
+                pool = dict(size=feats.shape[-2:], mode="area")
+                self.record.append(
+                    {
+                        "view": r,
+                        "features": feats,
+                        "ends": pooled[r],
+                        "rule": F.interpolate(rule[None, None].to(feats), **pool)[0, 0],
+                    }
+                )
+            if self.selector is None:
+                out[r] = rule
+            else:
+                out[r] = self.selector.choose(feats, tuple(rule.shape), rule, self.margin)
+        return out
