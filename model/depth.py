@@ -30,22 +30,26 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from panogrf.model.blend import DepthBlend, blend_views
-from panogrf.model.mono import MonoDepthNet
+from panogrf.model.depth_config import DEFAULT_SWEEP, SHORT_SWEEP, DepthConfig
+from panogrf.model.mono import MonoDepthNet, MonoOutput
 from panogrf.model.mvs import MVSNet
 from panogrf.model.progress import open_stage, stage
 from panogrf.model.refine import nearest_sources
 from panogrf.model.select import HypothesisSelector, SelectorChooser
 from panogrf.model.sweep import (
-    SweepConfig,
     median_filter,
     sweep_depth,
 )
 
 MODES = ("full", "mono", "mvs")
-DEFAULT_SWEEP = SweepConfig()
-#: A short search (0.86x to 1.16x) for mode "full"'s sweep: measured, not the default (see
-#: `DepthConfig.fusion_sweep`).
-SHORT_SWEEP = SweepConfig(candidates=7, span=0.15)
+__all__ = [
+    "DEFAULT_SWEEP",
+    "MODES",
+    "SHORT_SWEEP",
+    "DepthConfig",
+    "DepthEstimate",
+    "DepthEstimator",
+]
 
 
 @dataclass
@@ -55,53 +59,6 @@ class DepthEstimate:
     out_of_range: Tensor  # [V, 1, H, W] bool: clamped at the top of the depth range
     sources: list[list[int]]  # views used as sources, per reference view
     warnings: list[str] = field(default_factory=list)
-
-
-@dataclass(frozen=True)
-class DepthConfig:
-    """How `DepthEstimator` estimates depth: fixed at construction (`DepthEstimator.configured`
-    makes an estimator of other settings that shares the networks)."""
-
-    working_height: int = 128
-    """Rows the networks run at (panoramas are resized to it and the depth back)."""
-    min_baseline: float = 0.05
-    """Sources closer than this to the reference (metres) carry no parallax: dropped."""
-    sweep: SweepConfig | None = DEFAULT_SWEEP
-    """The photometric sweep after the MVS network in mode "mvs" (None: no sweep in any mode,
-    and no fusion, median or blend)."""
-    fusion_sweep: SweepConfig = DEFAULT_SWEEP
-    """The sweep of mode "full": it fuses the mono-guided and the unguided MVS depth (each
-    pixel keeps the one its sources agree with) and searches around it. A short search
-    (`SHORT_SWEEP`) with the monocular depth as a third hypothesis has the lower L1 on
-    synthetic rooms (0.139 against 0.172 m), this one on the real triplet (0.173 against 0.231
-    m: a real capture's mono-guided depth is off further than the short search reaches);
-    `benchmarks/depth_fusion.py`."""
-    median: int = 7
-    """Side of the median filter after the sweep (modes "full" and "mvs"), in pixels of the
-    working resolution (1: none; `median_filter`). Mean L1 of the validation sets (full):
-    0.1745 m without, 0.1595 with 5, 0.1553 with 7, 0.1545 with 9."""
-    sweep_sources: int = 2
-    """The sweep compares each view with at most this many of its nearest sources."""
-    fuse: bool = True
-    """Mode "full" with the unguided network loaded: both depths enter the sweep, each pixel
-    keeping the one its sources agree with (see `sweep_depth`'s ``others``)."""
-    switch_gain: float = 0.0
-    """How much better the unguided depth must match to replace the mono-guided one."""
-    mono_hypothesis: bool = False
-    """Mode "full" fused: the monocular depth enters the sweep as a third hypothesis. Off: it
-    pays with the short search only (see ``fusion_sweep``)."""
-    select_margin: float = 0.1
-    """Pixels whose selector probability is within this of one half keep the photometric
-    rule's choice (0: the selector's everywhere): the rule's doubtful choices are single
-    pixels, which the median outvotes; the selector's come in patches. Mean L1 of the
-    validation sets: 0 0.1552, 0.1 0.1545, 0.2 0.1552."""
-    canonical: bool = True
-    """Mode "full" with the unguided network loaded: the MVS networks and the sweep work in the
-    world scaled by k = median(mono / unguided MVS depth) (`_world_scale`), the room sizes the
-    monocular network learned, and the depth is scaled back by 1 / k: the mono prior and the
-    cost volume agree on scale, as in training. One more pass of the unguided network.
-    Mean L1 (classic and home) with the world scaled by 1, 0.7 and 1.4: off 0.156 / 0.210 /
-    0.301, on 0.155 / 0.126 / 0.215."""
 
 
 class DepthEstimator(nn.Module):
@@ -271,6 +228,9 @@ class DepthEstimator(nn.Module):
     ) -> DepthEstimate:
         """images [V, 3, H, W] in [0, 1] (W = 2H), c2w [V, 4, 4] -> `DepthEstimate`.
 
+        The stages: the networks (`_networks`: monocular, then the MVS passes), the photometric
+        stages (`_photometric`: sweep and fusion, median, blend; modes "full" and "mvs" with a
+        sweep), the depth back in the metric world at the panoramas' size (`_finish`).
         ``detail``: the same panoramas at a higher resolution for the photometric sweep (by
         default ``images``), when the caller passes working-resolution images. Training taps
         (mode "full" fused): ``record`` gets, per reference view, the selector's input and
@@ -280,100 +240,133 @@ class DepthEstimator(nn.Module):
             raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
         if mode != "mono" and mode not in self.mvs:
             raise ValueError(f"no weights loaded for mode {mode!r}")
-        v, _, h, w = images.shape
+        h, w = images.shape[-2:]
         if w != 2 * h:
             raise ValueError(f"panoramas must be 2:1, got {w}x{h} (width x height)")
         hw = (self.working_height, 2 * self.working_height)
         small = F.interpolate(images, size=hw, mode="area") if (h, w) != hw else images
+        net = self._networks(mode, small, c2w)
+        if mode != "mono" and self.sweep is not None and any(net.sources):
+            pixels = images if detail is None else detail
+            net.depth = self._photometric(mode, pixels, net, record, blend_record)
+        return self._finish(net, (h, w))
+
+    def _networks(self, mode: str, small: Tensor, c2w: Tensor) -> _NetworkDepth:
+        """The monocular network, then (modes "full" and "mvs") the MVS passes over every view
+        with sources: the unguided one (twice when it first fixes the world's scale, see
+        ``canonical``), then the mode's own."""
+        v = small.shape[0]
         with stage("depth: monocular network", 1) as progress:
             mono = self.mono(small)
             progress.advance()
-        warnings: list[str] = []
-        sources: list[list[int]] = [[] for _ in range(v)]
-        depth = mono.depth.clone()
-        others: tuple[Tensor, ...] = ()
-        scale = 1.0  # the world's scale for the MVS networks (see ``canonical``)
-        if mode != "mono":
-            if v == 1:
-                warnings.append("one view only: monocular depth (no multi-view stereo)")
-            sources, notes = self.view_sources(c2w)
-            warnings += notes
-            # Network passes over every view with sources: the unguided one (twice when it
-            # first fixes the world's scale), then the guided one.
-            canonical = self._canonical(mode)
-            passes = 1 + int(self._fuses(mode) or canonical) + int(canonical)
-            progress = open_stage("depth: multi-view stereo", passes * sum(map(bool, sources)))
-            step = progress.advance
-            if self._fuses(mode) or self._canonical(mode):
+        net = _NetworkDepth(mono, mono.depth.clone(), [[] for _ in range(v)], c2w)
+        if mode == "mono":
+            net.depth = self._clean(net.depth)
+            return net
+        if v == 1:
+            net.warnings.append("one view only: monocular depth (no multi-view stereo)")
+        net.sources, notes = self.view_sources(c2w)
+        net.warnings += notes
+        sources, fuses, canonical = net.sources, self._fuses(mode), self._canonical(mode)
+        passes = 1 + int(fuses or canonical) + int(canonical)
+        progress = open_stage("depth: multi-view stereo", passes * sum(map(bool, sources)))
+        step = progress.advance
+        conf_u = None
+        if fuses or canonical:
+            unguided, conf_u = self._mvs_confidence(
+                "mvs", small, c2w, mono, sources, mono.depth.clone(), step
+            )
+            if canonical:
+                net.scale = self._world_scale(mono.depth, self._clean(unguided), sources)
+                c2w = c2w.clone()
+                c2w[:, :3, 3] *= net.scale
                 unguided, conf_u = self._mvs_confidence(
                     "mvs", small, c2w, mono, sources, mono.depth.clone(), step
                 )
-                if self._canonical(mode):
-                    scale = self._world_scale(mono.depth, self._clean(unguided), sources)
-                    c2w = c2w.clone()
-                    c2w[:, :3, 3] *= scale
-                    unguided, conf_u = self._mvs_confidence(
-                        "mvs", small, c2w, mono, sources, mono.depth.clone(), step
-                    )
-                if self._fuses(mode):
-                    others = (unguided, mono.depth) if self.mono_hypothesis else (unguided,)
-            depth, conf = self._mvs_confidence(mode, small, c2w, mono, sources, depth, step)
-            progress.close()
-            if len(others) == 1:
-                conf = torch.cat((conf, conf_u), 1)  # [V, 2, h, w]
-        depth = self._clean(depth)
-        if mode != "mono" and self.sweep is not None and any(sources):
-            nearest = nearest_sources(c2w, sources, self.sweep_sources)
-            pixels = images if detail is None else detail
-            clean = tuple(self._clean(o) for o in others)
-            chooser = None
-            if len(clean) == 1 and (self.selector is not None or record is not None):
-                chooser = self._chooser(pixels, mono.depth, conf, record)
-            depth = sweep_depth(
+            if fuses:
+                net.others = (unguided, mono.depth) if self.mono_hypothesis else (unguided,)
+        depth, conf = self._mvs_confidence(mode, small, c2w, mono, sources, net.depth, step)
+        progress.close()
+        net.c2w, net.depth = c2w, self._clean(depth)
+        net.confidence = torch.cat((conf, conf_u), 1) if len(net.others) == 1 else conf
+        return net
+
+    def _photometric(self, mode, pixels, net: _NetworkDepth, record, blend_record) -> Tensor:
+        """The sweep (fusing the hypotheses), the median and, mode "full" fused, the blend with
+        the monocular depth, in the networks' world."""
+        nearest = nearest_sources(net.c2w, net.sources, self.sweep_sources)
+        clean = tuple(self._clean(o) for o in net.others)
+        fused = len(clean) == 1
+        chooser = None
+        if fused and (self.selector is not None or record is not None):
+            chooser = self._chooser(pixels, net.mono.depth, net.confidence, record)
+        depth = sweep_depth(
+            pixels,
+            net.c2w,
+            net.depth,
+            nearest,
+            self.fusion_sweep if mode == "full" else self.sweep,
+            (0.05, self.d_max),
+            others=clean,
+            switch_gain=self.switch_gain,
+            chooser=chooser,
+        )
+        depth = median_filter(depth, self.median)
+        if fused and (self.blend is not None or blend_record is not None):
+            depth = blend_views(
+                self.blend,
                 pixels,
-                c2w,
-                depth,
+                net.c2w,
+                self._clean(depth),
+                self._clean(net.mono.depth),
                 nearest,
-                self.fusion_sweep if mode == "full" else self.sweep,
-                (0.05, self.d_max),
-                others=clean,
-                switch_gain=self.switch_gain,
-                chooser=chooser,
+                self.fusion_sweep,
+                self.d_max,
+                net.scale,
+                blend_record,
             )
-            depth = median_filter(depth, self.median)
-            if len(clean) == 1 and (self.blend is not None or blend_record is not None):
-                depth = blend_views(
-                    self.blend,
-                    pixels,
-                    c2w,
-                    self._clean(depth),
-                    self._clean(mono.depth),
-                    nearest,
-                    self.fusion_sweep,
-                    self.d_max,
-                    scale,
-                    blend_record,
-                )
-            if chooser is not None and record is not None:
-                for entry in record:
-                    entry.setdefault("scale", scale)
-        canonical_far = None
-        if scale != 1.0:
+        if chooser is not None and record is not None:
+            for entry in record:
+                entry.setdefault("scale", net.scale)
+        return depth
+
+    def _finish(self, net: _NetworkDepth, size: tuple[int, int]) -> DepthEstimate:
+        """The depth scaled back to the metric world and resized to ``size``, with what is
+        clamped at the top of the range flagged."""
+        depth, canonical_far = net.depth, None
+        if net.scale != 1.0:
             # Clamped at the top of the range in the canonical world: flagged in the metric one.
             canonical_far = depth >= 0.98 * self.d_max
-            depth = self._clean(depth / scale)
-        mono_depth = mono.depth
-        if (h, w) != hw:
-            depth = F.interpolate(depth, size=(h, w), mode="bilinear", align_corners=False)
-            mono_depth = F.interpolate(
-                mono_depth, size=(h, w), mode="bilinear", align_corners=False
-            )
+            depth = self._clean(depth / net.scale)
+        mono_depth = net.mono.depth
+        if tuple(depth.shape[-2:]) != tuple(size):
+            up = dict(size=size, mode="bilinear", align_corners=False)
+            depth, mono_depth = F.interpolate(depth, **up), F.interpolate(mono_depth, **up)
             if canonical_far is not None:
-                canonical_far = F.interpolate(canonical_far.float(), size=(h, w)) > 0.5
+                canonical_far = F.interpolate(canonical_far.float(), size=size) > 0.5
         out_of_range = depth >= 0.98 * self.d_max
         if canonical_far is not None:
             out_of_range |= canonical_far
-        return DepthEstimate(depth, mono_depth, out_of_range, sources, warnings)
+        return DepthEstimate(depth, mono_depth, out_of_range, net.sources, net.warnings)
+
+
+@dataclass
+class _NetworkDepth:
+    """What the networks give `DepthEstimator.forward`'s later stages."""
+
+    mono: MonoOutput
+    depth: Tensor
+    """[V, 1, h, w] metres in the networks' world (scaled by ``scale``), clean."""
+    sources: list[list[int]]
+    c2w: Tensor
+    """[V, 4, 4] the poses in the networks' world."""
+    scale: float = 1.0
+    """The world's scale for the MVS networks (see ``DepthConfig.canonical``)."""
+    others: tuple[Tensor, ...] = ()
+    """Further depth hypotheses for the sweep (the unguided MVS depth, mode "full" fused)."""
+    confidence: Tensor | None = None
+    """[V, 1 | 2, h, w] the MVS networks' confidence (the mode's, then the unguided one's)."""
+    warnings: list[str] = field(default_factory=list)
 
 
 def _setting(name: str) -> property:

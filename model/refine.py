@@ -21,6 +21,7 @@ resolution, h w the depth's resolution.
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -247,22 +248,12 @@ def refine_depth(
     moves[refs] = 1.0
     if not refs or config.iterations + config.coarse + config.fine <= 0:
         return depth
-    # Image gradients at the depth's resolution for the edge-aware smoothness.
-    small = F.interpolate(images, size=(h, w), mode="area").mean(1, keepdim=True)
-    gx_img = (small - torch.roll(small, 1, -1)).abs()
-    gy_img = (small[..., 1:, :] - small[..., :-1, :]).abs()
-    wx, wy = torch.exp(-10 * gx_img), torch.exp(-10 * gy_img)
-    stages = (
-        (config.height // 2, config.coarse),
-        (config.height, config.iterations),
-        (min(2 * config.height, images.shape[-2]), config.fine),
-    )
+    wx, wy = _edge_weights(images, (h, w))
+    rows = (config.height // 2, config.height, min(2 * config.height, images.shape[-2]))
+    stages = tuple(zip(rows, (config.coarse, config.iterations, config.fine), strict=True))
     pairs = [(r, s) for r in refs for s in sources[r]]
     pair_ref = torch.tensor([r for r, _ in pairs], device=depth.device)
-    spans, lo = {}, 0
-    for r in refs:
-        spans[r] = (lo, lo + len(sources[r]))
-        lo += len(sources[r])
+    spans = _spans([len(sources[r]) for r in refs])
     # Progress: a unit per step (each a warp of every view's sources).
     progress = open_stage("depth refinement", sum(max(steps, 0) for _, steps in stages))
     for hh, steps in stages:
@@ -278,24 +269,16 @@ def refine_depth(
                 return None
             log_d = log_d0 + delta * moves
             log_full = F.interpolate(log_d, size=(hh, 2 * hh), mode="bilinear", align_corners=False)
-            full = torch.exp(log_full)
-            # Every (reference, source) pair warped and compared in one batch.
-            errs = photometric_error(warp_pairs(img, full[:, 0], c2w, pairs, dirs), img[pair_ref])
-            loss = depth.new_zeros(())
-            for lo, hi in spans.values():  # each reference: its best source per pixel
-                err = errs[lo:hi].amin(0).clamp(max=config.cap)
-                loss = loss + (err * wlat).sum() / wlat.sum()
+            warped = warp_pairs(img, torch.exp(log_full)[:, 0], c2w, pairs, dirs)  # all at once
+            loss = _photometric_sum(photometric_error(warped, img[pair_ref]), spans, wlat, config)
             dx = (delta - torch.roll(delta, 1, -1)).abs() * wx
             dy = (delta[..., 1:, :] - delta[..., :-1, :]).abs() * wy
             loss = loss / len(refs) + config.smooth * (dx.mean() + dy.mean())
             loss = loss + config.prior * delta.abs().mean()
             if config.free_space > 0:
-                k = max(1, config.free_space_shrink)
-                log_fs = log_full
-                if k > 1:
-                    size = (max(hh // k, 4), 2 * max(hh // k, 4))
-                    log_fs = F.interpolate(log_d, size=size, mode="bilinear", align_corners=False)
-                loss = loss + config.free_space * free_space_violation(log_fs, c2w, sources)
+                loss = loss + config.free_space * _free_space_at(
+                    log_d, log_full, hh, c2w, sources, config
+                )
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
@@ -303,3 +286,40 @@ def refine_depth(
     progress.close()
     with torch.no_grad():
         return torch.exp(log_d0 + delta * moves).clamp(*d_range)
+
+
+def _photometric_sum(errs: Tensor, spans, wlat: Tensor, config: RefineConfig) -> Tensor:
+    """The latitude-weighted mean photometric error of every reference view, summed: each
+    pixel's best source (``errs`` [P, H, W] per pair, ``spans`` each reference's pairs),
+    capped at ``config.cap``."""
+    loss = errs.new_zeros(())
+    for lo, hi in spans:
+        err = errs[lo:hi].amin(0).clamp(max=config.cap)
+        loss = loss + (err * wlat).sum() / wlat.sum()
+    return loss
+
+
+def _free_space_at(log_d, log_full, hh: int, c2w, sources, config: RefineConfig) -> Tensor:
+    """`free_space_violation` of the stage at ``hh`` rows, at ``config.free_space_shrink``
+    times fewer rows (``log_full``: the depth at the stage's rows, ``log_d`` at its own)."""
+    k = max(1, config.free_space_shrink)
+    log_fs = log_full
+    if k > 1:
+        size = (max(hh // k, 4), 2 * max(hh // k, 4))
+        log_fs = F.interpolate(log_d, size=size, mode="bilinear", align_corners=False)
+    return free_space_violation(log_fs, c2w, sources)
+
+
+def _edge_weights(images: Tensor, size: tuple[int, int]) -> tuple[Tensor, Tensor]:
+    """The edge-aware smoothness' weights across columns and rows: exp(-10 |image gradient|)
+    of the mean colour at the depth's resolution ``size`` (depth edges follow image edges)."""
+    small = F.interpolate(images, size=size, mode="area").mean(1, keepdim=True)
+    gx_img = (small - torch.roll(small, 1, -1)).abs()
+    gy_img = (small[..., 1:, :] - small[..., :-1, :]).abs()
+    return torch.exp(-10 * gx_img), torch.exp(-10 * gy_img)
+
+
+def _spans(counts: list[int]) -> list[tuple[int, int]]:
+    """Consecutive (start, end) index ranges of groups of ``counts`` items."""
+    ends = list(itertools.accumulate(counts))
+    return list(zip([0, *ends[:-1]], ends, strict=True))

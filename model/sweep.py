@@ -99,46 +99,27 @@ def sweep_depth(
     chooser: Chooser | None = None,
 ) -> Tensor:
     """Depth [V, 1, h, w] moved, pixel by pixel, to the candidate around it whose warp from the
-    sources matches best (window-summed SSIM + L1, minimum over sources), where that match is
-    clearly better than at the network's depth; elsewhere the network's depth stays.
-
-    ``others``: further depth hypotheses [V, 1, h, w] (e.g. another network's). Each pixel
-    starts from the hypothesis whose own depth matches best, ``depth`` keeping the pixel unless
-    another one matches better by more than ``switch_gain``; the search then runs around the
-    hypothesis it started from. This is how mono-guided and unguided MVS are fused: where the
-    monocular prior misplaced the candidates, the sources themselves say so.
-
-    ``chooser``: picks each pixel's hypothesis instead of the photometric rule (see `Chooser`;
-    `panogrf.model.select`). It is given every hypothesis' cost curve and where the search
-    from each would end, and returns the index of the hypothesis each pixel keeps, or leaves
-    the choice to its ``finish``, which sees every view's search ends (cross-view checks).
+    sources matches best, where clearly better than at the network's depth (module docstring).
+    ``others``: further hypotheses [V, 1, h, w]; each pixel starts from the one whose own depth
+    matches best (``depth`` unless another is better by ``switch_gain``) or that ``chooser``
+    picks (`Chooser`: given every hypothesis' costs and search ends, now or in its ``finish``,
+    which sees every view's ends), and the search runs around it.
     """
-    v, _, h, w = depth.shape
+    v = depth.shape[0]
     hh, ww = config.height, 2 * config.height
     mode = "area" if images.shape[-2] > hh else "bilinear"
     img = F.interpolate(images, size=(hh, ww), mode=mode)
     dirs = erp_directions(hh, ww, device=depth.device, dtype=depth.dtype)
     hyps = (depth, *others)
-    log_hyp = torch.stack(
-        [
-            F.interpolate(torch.log(d.clamp(*d_range)), size=(hh, ww), mode="bilinear")[:, 0]
-            for d in hyps
-        ]
-    )  # [K, V, H, W]
+    logs = [torch.log(d.clamp(*d_range)) for d in hyps]
+    log_hyp = torch.stack([F.interpolate(x, size=(hh, ww), mode="bilinear")[:, 0] for x in logs])
     offsets = torch.linspace(
         -config.span, config.span, config.candidates, dtype=depth.dtype, device=depth.device
     )
-    centre = int(torch.argmin(offsets.abs()))
-    step = float(offsets[1] - offsets[0]) if len(offsets) > 1 else 0.0
     out = depth.clone()
 
     def move(r: int, ends: Tensor, start: Tensor) -> None:
-        end = ends.gather(0, start[None])[0]
-        # The change against ``depth``, averaged down to the depth's grid: pixels that keep
-        # the first hypothesis and do not move stay exactly as given.
-        change = end - log_hyp[0, r]
-        small = F.interpolate(change[None, None], size=(h, w), mode="area")[0]
-        out[r] = (depth[r] * torch.exp(small)).clamp(*d_range)
+        out[r] = _moved(depth[r], log_hyp[0, r], ends.gather(0, start[None])[0], d_range)
 
     pending: dict[int, Tensor] = {}  # search ends of the views the chooser decides at the end
     # Progress: a unit per view and hypothesis (each a sweep of its candidates).
@@ -146,17 +127,8 @@ def sweep_depth(
     for r in range(v):
         if not sources[r]:
             continue
-        costs = []
-        for k in range(len(hyps)):
-            costs.append(
-                _sweep_costs(img, c2w, r, sources[r], log_hyp[k, r], offsets, dirs, config, d_range)
-            )
-            progress.advance()
-        cost = torch.stack(costs)  # [K, D, H, W]
-        # Where the search from each hypothesis ends (log depth), [K, H, W].
-        ends = log_hyp[:, r] + torch.stack(
-            [_search(c, offsets, centre, step, config) for c in cost]
-        )
+        cost, ends = _view_search(img, c2w, r, sources[r], log_hyp[:, r], offsets, dirs, config,
+                                  d_range, progress.advance)  # fmt: skip
         if chooser is None:
             start = photometric_choice(cost, offsets, switch_gain)
         else:
@@ -170,6 +142,29 @@ def sweep_depth(
             move(r, pending[r], start)
     progress.close()
     return out
+
+
+def _moved(depth: Tensor, log_first: Tensor, end: Tensor, d_range) -> Tensor:
+    """One view's depth [1, h, w] moved by where its search ended (log depth [H, W]) against
+    its first hypothesis ``log_first``, the change averaged down to the depth's grid: pixels
+    that keep the first hypothesis and do not move stay exactly as given."""
+    change = end - log_first
+    small = F.interpolate(change[None, None], size=depth.shape[-2:], mode="area")[0]
+    return (depth * torch.exp(small)).clamp(*d_range)
+
+
+def _view_search(img, c2w, r, sources, log_hyp, offsets, dirs, config, d_range, advance):
+    """View r's cost curves [K, D, H, W], one per hypothesis of ``log_hyp`` [K, H, W], and where
+    the search from each ends (log depth) [K, H, W]; ``advance()`` after each hypothesis."""
+    centre = int(torch.argmin(offsets.abs()))
+    step = float(offsets[1] - offsets[0]) if len(offsets) > 1 else 0.0
+    costs = []
+    for k in range(len(log_hyp)):
+        costs.append(_sweep_costs(img, c2w, r, sources, log_hyp[k], offsets, dirs, config, d_range))
+        advance()
+    cost = torch.stack(costs)
+    ends = log_hyp + torch.stack([_search(c, offsets, centre, step, config) for c in cost])
+    return cost, ends
 
 
 def photometric_choice(cost: Tensor, offsets: Tensor, switch_gain: float = 0.0) -> Tensor:

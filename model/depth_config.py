@@ -1,0 +1,60 @@
+"""`DepthConfig`: how the depth chain (`panogrf.model.depth.DepthEstimator`) estimates depth,
+fixed at construction, with the sweeps it uses; the figures that chose each setting beside it."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from panogrf.model.sweep import SweepConfig
+
+DEFAULT_SWEEP = SweepConfig()
+#: A short search (0.86x to 1.16x) for mode "full"'s sweep: measured, not the default (see
+#: `DepthConfig.fusion_sweep`).
+SHORT_SWEEP = SweepConfig(candidates=7, span=0.15)
+
+
+@dataclass(frozen=True)
+class DepthConfig:
+    """How `DepthEstimator` estimates depth: fixed at construction (`DepthEstimator.configured`
+    makes an estimator of other settings that shares the networks)."""
+
+    working_height: int = 128
+    """Rows the networks run at (panoramas are resized to it and the depth back)."""
+    min_baseline: float = 0.05
+    """Sources closer than this to the reference (metres) carry no parallax: dropped."""
+    sweep: SweepConfig | None = DEFAULT_SWEEP
+    """The photometric sweep after the MVS network in mode "mvs" (None: no sweep in any mode,
+    and no fusion, median or blend)."""
+    fusion_sweep: SweepConfig = DEFAULT_SWEEP
+    """The sweep of mode "full": it fuses the mono-guided and the unguided MVS depth (each
+    pixel keeps the one its sources agree with) and searches around it. A short search
+    (`SHORT_SWEEP`) with the monocular depth as a third hypothesis has the lower L1 on
+    synthetic rooms (0.139 against 0.172 m), this one on the real triplet (0.173 against 0.231
+    m: a real capture's mono-guided depth is off further than the short search reaches);
+    `benchmarks/depth_fusion.py`."""
+    median: int = 7
+    """Side of the median filter after the sweep (modes "full" and "mvs"), in pixels of the
+    working resolution (1: none; `median_filter`). Mean L1 of the validation sets (full):
+    0.1745 m without, 0.1595 with 5, 0.1553 with 7, 0.1545 with 9."""
+    sweep_sources: int = 2
+    """The sweep compares each view with at most this many of its nearest sources."""
+    fuse: bool = True
+    """Mode "full" with the unguided network loaded: both depths enter the sweep, each pixel
+    keeping the one its sources agree with (see `sweep_depth`'s ``others``)."""
+    switch_gain: float = 0.0
+    """How much better the unguided depth must match to replace the mono-guided one."""
+    mono_hypothesis: bool = False
+    """Mode "full" fused: the monocular depth enters the sweep as a third hypothesis. Off: it
+    pays with the short search only (see ``fusion_sweep``)."""
+    select_margin: float = 0.1
+    """Pixels whose selector probability is within this of one half keep the photometric
+    rule's choice (0: the selector's everywhere): the rule's doubtful choices are single
+    pixels, which the median outvotes; the selector's come in patches. Mean L1 of the
+    validation sets: 0 0.1552, 0.1 0.1545, 0.2 0.1552."""
+    canonical: bool = True
+    """Mode "full" with the unguided network loaded: the MVS networks and the sweep work in the
+    world scaled by k = median(mono / unguided MVS depth) (`_world_scale`), the room sizes the
+    monocular network learned, and the depth is scaled back by 1 / k: the mono prior and the
+    cost volume agree on scale, as in training. One more pass of the unguided network.
+    Mean L1 (classic and home) with the world scaled by 1, 0.7 and 1.4: off 0.156 / 0.210 /
+    0.301, on 0.155 / 0.126 / 0.215."""
