@@ -67,6 +67,12 @@ def register(subparsers) -> None:
         help="where O saves the camera path (default camera_path.json)",
     )
     parser.add_argument(
+        "--drag-looks",
+        action="store_true",
+        help="dragging turns the camera with the mouse (as in games) instead of moving the "
+        "image with the cursor (as in 360-degree photo viewers)",
+    )
+    parser.add_argument(
         "--camera-path",
         type=Path,
         default=None,
@@ -197,6 +203,7 @@ def _session(args: argparse.Namespace, threads: int) -> int:
         sharp=not args.no_sharp,
         scene_refiner=refiner,
         origin=scene.images.origin,
+        drag_looks=args.drag_looks,
         keyframes=[dataclasses.replace(k, c2w=scene.images.local(k.c2w)) for k in keyframes],
         keyframes_from=str(args.camera_path),
         **({"moving_height": moving} if moving else {}),

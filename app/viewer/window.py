@@ -91,6 +91,8 @@ class ViewerSetup:
     # The world point the poses above are relative to (`SceneImages.origin`): saved camera
     # paths and printed positions are the world's.
     origin: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    # Dragging turns the camera with the mouse (as in games) instead of moving the image.
+    drag_looks: bool = False
     # Keyframes to start with (a saved camera path read back, `--camera-path`), in the
     # viewer's frame, and where they came from (for the first message).
     keyframes: list = field(default_factory=list)
@@ -313,7 +315,11 @@ class PanoViewer(ExportsMixin, OverlayMixin, mglw.WindowConfig):
     def on_mouse_drag_event(self, x, y, dx, dy) -> None:
         # The image follows the cursor, as in every 360° photo viewer: dragging right turns the
         # camera left. Panorama mode shows every direction: only the heading turns it.
-        self.camera.look(dx * DRAG_SPEED, dy * DRAG_SPEED if self.perspective else 0.0)
+        # ``--drag-looks`` inverts it: the camera turns with the mouse, as in games.
+        sign = -1.0 if self.setup.drag_looks else 1.0
+        self.camera.look(
+            sign * dx * DRAG_SPEED, sign * dy * DRAG_SPEED if self.perspective else 0.0
+        )
 
     def on_mouse_scroll_event(self, x_offset: float, y_offset: float) -> None:
         """The wheel zooms: up narrows the field of view, as `=` does."""

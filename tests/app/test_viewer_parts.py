@@ -141,11 +141,17 @@ def test_brackets_drag_and_wheel_act_as_in_360_viewers():
     pyglet_keys = SimpleNamespace(LEFT_BRACKET=ord("{"), RIGHT_BRACKET=ord("}"), W=ord("w"))
     keymap = PanoViewer._make_keymap(SimpleNamespace(wnd=SimpleNamespace(keys=pyglet_keys)))
     assert keymap[ord("[")] == "LEFT_BRACKET" and keymap[ord("]")] == "RIGHT_BRACKET"
-    viewer = SimpleNamespace(camera=FlyCamera.from_c2w(np.eye(4)), perspective=True)
+    setup = SimpleNamespace(drag_looks=False)
+    viewer = SimpleNamespace(camera=FlyCamera.from_c2w(np.eye(4)), perspective=True, setup=setup)
     yaw, pitch = viewer.camera.yaw, viewer.camera.pitch
     PanoViewer.on_mouse_drag_event(viewer, 0, 0, 10, 10)  # right and down
     assert viewer.camera.yaw > yaw  # turned left: the image moved right, with the cursor
     assert viewer.camera.pitch > pitch  # looked up: the image moved down
+    setup.drag_looks = True  # --drag-looks: the camera turns with the mouse instead
+    PanoViewer.on_mouse_drag_event(viewer, 0, 0, 10, 10)
+    assert viewer.camera.yaw == pytest.approx(yaw) and viewer.camera.pitch == pytest.approx(pitch)
+    PanoViewer.on_mouse_drag_event(viewer, 0, 0, 10, 10)
+    assert viewer.camera.yaw < yaw and viewer.camera.pitch < pitch
     fov = viewer.camera.fov
     PanoViewer.on_mouse_scroll_event(viewer, 0, 1)
     assert viewer.camera.fov == fov - 5
