@@ -151,6 +151,12 @@ def unchanged(rel: str) -> Callable[[Path, str], str | None]:
     return check
 
 
+def unchanged_scene(w: Path, out: str) -> str | None:
+    """The scene's transforms.json is still the bundled one's."""
+    same = (w / "scene" / "transforms.json").read_bytes() == (DEMO / "transforms.json").read_bytes()
+    return None if same else "scene/transforms.json was overwritten"
+
+
 #: A geo-referenced world's map-grid offset (metres; issue 57, S1).
 FAR = (5e5, 0.0, 5e6)
 
@@ -286,6 +292,13 @@ def cases() -> list[Case]:
         Case("view --size 10x10", N, [*view, "--size", "10x10"]),
         Case("view --frames 0", N, [*view[:-1], "0"]),
         Case("view --start-frame 9", N, [*view, "--start-frame", "9"]),
+        Case("view --path-out onto the scene's transforms.json", O,
+             [*view, "--path-out", "scene/transforms.json", "--script", "k,o"],
+             check=unchanged_scene, loss="data loss", says="refusing"),
+        Case("view --camera-path keyframe 1e12 m away", S,
+             [*view, "--camera-path", "far.json"], setup=write("far.json", json.dumps({
+                 **camera_path(64, 32), "keyframes": [{"matrix": [1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1,
+                 0, 1e12, 0, 0, 1], "fov": 75}]})), says="farther than"),
         Case("unknown option: subcommand usage", C, [*view, "--bogus"],
              says="usage: panogrf view"),
         # outputs

@@ -104,7 +104,7 @@ def plot_frontier(results: dict, path: Path, title: str, time_height: int = 512)
             label="Pareto frontier (means)",
         )
         ax.set_xscale("log")
-        ax.set_xlabel(f"seconds per {time_height} x {2 * time_height} panorama (log)")
+        ax.set_xlabel(f"seconds per {2 * time_height}x{time_height} panorama (log)")
         ax.set_ylabel(
             {"ws_psnr": "WS-PSNR (dB), higher is better", "lpips": "LPIPS, lower is better"}[metric]
         )

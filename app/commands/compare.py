@@ -170,6 +170,9 @@ def _check_device(name: str) -> str:
 def run(args: argparse.Namespace) -> int:
     device = _check_device(args.device)
     a, b = load_image(args.a), load_image(args.b)
+    if a.rgb.shape != b.rgb.shape:
+        (ha, wa), (hb, wb) = a.rgb.shape[:2], b.rgb.shape[:2]
+        raise UserError(f"images differ in size: {args.a} is {wa}x{ha}, {args.b} is {wb}x{hb}")
     result = compare(a, b, device=device)
     if args.json:
         # JSON has no inf: infinite PSNRs become null, and the notes say why.

@@ -28,6 +28,7 @@ from panogrf.app.runtime import (
     thread_count,
 )
 from panogrf.app.scene import session
+from panogrf.app.scene.check import MAX_POSITION_M
 from panogrf.app.scene.session import MAX_HEIGHT
 from panogrf.renderer.methods import METHODS
 from panogrf.renderer.nadir import nadir_setting
@@ -53,6 +54,8 @@ def parse_c2w(text: str) -> np.ndarray:
         raise UserError(f"--c2w: the last row must be 0 0 0 1, got {m[3].tolist()}")
     if not np.allclose(rot.T @ rot, np.eye(3), atol=1e-4) or np.linalg.det(rot) < 0:
         raise UserError("--c2w: the upper-left 3x3 is not a rotation")
+    if np.abs(m[:3, 3]).max() > MAX_POSITION_M:
+        raise UserError(f"--c2w: the position is farther than {MAX_POSITION_M:g} m from the origin")
     return m
 
 
@@ -191,7 +194,7 @@ def run(args: argparse.Namespace) -> int:
         "out": str(args.out),
         "method": args.method,
         "quality": args.quality,
-        "size": [height, 2 * height],
+        "size": [2 * height, height],  # width x height
         "sources": sources,
         "prepare_s": round(prep, 3),
         "cache": {"status": cache.status, "path": str(cache.path)},

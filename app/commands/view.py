@@ -161,7 +161,15 @@ def _session(args: argparse.Namespace, threads: int) -> int:
         from panogrf.app.paths.camera_path import read_camera_path
         from panogrf.app.viewer.recording import keyframes_from_path
 
-        keyframes = keyframes_from_path(read_camera_path(args.camera_path))
+        try:
+            keyframes = keyframes_from_path(read_camera_path(args.camera_path))
+        except ValueError as exc:
+            raise UserError(f"{args.camera_path}: {exc}") from None
+    from panogrf.app.runtime import refuse_scene_inputs
+    from panogrf.app.scene.folder import load_scene
+
+    # O must never write over what the scene is made of (checked before minutes of work).
+    refuse_scene_inputs(args.path_out, load_scene(args.scene), "--path-out")
     from panogrf.app.scene import session
 
     # The refined scene when it is cached; else the plain one now and the refinement in the

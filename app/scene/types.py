@@ -28,12 +28,13 @@ RECENTRE_BEYOND_M = 1000.0
 
 def scene_origin(c2w: np.ndarray) -> np.ndarray:
     """[3] float64: the point the model's single-precision poses are taken relative to, the
-    camera centres' mean rounded to whole metres; zeros when every centre lies within
-    `RECENTRE_BEYOND_M` of the world's origin (the poses are then used as they are)."""
+    camera centres' median (per axis) rounded to whole metres (the median: one stray camera
+    far from the rest does not pull the others away from it); zeros when every centre lies
+    within `RECENTRE_BEYOND_M` of the world's origin (the poses are then used as they are)."""
     centres = np.asarray(c2w, np.float64)[:, :3, 3]
     if not np.abs(centres).max(initial=0.0) > RECENTRE_BEYOND_M:
         return np.zeros(3)
-    return np.round(centres.mean(0))
+    return np.round(np.median(centres, axis=0))
 
 
 @dataclass(frozen=True, eq=False)

@@ -25,9 +25,13 @@ class ExportsMixin:
             return
         w, h = self.wnd.buffer_size
         keys = [dataclasses.replace(k, c2w=self.setup.world(k.c2w)) for k in self.path.keys]
-        path = recording.recorded_path(
-            keys, self.perspective, self.setup.preview_height, self.setup.fps, w / h
-        )
+        try:
+            path = recording.recorded_path(
+                keys, self.perspective, self.setup.preview_height, self.setup.fps, w / h
+            )
+        except (ValueError, MemoryError, OverflowError) as exc:
+            self.say(f"cannot save the camera path: {exc}")
+            return
         ok, message = recording.save_path_file(self.setup.path_out, path)
         self.say(message)
         sources = np.stack([self.setup.world(c) for c in self.setup.c2w])

@@ -155,23 +155,50 @@ def save_image_file(out: Path, rgb: np.ndarray) -> tuple[bool, str | None]:
 MAX_LOADED_KEYFRAMES = 64
 
 
+#: Longest transition a loaded keyframe may ask for (seconds).
+MAX_TRANSITION_S = 600.0
+
+
+def _number(value, where: str, low: float, high: float) -> float:
+    """``value`` as a float in (low, high], or a `ValueError` naming ``where``."""
+    ok = isinstance(value, int | float) and not isinstance(value, bool)
+    if not ok or not low < float(value) <= high:
+        raise ValueError(f"{where}: expected a number in ({low:g}, {high:g}], got {value!r}")
+    return float(value)
+
+
+def _keyframe(k, i: int) -> Keyframe:
+    """One nerfstudio keyframe checked: a rigid pose within reach, a field of view, a
+    transition; a `ValueError` naming the field otherwise."""
+    from panogrf.app.scene.check import pose_problems
+
+    where = f"keyframes[{i}]"
+    if not isinstance(k, dict) or "matrix" not in k:
+        raise ValueError(f"{where}: expected an object with a matrix")
+    values = k["matrix"]
+    numbers = isinstance(values, list) and len(values) == 16
+    if not numbers or not all(
+        isinstance(x, int | float) and not isinstance(x, bool) for x in values
+    ):
+        raise ValueError(f"{where}.matrix: expected 16 numbers (a column-major 4x4 matrix)")
+    m = np.asarray(values, np.float64).reshape(4, 4).T
+    if problems := pose_problems(m):
+        raise ValueError(f"{where}.matrix: {problems[0]}")
+    fov = _number(k.get("fov", DEFAULT_FOV_DEG), f"{where}.fov", 0.0, 179.0)
+    sec = k.get("override_transition_sec")
+    sec = DEFAULT_TRANSITION_S if sec is None else sec
+    sec = _number(sec, f"{where}.override_transition_sec", 0.0, MAX_TRANSITION_S)
+    return Keyframe(m, fov, sec)
+
+
 def keyframes_from_path(path: CameraPath) -> list[Keyframe]:
     """The keyframes of a camera path read back (`read_camera_path`), in its world: nerfstudio's
     own keyframes (``matrix`` column-major, ``fov``, ``override_transition_sec``; what the
-    viewer's O saves) where it holds them, else cameras of the path itself."""
-    keys = []
-    for k in path.keyframes if isinstance(path.keyframes, list) else []:
-        try:
-            m = np.asarray(k["matrix"], np.float64).reshape(4, 4).T
-            fov = float(k.get("fov", DEFAULT_FOV_DEG))
-            sec = float(k.get("override_transition_sec") or DEFAULT_TRANSITION_S)
-        except (TypeError, KeyError, ValueError):
-            keys = []  # not the keyframes this viewer writes: fall back on the cameras
-            break
-        if not (np.isfinite(m).all() and np.isfinite(fov) and np.isfinite(sec)):
-            keys = []
-            break
-        keys.append(Keyframe(m, fov, max(RETIME_STEP_S, sec)))
+    viewer's O saves) where it holds them (each checked: a `ValueError` naming the first bad
+    field), else cameras of the path itself."""
+    if path.keyframes is not None and not isinstance(path.keyframes, list):
+        raise ValueError("keyframes: expected a list")
+    keys = [_keyframe(k, i) for i, k in enumerate(path.keyframes or [])]
     if keys:
         return keys
     n = len(path.poses)

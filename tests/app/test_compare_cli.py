@@ -116,7 +116,9 @@ def test_unreadable_and_size_mismatch_are_errors(pair, tmp_path, capsys):
     junk.write_text("not a png")
     _one_line_error(capsys, [str(junk), str(pa)], "not an image")
     small = _write(tmp_path / "small.png", _rgb(5, 16, 32))
-    _one_line_error(capsys, [str(pa), str(small)], "differ in size: 64x32 vs 32x16")
+    _one_line_error(
+        capsys, [str(pa), str(small)], f"differ in size: {pa} is 64x32, {small} is 32x16"
+    )
 
 
 def test_bad_device_is_an_error(pair, capsys):

@@ -49,6 +49,17 @@ def test_near_scenes_are_used_as_they_are_and_far_ones_recentred_in_double_preci
     assert np.array_equal(data.to("cpu").origin, origin)
 
 
+def test_one_stray_camera_does_not_pull_the_origin_away_from_the_others():
+    """Two cameras by the origin and one 1e7 m away: the origin (the median) stays with the two,
+    whose float32 poses keep their millimetres (the mean would put them 3.3e6 m from it)."""
+    c2w = np.stack([_pose(0.123456, 1.5, 0.0), _pose(1.0, 1.5, 0.5), _pose(1e7, 1.5, 0.0)])
+    data = SceneImages.from_arrays(
+        [np.zeros((8, 16, 3), np.uint8)] * 3, [None] * 3, c2w, torch.float32
+    )
+    back = data.world(data.c2w.double().numpy())
+    assert np.abs(back[:2] - c2w[:2]).max() < 1e-6
+
+
 @pytest.fixture(scope="module")
 def demo_pair(tmp_path_factory):
     """The bundled scene at 32 rows, at its own coordinates and moved by the map-grid offset."""

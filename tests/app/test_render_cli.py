@@ -41,7 +41,7 @@ def test_render_any_pose_and_summary(random_nets, tmp_path, capsys):
     args = ["render", str(DEMO), "--out", str(out), "--c2w", c2w, "--height", "16", "--json"]
     assert cli.main(args) == 0
     summary = json.loads(capsys.readouterr().out)
-    assert summary["sources"] == [0, 1, 2] and summary["size"] == [16, 32]
+    assert summary["sources"] == [0, 1, 2] and summary["size"] == [32, 16]
     assert "metrics" not in summary
     assert read_rgb(out).shape == (16, 32, 3)
 
@@ -68,6 +68,7 @@ def test_render_refines_the_sources_depth_by_default(random_nets, tmp_path):
         (["--c2w", "1 0 0 0 0 1 0 0 0 0 1 0 0 0 0 0"], "last row"),
         (["--c2w", "2 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1"], "not a rotation"),
         (["--c2w", "nan 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1"], "NaN"),
+        (["--c2w", "1 0 0 1e12 0 1 0 0 0 0 1 0 0 0 0 1"], "farther than 1e+09 m"),
         (["--target-frame", "1", "--height", "3"], "--height"),
     ],
 )

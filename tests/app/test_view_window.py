@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 import os
 import re
+import shutil
 import subprocess
 import sys
 import time
@@ -178,6 +179,16 @@ def test_headless_session_writes_screenshots_and_a_camera_path(tmp_path):
         timeout=300,
     )
     assert run.returncode == 2 and "none.json: camera path file not found" in run.stderr
+    # O never writes over the scene's own files: refused before the scene is prepared.
+    victim = tmp_path / "victim"
+    shutil.copytree(DEMO, victim)
+    before = (victim / "transforms.json").read_bytes()
+    at = cmd.index(str(DEMO)) if str(DEMO) in cmd else 2
+    bad = [*cmd[:at], str(victim), *cmd[at + 1 :]]
+    bad[bad.index("--path-out") + 1] = str(victim / "transforms.json")
+    run = subprocess.run(bad, capture_output=True, text=True, timeout=300)
+    assert run.returncode == 2 and "--path-out" in run.stderr and "refusing" in run.stderr
+    assert (victim / "transforms.json").read_bytes() == before
 
 
 def test_view_errors(tmp_path):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 
 import numpy as np
 import pytest
@@ -59,8 +60,45 @@ def test_a_saved_path_reads_back_as_its_keyframes_and_any_path_as_its_cameras(tm
     assert np.allclose(cams[0].c2w, path.poses[0]) and np.allclose(cams[-1].c2w, path.poses[-1])
     total = sum(k.transition for k in cams[:-1])
     assert total == pytest.approx(path.seconds)
-    path = dataclasses.replace(path, keyframes=[{"matrix": "not a matrix"}])  # another tool's
-    assert len(recording.keyframes_from_path(path)) == recording.MAX_LOADED_KEYFRAMES
+
+
+@pytest.mark.parametrize(
+    ("change", "says"),
+    [
+        ({"matrix": "abc"}, "keyframes[1].matrix: expected 16 numbers"),
+        ({"matrix": [1.0] * 15}, "keyframes[1].matrix: expected 16 numbers"),
+        ({"matrix": ["1"] * 16}, "keyframes[1].matrix: expected 16 numbers"),
+        ({"far": 1e12}, "farther than 1e+09 m"),
+        ({"far": 1e308}, "farther than 1e+09 m"),
+        ({"scale": 2.0}, "not orthonormal"),
+        ({"mirror": True}, "reflection"),
+        ({"fov": -30}, "keyframes[1].fov"),
+        ({"fov": 1e9}, "keyframes[1].fov"),
+        ({"fov": "75"}, "keyframes[1].fov"),
+        ({"override_transition_sec": 1e9}, "override_transition_sec"),
+        ({"override_transition_sec": 0}, "override_transition_sec"),
+        ({"override_transition_sec": float("nan")}, "override_transition_sec"),
+    ],
+)
+def test_bad_keyframes_are_refused_naming_the_field(change, says):
+    """A saved path's keyframe that the viewer cannot use (not 16 numbers, not a rigid pose,
+    beyond 1e9 m, a field of view or transition out of range) is refused, naming it: never
+    replaced by the path's cameras without a word, never a crash when the path is saved."""
+    path = recording.recorded_path(KEYS, perspective=True, pano_height=256, fps=10, aspect=2.0)
+    keys = [dict(k) for k in path.keyframes]
+    m = np.asarray(keys[1]["matrix"], np.float64).reshape(4, 4).T
+    if "far" in change:
+        m[0, 3] = change.pop("far")
+    if change.pop("scale", None):
+        m[:3, :3] *= 2.0
+    if change.pop("mirror", None):
+        m[:3, 0] *= -1.0
+    keys[1]["matrix"] = m.T.reshape(16).tolist()
+    keys[1].update(change)
+    with pytest.raises(ValueError, match=re.escape(says)):
+        recording.keyframes_from_path(dataclasses.replace(path, keyframes=keys))
+    with pytest.raises(ValueError, match="keyframes: expected a list"):
+        recording.keyframes_from_path(dataclasses.replace(path, keyframes={"a": 1}))
 
 
 def test_playback_pose_at_a_time_follows_the_transitions():
