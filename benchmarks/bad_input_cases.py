@@ -159,6 +159,7 @@ def unchanged_scene(w: Path, out: str) -> str | None:
 
 #: A geo-referenced world's map-grid offset (metres; issue 57, S1).
 FAR = (5e5, 0.0, 5e6)
+FAR_RENDER = ["--height", "64", "--json", "--quiet", "--no-refine-depth"]
 
 
 def moved_far(data: dict, scene: Path) -> None:
@@ -176,9 +177,6 @@ def renders_as_near(w: Path, out: str) -> str | None:
     a = json.loads(out)["metrics"]["ws_psnr"]
     b = json.loads(near.stdout)["metrics"]["ws_psnr"]
     return None if abs(a - b) < 0.05 else f"WS-PSNR {a:.2f} dB far, {b:.2f} dB at the origin"
-
-
-FAR_RENDER = ["--height", "64", "--json", "--quiet", "--no-refine-depth"]
 
 
 def full_disk(out: str, first: list[str]) -> Callable[[Path], None]:

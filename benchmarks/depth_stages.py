@@ -84,11 +84,11 @@ def estimator_as(models, mode: str, estimator):
     def pick(m):
         return estimator if m == mode else old(m)
 
-    object.__setattr__(models, "estimator", pick)
+    models.estimator = pick
     try:
         yield models
     finally:
-        object.__setattr__(models, "estimator", old)
+        models.estimator = old
 
 
 def middle_first(data, rows: int):

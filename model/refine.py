@@ -156,27 +156,22 @@ def warp_from(
 ) -> Tensor:
     """The source panorama [1, 3, H, W] seen from the reference camera with its spherical depth
     [H, W] (metres): [1, 3, H, W]. dirs: [H, W, 3] reference camera-frame ray directions."""
-    h, w = depth.shape
-    # Reference camera frame -> source camera frame: x_src = R_s^T (R_r x + t_r - t_s); the
-    # rotated rays do not depend on the depth, so its gradient skips the matrix products.
-    rot = src_c2w[:3, :3].T @ ref_c2w[:3, :3]
-    shift = src_c2w[:3, :3].T @ (ref_c2w[:3, 3] - src_c2w[:3, 3])
-    cam = depth[..., None] * (dirs @ rot.T) + shift
-    uv = direction_to_pixel(cam.reshape(1, -1, 3), h, w)
-    return sample_erp(source, uv).reshape(1, 3, h, w)
+    return warp_batch(source, depth[None], ref_c2w[None], src_c2w[None], dirs)
 
 
 def warp_batch(
     sources: Tensor, depth: Tensor, ref_c2w: Tensor, src_c2w: Tensor, dirs: Tensor
 ) -> Tensor:
-    """`warp_from` for a batch at once: source panoramas [P, 3, H, W] seen from their reference
-    cameras ``ref_c2w`` [P, 4, 4] with spherical depths [P, H, W] -> [P, 3, H, W], one batched
-    resampling (on a GPU one launch per operation instead of one per warp)."""
+    """Source panoramas [P, 3, H, W] seen from their reference cameras ``ref_c2w`` [P, 4, 4]
+    with spherical depths [P, H, W] -> [P, 3, H, W], one batched resampling (on a GPU one launch
+    per operation instead of one per warp). Reference camera frame -> source camera frame:
+    x_src = R_s^T (R_r x + t_r - t_s); the rotated rays do not depend on the depth, so its
+    gradient skips the matrix products."""
     p, h, w = depth.shape
     rot_s = src_c2w[:, :3, :3].transpose(1, 2)  # [P, 3, 3] world -> source camera
     rot = rot_s @ ref_c2w[:, :3, :3]
     shift = (rot_s @ (ref_c2w[:, :3, 3] - src_c2w[:, :3, 3])[..., None])[..., 0]  # [P, 3]
-    rays = dirs[None] @ rot.transpose(1, 2)[:, None]  # [P, H, W, 3], as `warp_from` rounds
+    rays = dirs[None] @ rot.transpose(1, 2)[:, None]  # [P, H, W, 3]
     cam = depth[..., None] * rays + shift[:, None, None]
     uv = direction_to_pixel(cam.reshape(p, -1, 3), h, w)
     return sample_erp(sources, uv).reshape(p, -1, h, w)

@@ -39,6 +39,8 @@ class LoadedImage:
     """e.g. '1024x512, 16-bit RGBA'."""
     notes: tuple[str, ...]
     """Conversions worth telling the user about."""
+    path: Path | None = None
+    """The file it was read from."""
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -89,6 +91,7 @@ def load_image(path: Path) -> LoadedImage:
         rgb=rgb.astype(np.float32) / scale,
         description=f"{w}x{h}, {depth} {kind}",
         notes=tuple(notes),
+        path=path,
     )
 
 
@@ -111,7 +114,8 @@ def compare(a: LoadedImage, b: LoadedImage, device: str = "cpu") -> dict:
     """
     if a.rgb.shape != b.rgb.shape:
         (ha, wa), (hb, wb) = a.rgb.shape[:2], b.rgb.shape[:2]
-        raise UserError(f"images differ in size: {wa}x{ha} vs {wb}x{hb}")
+        name_a, name_b = a.path or "the first", b.path or "the second"
+        raise UserError(f"images differ in size: {name_a} is {wa}x{ha}, {name_b} is {wb}x{hb}")
     h, w = a.rgb.shape[:2]
     x = torch.from_numpy(a.rgb).permute(2, 0, 1)  # [3, H, W]
     y = torch.from_numpy(b.rgb).permute(2, 0, 1)
@@ -170,9 +174,6 @@ def _check_device(name: str) -> str:
 def run(args: argparse.Namespace) -> int:
     device = _check_device(args.device)
     a, b = load_image(args.a), load_image(args.b)
-    if a.rgb.shape != b.rgb.shape:
-        (ha, wa), (hb, wb) = a.rgb.shape[:2], b.rgb.shape[:2]
-        raise UserError(f"images differ in size: {args.a} is {wa}x{ha}, {args.b} is {wb}x{hb}")
     result = compare(a, b, device=device)
     if args.json:
         # JSON has no inf: infinite PSNRs become null, and the notes say why.

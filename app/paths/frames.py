@@ -20,6 +20,7 @@ import torch
 
 from panogrf.app.errors import UserError
 from panogrf.app.files.images import to_uint8
+from panogrf.app.scene.types import shifted
 from panogrf.model.perspective import erp_to_perspective
 from panogrf.renderer.detail import DEFAULT_DETAIL
 from panogrf.renderer.methods import (
@@ -121,9 +122,7 @@ class FrameRenderer:
         return render_view(self.method, self.views, tgt, height, self.models, self.quality)
 
     def _local(self, c2w: np.ndarray) -> np.ndarray:
-        out = np.array(c2w, np.float64)
-        out[:3, 3] -= self.origin
-        return out
+        return shifted(c2w, -self.origin)
 
     def frame(
         self, c2w: np.ndarray, camera_type: str, width: int, height: int, fov_deg: float

@@ -26,6 +26,13 @@ RESERVED_KEYS = ("camera_model", "w", "h", "frames")
 RECENTRE_BEYOND_M = 1000.0
 
 
+def shifted(c2w: np.ndarray, offset: np.ndarray) -> np.ndarray:
+    """Camera-to-world pose(s) [..., 4, 4] moved by ``offset`` [3], as a float64 copy."""
+    out = np.array(c2w, np.float64)
+    out[..., :3, 3] += offset
+    return out
+
+
 def scene_origin(c2w: np.ndarray) -> np.ndarray:
     """[3] float64: the point the model's single-precision poses are taken relative to, the
     camera centres' median (per axis) rounded to whole metres (the median: one stray camera
@@ -71,15 +78,11 @@ class SceneImages:
 
     def local(self, c2w: np.ndarray) -> np.ndarray:
         """World camera-to-world pose(s) [..., 4, 4] -> this container's frame, float64."""
-        out = np.array(c2w, np.float64)
-        out[..., :3, 3] -= self.origin
-        return out
+        return shifted(c2w, -self.origin)
 
     def world(self, c2w: np.ndarray) -> np.ndarray:
         """Pose(s) [..., 4, 4] of this container's frame -> the scene's world, float64."""
-        out = np.array(c2w, np.float64)
-        out[..., :3, 3] += self.origin
-        return out
+        return shifted(c2w, self.origin)
 
     @classmethod
     def from_arrays(
@@ -100,8 +103,7 @@ class SceneImages:
             filled = [np.zeros((h, w), np.float32) if d is None else d for d in depths]
             depth = torch.from_numpy(np.stack(filled))[:, None].to(dtype)
         origin = scene_origin(c2w)
-        local = np.array(c2w, np.float64)
-        local[:, :3, 3] -= origin
+        local = shifted(c2w, -origin)
         return cls(images.contiguous(), torch.from_numpy(local).to(dtype), depth, origin)
 
 

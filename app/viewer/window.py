@@ -32,6 +32,7 @@ import moderngl
 import moderngl_window as mglw
 import numpy as np
 
+from panogrf.app.scene.types import shifted
 from panogrf.app.viewer import recording, screen
 from panogrf.app.viewer.camera import FlyCamera, walk_speed
 from panogrf.app.viewer.exports import ExportsMixin
@@ -100,9 +101,7 @@ class ViewerSetup:
 
     def world(self, c2w: np.ndarray) -> np.ndarray:
         """A pose [4, 4] of the viewer's frame -> the scene's world (float64)."""
-        out = np.array(c2w, np.float64)
-        out[:3, 3] += self.origin
-        return out
+        return shifted(c2w, self.origin)
 
     @classmethod
     def from_views(cls, views, start_frame: int = 0, **kw) -> ViewerSetup:

@@ -140,8 +140,7 @@ def trunk_tensors(module: torch.nn.Module) -> dict[str, torch.Tensor]:
 
 def _load(module: torch.nn.Module, path: Path, expected_config: dict) -> None:
     tensors = read_weights(path)
-    # Older files carry the trunk themselves: theirs is used.
-    tensors = {**trunk_tensors(module), **tensors} if trunk_prefixes(module) else tensors
+    tensors = {**trunk_tensors(module), **tensors}  # older files carry the trunk: theirs is used
     stored = json.loads(_metadata(path).get("config", "{}"))
     # Tuples become lists in JSON; compare as JSON. A field added to a config after the weights
     # were trained is absent from their metadata: it matches when the code has it at its default.
