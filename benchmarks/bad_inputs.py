@@ -11,7 +11,7 @@ classified as:
 - ``failed``: a refusal where success was due, or a refusal without a message.
 
 Prints a Markdown table (case, exit code, message) last and writes the rows to
-``benchmarks/results/bad_inputs.json``. ``--slow`` adds the slow cases (4096-row scoring),
+``lab/results/bad_inputs.json``. ``--slow`` adds the slow cases (4096-row scoring),
 ``-k WORD`` runs the cases whose name holds WORD. Full-disk cases mount a tiny tmpfs (root).
 Usage: ``.venv/bin/python benchmarks/bad_inputs.py [--slow] [-k WORD]``.
 """
@@ -30,7 +30,7 @@ from pathlib import Path
 
 from bad_input_cases import DEMO, PANOGRF, ROOT, Case, cases  # the list, beside this file
 
-RESULTS = ROOT / "benchmarks" / "results" / "bad_inputs.json"
+RESULTS = ROOT / "lab" / "results" / "bad_inputs.json"
 
 
 # -- running ---------------------------------------------------------------------------------

@@ -1,7 +1,7 @@
 """Depth accuracy of the shipped networks on the held-out synthetic test split.
 
     python benchmarks/depth_accuracy.py --data data/test \
-        --out benchmarks/results/depth_accuracy.json
+        --out lab/results/depth_accuracy.json
 
 Test scenes are triplets on a line; the first and last views form a pair at the scene's
 baseline, each taking the other as its source (two reference/source pairs per scene). Modes:
@@ -67,7 +67,7 @@ def evaluate(estimator: DepthEstimator, data, mode: str, baselines: list[float])
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--data", type=Path, default=Path("data/test"))
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/depth_accuracy.json"))
+    parser.add_argument("--out", type=Path, default=Path("lab/results/depth_accuracy.json"))
     parser.add_argument("--baselines", default="0.5,1.0,1.5,2.0")
     parser.add_argument("--sweep", default="0,1,3,5,9", help="N_mono values at 1.0 m")
     parser.add_argument("--threads", type=int, default=0)

@@ -1,7 +1,7 @@
 """How the mono-guided and the unguided MVS depth are best fused: depth error per setting.
 
     python benchmarks/depth_fusion.py --data data/val_fusion_classic data/val_fusion_home \
-        [--gains 0,0.01,0.03] [--out benchmarks/results/depth_fusion.json]
+        [--gains 0,0.01,0.03] [--out lab/results/depth_fusion.json]
 
 Settings are chosen here on *validation* scenes, freshly generated from the train split's
 generator with seeds no training run used (``panogrf dataset make --split train --seed 90000``

@@ -1,6 +1,6 @@
 """Speed and peak memory of depth estimation for a two-view 512 x 1024 scene, on this CPU.
 
-    python benchmarks/depth_speed.py [--out benchmarks/results/depth_speed.json]
+    python benchmarks/depth_speed.py [--out lab/results/depth_speed.json]
 
 A two-view scene is rendered by the synthetic generator (test split, a seed of its own) into a
 temporary folder. Each mode then runs in a fresh subprocess, so its peak resident memory is its
@@ -61,7 +61,7 @@ def _child(scene: Path, mode: str) -> dict:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/depth_speed.json"))
+    parser.add_argument("--out", type=Path, default=Path("lab/results/depth_speed.json"))
     parser.add_argument("--child", nargs=2, metavar=("SCENE", "MODE"), help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child:

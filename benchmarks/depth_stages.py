@@ -2,7 +2,7 @@
 
     python benchmarks/depth_stages.py --data data/loo_classic data/loo_home data/loo_lit \
         REAL_SCENE_DIRS... [--variants shipped,-refine,...] [--threads 2] \
-        [--out benchmarks/results/depth_stages.json]
+        [--out lab/results/depth_stages.json]
 
 ``--data``: dataset folders (with ``dataset.json``) or scene folders of three views. For every
 scene and every variant the outer two views are prepared from nothing, as `panogrf render`
@@ -213,7 +213,7 @@ def main() -> int:
     parser.add_argument("--threads", type=int, default=0)
     parser.add_argument("--rows", type=int, default=512, help="larger scenes are resized to it")
     parser.add_argument("--device", default="cpu", help="cpu, cuda or auto (default cpu)")
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/depth_stages.json"))
+    parser.add_argument("--out", type=Path, default=Path("lab/results/depth_stages.json"))
     args = parser.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)

@@ -2,7 +2,7 @@
 training resolution plus the sources' detail (`panogrf.renderer.detail`).
 
     python benchmarks/detail.py --data data/val_detail_classic data/val_detail_home \
-        [--height 512] [--agreement 0.03,0.05,0.1] [--out benchmarks/results/detail.json]
+        [--height 512] [--agreement 0.03,0.05,0.1] [--out lab/results/detail.json]
 
 For every scene folder of the datasets (three views; the middle one rendered from the outer two
 by PanoGRF with the ``fast`` sampling, depth and caches prepared once per scene): rows

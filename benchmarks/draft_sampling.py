@@ -25,7 +25,7 @@ def main() -> None:
     parser.add_argument("--data", type=Path, default=Path("data/train"))
     parser.add_argument("--scenes", type=int, default=24, help="the last N scenes")
     parser.add_argument("--height", type=int, default=256)
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/draft_sampling.json"))
+    parser.add_argument("--out", type=Path, default=Path("lab/results/draft_sampling.json"))
     args = parser.parse_args()
 
     from panogrf.app.files.images import write_json_atomic

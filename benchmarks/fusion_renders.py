@@ -58,9 +58,7 @@ def main() -> int:
     parser.add_argument("--data", type=Path, nargs="+", required=True)
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--fusions", default="shipped,short", help=f"comma-separated, of {FUSIONS}")
-    parser.add_argument(
-        "--out", type=Path, default=Path("benchmarks/results/fusion_val_renders.json")
-    )
+    parser.add_argument("--out", type=Path, default=Path("lab/results/fusion_val_renders.json"))
     args = parser.parse_args()
     from panogrf.app.files.atomic import write_json_atomic
 

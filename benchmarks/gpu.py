@@ -1,7 +1,7 @@
 """The chain on a GPU against the CPU: a new scene end to end, renders, memory, the same pixels.
 
     python benchmarks/gpu.py --data data/loo_lit [--device cuda] [--scenes 6] \
-        [--cpu-scenes 1] [--out benchmarks/results/gpu.json] [--profile DIR]
+        [--cpu-scenes 1] [--out lab/results/gpu.json] [--profile DIR]
 
 For each scene folder of three 512x1024 panoramas (the middle one is the target):
 
@@ -171,7 +171,7 @@ def main() -> int:
         default=(512, 1024),
         help="rows of the timed renders (default 512,1024)",
     )
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/gpu.json"))
+    parser.add_argument("--out", type=Path, default=Path("lab/results/gpu.json"))
     args = parser.parse_args()
 
     from panogrf.app.runtime import resolve_device

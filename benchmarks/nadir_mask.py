@@ -21,7 +21,7 @@ points that project into a source's rig: mean absolute error there). Variants:
 - ``inpaint only``: the detected masks' pixels inpainted, the renderer told nothing.
 
 The GL preview (``--quality preview`` of `render`, drawn at the same rows) is scored too, with
-and without the masks. Writes benchmarks/results/nadir_mask.json; a table is printed last.
+and without the masks. Writes lab/results/nadir_mask.json; a table is printed last.
 """
 
 from __future__ import annotations
@@ -79,7 +79,7 @@ def main() -> None:
         "(what `render` does), or the scene's true depth (faster; the rig then does not reach "
         "the depth, and the floor-plane fill is not exercised)",
     )
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/nadir_mask.json"))
+    parser.add_argument("--out", type=Path, default=Path("lab/results/nadir_mask.json"))
     args = parser.parse_args()
 
     from panogrf.app.files.images import to_uint8, write_json_atomic

@@ -9,7 +9,7 @@ pixel of the frame) and ``panorama + cut`` (a panorama at the frame's angular re
 `render --camera-path` takes whichever runs the network on fewer rays (`app/paths/frames.py`).
 Median seconds of the repeats (scene preparation excluded), their ratio, and the agreement
 of the two frames (PSNR).
-Writes benchmarks/results/perspective.json.
+Writes lab/results/perspective.json.
 """
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ def main() -> None:
     parser.add_argument("--fov", type=float, default=60.0)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--threads", type=int, default=0)
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/perspective.json"))
+    parser.add_argument("--out", type=Path, default=Path("lab/results/perspective.json"))
     args = parser.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)

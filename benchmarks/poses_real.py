@@ -1,7 +1,7 @@
 """Posing methods side by side on scene folders with true poses: success rate, errors, time.
 
     python benchmarks/poses_real.py --set zind=/data/zind_scenes --set m3d=/data/m3d_scene \
-        --methods colmap,sift-cube --out benchmarks/results/poses_real.json
+        --methods colmap,sift-cube --out lab/results/poses_real.json
 
 Every scene folder (two or more panoramas, true poses in transforms.json) is posed from its
 pixels alone by each method; errors need no alignment (`panogrf.app.poses.errors`): per pair
@@ -15,7 +15,7 @@ Methods:
   bundle adjustment.
 The home-made pipeline it replaced (SIFT cube faces, RANSAC on bearings, incremental
 registration, scipy adjustment; ``app/poses/estimate.py`` until this round) was measured side by
-side before it was removed: ``benchmarks/results/poses_real_before.json``.
+side before it was removed: ``lab/results/poses_real_before.json``.
 The table is printed last; the JSON keeps every scene's row.
 """
 
@@ -157,7 +157,7 @@ def main() -> None:
         help="a scene folder, or a folder of scene folders; repeat for more sets",
     )
     parser.add_argument("--methods", default="colmap")
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/poses_real.json"))
+    parser.add_argument("--out", type=Path, default=Path("lab/results/poses_real.json"))
     parser.add_argument(
         "--render",
         type=int,

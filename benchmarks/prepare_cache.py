@@ -1,7 +1,7 @@
 """Cold preparation against a warm load of the scene cache, on the bundled scene, on this CPU.
 
     python benchmarks/prepare_cache.py [--cold 3] [--warm 5] [--cli 3]
-        [--out benchmarks/results/prepare_cache.json]
+        [--out lab/results/prepare_cache.json]
 
 What `panogrf render` (and `view`, `eval`, `bench`, `demo`) spends before its first pixel, in
 one process with the shipped networks loaded once: read the scene folder, balance the
@@ -50,7 +50,7 @@ def main() -> None:
     parser.add_argument("--cold", type=int, default=3, help="cold runs per case (median)")
     parser.add_argument("--warm", type=int, default=5, help="warm runs per case (median)")
     parser.add_argument("--cli", type=int, default=3, help="CLI renders on the warm cache")
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/prepare_cache.json"))
+    parser.add_argument("--out", type=Path, default=Path("lab/results/prepare_cache.json"))
     args = parser.parse_args()
 
     import torch

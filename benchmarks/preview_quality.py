@@ -134,7 +134,7 @@ def main() -> None:
         default=[Path("data/val_detail_classic"), Path("data/val_detail_home")],
     )
     parser.add_argument("--scenes", type=int, default=0, help="the last N scenes of each (0: all)")
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/preview_quality.json"))
+    parser.add_argument("--out", type=Path, default=Path("lab/results/preview_quality.json"))
     args = parser.parse_args()
 
     from panogrf.app.files.images import to_uint8, write_json_atomic

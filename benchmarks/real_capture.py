@@ -139,7 +139,7 @@ def main() -> int:
     parser.add_argument("--heights", default="512,256", help="render heights")
     parser.add_argument("--methods", default=",".join(METHODS))
     parser.add_argument("--quality", default="fast", help="sampling of the neural methods")
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/real_capture.json"))
+    parser.add_argument("--out", type=Path, default=Path("lab/results/real_capture.json"))
     parser.add_argument(
         "--picture", type=Path, default=None, help="comparison PNG (default DATA/comparison.png)"
     )

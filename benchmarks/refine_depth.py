@@ -2,7 +2,7 @@
 
     python benchmarks/refine_depth.py --data data/val_refine_classic data/val_refine_home \
         --settings "none|shipped|coarse=30,iterations=30" [--threads 2] \
-        [--out benchmarks/results/refine_depth.json]
+        [--out lab/results/refine_depth.json]
 
 For every scene folder of the datasets (three views): mode full's depth of the outer two views
 is estimated once; then, per setting, it is refined (`panogrf.model.refine.refine_depth`, each
@@ -92,7 +92,7 @@ def main() -> int:
         help="the MVS networks and the sweep in the metric world, not the canonical one "
         "(`DepthConfig.canonical` off)",
     )
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/refine_depth.json"))
+    parser.add_argument("--out", type=Path, default=Path("lab/results/refine_depth.json"))
     args = parser.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)

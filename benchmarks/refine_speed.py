@@ -1,7 +1,7 @@
 """The per-scene depth refinement against an earlier revision's, side by side in one process.
 
     python benchmarks/refine_speed.py --baseline-rev 4cbd1b4 --views 2,3 --repeats 3 \
-        --out benchmarks/results/refine_speed.json
+        --out lab/results/refine_speed.json
 
 ``model/refine.py`` of ``--baseline-rev`` (read with ``git show``) and the working tree's run
 the shipped refinement (`PREPARE_REFINE`) on the bundled scene's first V views (the depth: its
@@ -51,7 +51,7 @@ def main() -> None:
     parser.add_argument("--views", default="2,3", help="scene sizes to time (2 or 3 views)")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--threads", type=int, default=2)
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/refine_speed.json"))
+    parser.add_argument("--out", type=Path, default=Path("lab/results/refine_speed.json"))
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     from panogrf.app.files.atomic import write_json_atomic

@@ -1,6 +1,6 @@
 """Rendering speed and quality against the number of samples, on this machine, in one process.
 
-    python benchmarks/render_speed.py --data data/test --out benchmarks/results/render_speed.json
+    python benchmarks/render_speed.py --data data/test --out lab/results/render_speed.json
 
 Part 1 (speed): one test scene at 1.0 m (its middle view rendered from the outer two), the
 scene prepared once (depth + caches, timed separately), then every (size, sampling) pair
@@ -58,7 +58,7 @@ def _scenes_at(root: Path, baseline: float) -> list[Path]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--data", type=Path, default=Path("data/test"))
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/render_speed.json"))
+    parser.add_argument("--out", type=Path, default=Path("lab/results/render_speed.json"))
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--heights", default="256,512")
     parser.add_argument("--scenes", type=int, default=10, help="scenes of the quality sweep")

@@ -26,7 +26,7 @@ def main() -> None:
     parser.add_argument("--scenes", type=int, default=6)
     parser.add_argument("--height", type=int, default=128)
     parser.add_argument("--threads", type=int, default=1)
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/sample_range.json"))
+    parser.add_argument("--out", type=Path, default=Path("lab/results/sample_range.json"))
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
 

@@ -26,7 +26,7 @@ def main() -> None:
     parser.add_argument("--data", type=Path, default=Path("data/train_mix"))
     parser.add_argument("--scenes", type=int, default=24, help="the last N scenes")
     parser.add_argument("--height", type=int, default=256)
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/surface_colour.json"))
+    parser.add_argument("--out", type=Path, default=Path("lab/results/surface_colour.json"))
     parser.add_argument("--threads", type=int, default=0)
     args = parser.parse_args()
     if args.threads:

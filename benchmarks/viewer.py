@@ -1,6 +1,6 @@
 """The viewer's numbers on this machine: preparation, preview rate, refinement latency, memory.
 
-    python benchmarks/viewer.py --scene assets/demo --out benchmarks/results/viewer.json
+    python benchmarks/viewer.py --scene assets/demo --out lab/results/viewer.json
 
 - scene preparation: cold (empty cache folder: depth estimation + encoders + writing the
   cache) and cached (reading it back), median of ``--repeats``;
@@ -50,7 +50,7 @@ import torch
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--scene", type=Path, default=None, help="default: the bundled demo")
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/viewer.json"))
+    parser.add_argument("--out", type=Path, default=Path("lab/results/viewer.json"))
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--walk-frames", type=int, default=45, help="frames per walk")
     parser.add_argument("--skip-paper", action="store_true", help="skip the 64 + 64 baseline")

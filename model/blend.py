@@ -6,7 +6,7 @@ fused depth and the monocular network's fail in different places: the sources se
 under very different angles or not at all, while one panorama alone still shows a plausible
 room. On the wide validation homes (6 scenes each, first and last view) the fused depth scores
 0.147 / 0.157 / 0.259 m, the monocular depth 0.153 / 0.222 / 0.228, and the better of the two
-per pixel 0.084 / 0.099 / 0.136 (`docs/analysis.md`).
+per pixel 0.084 / 0.099 / 0.136 (`lab/analysis.md`).
 
 `DepthBlend` predicts, per pixel, a weight a in [0, 1] and the depth becomes
 exp((1 - a) log fused + a log mono). It sees what says which one to trust there

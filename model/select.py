@@ -6,7 +6,7 @@ its nearest sources match best at its own depth. Where the match says little (bl
 bright windows, repeated texture) that rule keeps the mono-guided depth, and on a real capture
 the monocular prior is often wrong exactly there. On the training run's held-back scenes the
 rule's choice scores 0.203 m, the selector's 0.177 and the truth's 0.151
-(`docs/training/depth_select.log`).
+(`lab/training/depth_select.log`).
 
 `HypothesisSelector` makes the choice from what is known at that point, per pixel: each
 hypothesis' photometric cost curve (its cost, its best cost, how far the search would move it,

@@ -9,14 +9,12 @@ on the target pose: estimated depth per depth mode and the renderer's `SceneCach
 | panogrf       | full  | panogrf     | the method                                           |
 | no_mono       | mvs   | panogrf     | ablation: MVS depth without mono guidance            |
 | no_mvs        | mono  | panogrf     | ablation: monocular depth only                       |
-| no_geometry   | full  | no_geometry | ablation: no visibility / depth features (retrained) |
-| panogrf_tiny  | full  | tiny        | the model-size ladder: half the renderer's widths    |
-| panogrf_large | full  | large       | the ladder's larger rung: 1.5x the renderer's widths |
 | meshwarp      | full  | -           | baseline: depth-warped blend of the sources          |
 | nearest       | -     | -           | baseline: nearest source, rotated                    |
 | snerf         | -     | -           | baseline: radiance field fitted to the sources       |
 
-Networks come from injected loaders, so this module reads no files.
+Networks come from injected loaders, so this module reads no files. The renderer ablations
+(no_geometry, the model-size ladder) are experiments: `lab/ablations.py` adds them.
 """
 
 from __future__ import annotations
@@ -79,9 +77,6 @@ METHODS: dict[str, MethodSpec] = {
         MethodSpec("panogrf", "full", "panogrf", Kind.NEURAL),
         MethodSpec("no_mono", "mvs", "panogrf", Kind.NEURAL),
         MethodSpec("no_mvs", "mono", "panogrf", Kind.NEURAL),
-        MethodSpec("no_geometry", "full", "no_geometry", Kind.NEURAL),
-        MethodSpec("panogrf_tiny", "full", "tiny", Kind.NEURAL),
-        MethodSpec("panogrf_large", "full", "large", Kind.NEURAL),
         MethodSpec("meshwarp", "full", None, Kind.MESHWARP),
         MethodSpec("nearest", None, None, Kind.NEAREST),
         MethodSpec("snerf", None, None, Kind.SNERF),

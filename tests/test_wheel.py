@@ -58,6 +58,9 @@ def test_wheel_runs_every_subcommands_help(tmp_path):
         zf.extractall(site)
     for expected in ("panogrf/app/viewer/window.py", "panogrf/shaders/", "panogrf/assets/"):
         assert any(n.startswith(expected) for n in names), expected
+    # No lab code, results or ablation weights (`lab/`), no benchmarks, no tests.
+    lab = [n for n in names if {"lab", "benchmarks", "tests"} & set(n.split("/")[:2])]
+    assert lab == [] and not [n for n in names if "renderer_tiny" in n or "analysis.md" in n]
     env = {**os.environ, "PYTHONPATH": str(site), "OMP_NUM_THREADS": "1"}
     where = subprocess.run(
         [sys.executable, "-c", "import panogrf.app.cli as c; print(c.__file__)"],

@@ -118,7 +118,7 @@ def register(subparsers) -> None:
         ),
         epilog=(
             "example: panogrf train renderer --data data/train "
-            "--out assets/renderer_panogrf.safetensors --log docs/training/renderer.log"
+            "--out assets/renderer_panogrf.safetensors --log lab/training/renderer.log"
         ),
     )
     renderer.add_argument("--data", type=Path, required=True, help="train-split dataset folder")
@@ -127,8 +127,9 @@ def register(subparsers) -> None:
         "--preset",
         choices=("panogrf", "no_geometry", "tiny", "large"),
         default="panogrf",
-        help="panogrf (default), no_geometry (ablation: no depth-derived visibility); the "
-        "model-size ladder: tiny (half the widths) or large (one and a half times)",
+        help="panogrf (default); experiments, whose weights go to lab/weights: no_geometry "
+        "(no depth-derived visibility), the model-size ladder tiny (half the widths) or large "
+        "(one and a half times)",
     )
     renderer.add_argument("--steps", type=int, default=2000, help="optimiser steps (default 2000)")
     renderer.add_argument("--scenes", type=int, default=2, help="scenes per step (default 2)")
@@ -178,7 +179,7 @@ def register(subparsers) -> None:
         ),
         epilog=(
             "example: panogrf train select --data data/train_lit "
-            "--out assets/depth_select.safetensors --log docs/training/depth_select.log"
+            "--out assets/depth_select.safetensors --log lab/training/depth_select.log"
         ),
     )
     _fusion_recording_args(select)
@@ -209,7 +210,7 @@ def register(subparsers) -> None:
         ),
         epilog=(
             "example: panogrf train blend --data data/train_lit_wide "
-            "--out assets/depth_blend.safetensors --log docs/training/depth_blend.log"
+            "--out assets/depth_blend.safetensors --log lab/training/depth_blend.log"
         ),
     )
     _fusion_recording_args(blend)

@@ -60,7 +60,7 @@ def default_models(device: torch.device | str = "cpu") -> Models:
     device = torch.device(device)
     if device.type == "cuda":
         # TF32 convolutions move the estimated depth by 2-4 mm against the CPU's; in float32
-        # it is the CPU's within 1e-5 m (benchmarks/results/gpu_parity.json). The networks are
+        # it is the CPU's within 1e-5 m (lab/results/gpu_parity.json). The networks are
         # small: the GPU's time goes to launches, not to this arithmetic.
         torch.backends.cudnn.allow_tf32 = False
         torch.backends.cuda.matmul.allow_tf32 = False
@@ -85,7 +85,7 @@ def weight_files(method: str = "panogrf") -> list[Path]:
     if spec.depth_mode is not None:
         names += dw.depth_weight_files(spec.depth_mode).values()
     if spec.renderer is not None:
-        names.append(dw.RENDERER_WEIGHTS[spec.renderer])
+        names.append(dw.renderer_file(spec.renderer))
     return [dw.weights_path(name) for name in names]
 
 

@@ -90,7 +90,7 @@ class TrainDepthConfig:
     """Stage mvs, mono-guided: fraction of pairs whose monocular *features* come from the
     reference seen out of its domain (`out_of_domain`) while the monocular depth stays the one
     of the reference as it is (then corrupted as the other options say). Measured
-    (`docs/analysis.md`): the guided network reads the features more than its prior: given the
+    (`lab/analysis.md`): the guided network reads the features more than its prior: given the
     true depth as the prior, it was still behind the unguided network on the real triplet, led
     by the features of a real image (`benchmarks/depth_fusion.py --mono-true`)."""
     trunk: int = 0

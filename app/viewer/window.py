@@ -70,7 +70,7 @@ class ViewerSetup:
     # drawn at these rows and shown upsampled, and the first still frame draws it at
     # preview_height. The defaults here (sharp, 128 rows, 128-row meshes simplified to 10000
     # triangles) come from `python benchmarks/preview_quality.py` on 12 validation scenes:
-    # see `docs/results.md`, the sharp GL preview.
+    # see `lab/results.md`, the sharp GL preview.
     moving_height: int | None = 128  # without sharp: UPSAMPLED_MOVING_ROWS
     sharp: bool = True
     path_out: Path = Path("camera_path.json")

@@ -44,12 +44,10 @@ BLEND = "depth_blend.safetensors"
 #: unguided one's (`panogrf.model.depth.DepthEstimator.fuse`).
 NETWORKS = {"mono": (), "mvs": ("mvs",), "full": ("full", "mvs")}
 
-RENDERER_WEIGHTS = {
-    "panogrf": "renderer_panogrf.safetensors",
-    "no_geometry": "renderer_no_geometry.safetensors",
-    "tiny": "renderer_tiny.safetensors",
-    "large": "renderer_large.safetensors",
-}
+#: The shipped renderer. The ablations' weights (`RENDERER_PRESETS` "no_geometry", "tiny",
+#: "large") are experiments kept in the repository's `lab/weights`, read as
+#: ``renderer_<preset>.safetensors`` from ``$PANOGRF_WEIGHTS`` (`lab/ablations.py`).
+RENDERER_WEIGHTS = {"panogrf": "renderer_panogrf.safetensors"}
 
 
 # Config fields added after some shipped weights were trained, with the value those weights
@@ -252,13 +250,19 @@ def depth_weight_files(mode: str) -> dict[str, str]:
     return files
 
 
+def renderer_file(preset: str) -> str:
+    """The weights file name of renderer ``preset``."""
+    return RENDERER_WEIGHTS.get(preset, f"renderer_{preset}.safetensors")
+
+
 @lru_cache(maxsize=4)
 def load_renderer(preset: str = "panogrf", device: str = "cpu") -> RendererNet:
-    """The renderer networks of ``preset`` ("panogrf" or the "no_geometry" ablation)."""
+    """The renderer networks of ``preset`` ("panogrf", or an ablation of `RENDERER_PRESETS`
+    whose weights ``$PANOGRF_WEIGHTS`` holds)."""
     from dataclasses import asdict
 
-    if preset not in RENDERER_WEIGHTS:
-        raise UserError(f"unknown renderer preset {preset!r}: one of {sorted(RENDERER_WEIGHTS)}")
+    if preset not in RENDERER_PRESETS:
+        raise UserError(f"unknown renderer preset {preset!r}: one of {sorted(RENDERER_PRESETS)}")
     net = RendererNet(RENDERER_PRESETS[preset])
-    _load(net, weights_path(RENDERER_WEIGHTS[preset]), asdict(net.config))
+    _load(net, weights_path(renderer_file(preset)), asdict(net.config))
     return net.to(device).eval()

@@ -188,7 +188,7 @@ def test_the_mvs_stage_trains_on_a_gpu(two_sets, tmp_path):
 
 def test_train_elsewhere_runs_panogrf_train_alone(tmp_path):
     """The wrapper for a machine without the GL packages registers `panogrf train` only."""
-    script = ROOT / "scripts" / "train_elsewhere.py"
+    script = ROOT / "lab" / "gpu" / "train_elsewhere.py"
     done = subprocess.run(
         [sys.executable, str(script), "train", "depth", "--help"],
         capture_output=True,

@@ -5,7 +5,7 @@ pyrender or trimesh cannot import the whole command line, which registers every 
 registers `panogrf train` alone and runs it with the same arguments, so the weights record the
 same command. The repository's folders are made importable as `panogrf` without installing:
 
-    python3 scripts/train_elsewhere.py train depth --data packs --stage mono --device cuda ...
+    python3 lab/gpu/train_elsewhere.py train depth --data packs --stage mono --device cuda ...
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _importable() -> None:

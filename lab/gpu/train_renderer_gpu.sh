@@ -4,9 +4,9 @@
 # the packs in DATA (colour-only packs at 256 rows will do: `panogrf dataset pack --height 256
 # --colour-only`). The depth networks estimate every training pair's depth there first (cached
 # in DATA). Runs where torch and a GPU are, without the app's GL packages
-# (scripts/train_elsewhere.py). Weights and log go to OUT/r.
+# (lab/gpu/train_elsewhere.py). Weights and log go to OUT/r.
 #
-#   bash scripts/train_renderer_gpu.sh DATA OUT SECONDS
+#   bash lab/gpu/train_renderer_gpu.sh DATA OUT SECONDS
 #
 # SCENES, RAYS (default 8 and 1024): scenes per step and rays per scene; LR (default 3e-4);
 # INIT (default the shipped weights): the weights it starts from; STEPS=N: N steps, no timing
@@ -14,7 +14,7 @@
 set -euo pipefail
 data=$1 out=$2 seconds=$3
 py=${PYTHON:-python3}
-train=(scripts/train_elsewhere.py train renderer --data "$data" --preset panogrf
+train=(lab/gpu/train_elsewhere.py train renderer --data "$data" --preset panogrf
        --init "${INIT:-assets/renderer_panogrf.safetensors}" --scenes "${SCENES:-8}" --rays "${RAYS:-1024}"
        --lr "${LR:-3e-4}" --device "${DEVICE:-cuda}" --threads 8)
 mkdir -p "$out/timing" "$out/r"

@@ -2,10 +2,10 @@
 # Round 29: both MVS networks fine-tuned side by side on one GPU from the shipped weights, for
 # as many steps as fit SECONDS each (a timing run of 110 steps sets the number), on the packs
 # in DATA. Runs where torch and a GPU are, without the app's GL packages
-# (scripts/train_elsewhere.py). Weights and logs go to OUT/u (unguided, preset mvs) and OUT/g
+# (lab/gpu/train_elsewhere.py). Weights and logs go to OUT/u (unguided, preset mvs) and OUT/g
 # (mono-guided, preset full).
 #
-#   bash scripts/train_mvs_gpu.sh DATA OUT SECONDS
+#   bash lab/gpu/train_mvs_gpu.sh DATA OUT SECONDS
 #
 # BATCH=2 DEVICE=cpu: a smoke run of the script here. FEATURES=P: the mono-guided network also
 # gets out-of-domain monocular features for a fraction P of its pairs, `--mono-features-shift`,
@@ -18,7 +18,7 @@ set -euo pipefail
 data=$1 out=$2 seconds=$3
 py=${PYTHON:-python3}
 runs=(${RUNS:-u g})
-train=(scripts/train_elsewhere.py train depth --data "$data" --stage mvs --trunk 2
+train=(lab/gpu/train_elsewhere.py train depth --data "$data" --stage mvs --trunk 2
        --batch "${BATCH:-16}" --lr 3e-4 --device "${DEVICE:-cuda}" --threads 7)
 guided=(--preset full --init "${INIT:-assets/depth_mvs_full.safetensors}" --mono assets/depth_mono.safetensors
         --mono-noise 0.8 --mono-shift 0.3 --mono-warp 0.3)
