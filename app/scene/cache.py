@@ -1,68 +1,49 @@
-"""On-disk cache of a prepared scene: estimated depth and the renderer's feature maps.
+"""The prepared scene's entries in the store: estimated depth and the renderer's feature maps.
 
-Preparing a scene (depth estimation, encoders) takes seconds; opening it again should not.
-The cache file is keyed by the scene's content (every panorama's pixels and pose) and by the
-weights (their bytes), so any change to either makes a different key. A file that cannot be
-read, belongs to another key, or holds wrong shapes or non-finite values is rebuilt, never
-trusted. Files are written to a temporary name and renamed, so an interrupted write never
-leaves a broken cache under the real name.
+Preparing a scene (depth estimation, encoders) takes seconds; opening it again should not. An
+entry is named by the scene's `Provenance` (every panorama's pixels and pose, the weights'
+bytes, how the depth was made), so any change to either names another entry; one whose
+tensors have wrong shapes or non-finite values is recomputed, never trusted
+(`panogrf.app.scene.store`: the store, reading and writing). The entries are handed to the
+`SourceViews` here, by the app: the store never writes into them.
 """
 
 from __future__ import annotations
 
-import hashlib
-import os
-from contextlib import contextmanager
+import json
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import torch
-from safetensors import SafetensorError
-from safetensors.torch import load_file, save_file
 
-from panogrf.app.files.atomic import atomic_output
+from panogrf.app.scene.store import (
+    DiskStore,
+    Entry,
+    Provenance,
+    Store,
+    default_cache_dir,
+    get_or_compute,
+    read_valid,
+)
+from panogrf.model.depth import DepthEstimate
 from panogrf.renderer.cache import SceneCache
 from panogrf.renderer.methods import METHODS, Models, SourceViews
 
-FORMAT = "panogrf-scene-cache-7"  # 6: no exposure balance of the sources; 7: a checksum
+__all__ = ["CacheResult", "build_maps", "default_cache_dir", "load_cached", "prepare_cached"]
+
 #: The method whose depth and renderer maps the cache holds.
 METHOD = METHODS["panogrf"]
 #: Largest plausible depth in a cache (metres): far beyond any room or street scene.
 MAX_DEPTH_M = 1000.0
 
 
-def default_cache_dir() -> Path:
-    """``$XDG_CACHE_HOME/panogrf`` or ``~/.cache/panogrf``."""
-    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
-    return Path(base) / "panogrf"
-
-
 def content_key(
     images: torch.Tensor, c2w: torch.Tensor, weight_files: list[Path], setting: str = ""
 ) -> str:
-    """SHA-256 (hex, 32 chars) of the pixels, the poses, the weight files' bytes and
-    ``setting`` (how the depth was made, when not the default: e.g. a per-scene refinement)."""
-    h = hashlib.sha256(FORMAT.encode())
-    if setting:
-        h.update(setting.encode())
-    h.update(str(tuple(images.shape)).encode())
-    h.update((images.clamp(0, 1) * 255).round().to(torch.uint8).cpu().numpy().tobytes())
-    h.update(c2w.to(torch.float64).cpu().numpy().tobytes())
-    for path in weight_files:
-        h.update(path.name.encode())
-        h.update(path.read_bytes())
-    return h.hexdigest()[:32]
-
-
-def _checksum(tensors: dict[str, torch.Tensor]) -> str:
-    """SHA-256 of the tensors' names, shapes and bytes (in name order): written with the cache,
-    checked on every load, so changed numbers are never shown as the scene."""
-    h = hashlib.sha256()
-    for name in sorted(tensors):
-        t = tensors[name].detach().cpu().contiguous()
-        h.update(f"{name} {tuple(t.shape)} {t.dtype}".encode())
-        h.update(t.view(torch.uint8).numpy().tobytes() if t.numel() else b"")
-    return h.hexdigest()
+    """The name of the entry of panoramas ``images`` at poses ``c2w`` prepared with
+    ``weight_files`` and ``setting`` (`Provenance.key`)."""
+    return Provenance.of(images, c2w, weight_files, setting).key
 
 
 @dataclass
@@ -72,17 +53,10 @@ class CacheResult:
     seconds: float
 
 
-def _problem(tensors: dict, key: str, views: SourceViews, channels: int) -> str | None:
-    """Why a loaded cache cannot be trusted (None: it can). ``channels``: the renderer's
+def _problem(entry: Entry, views: SourceViews, channels: int) -> str | None:
+    """Why a stored scene cannot be trusted (None: it can). ``channels``: the renderer's
     feature channels; maps hold features, 6 visibility parameters and the depth."""
-    meta_key = tensors.get("__key__")
-    if meta_key is None:
-        return "no key"
-    if meta_key.dtype != torch.uint8 or meta_key.ndim != 1:
-        return "malformed key"
-    if bytes(meta_key.tolist()).decode(errors="replace") != key:
-        return "stale (another scene or other weights)"
-    depth, maps = tensors.get("depth"), tensors.get("maps")
+    depth, maps = entry.tensors.get("depth"), entry.tensors.get("maps")
     v = views.images.shape[0]
     if depth is None or maps is None:
         return "missing tensors"
@@ -104,60 +78,53 @@ def _problem(tensors: dict, key: str, views: SourceViews, channels: int) -> str 
     return None
 
 
-def _cache_path(views: SourceViews, cache_dir: Path | None, weight_files: list[Path]):
-    """(key, file) of ``views``' cache: keyed by the pixels, poses, weights and refinement."""
-    cache_dir = Path(cache_dir) if cache_dir is not None else default_cache_dir()
+def scene_provenance(views: SourceViews, weight_files: list[Path]) -> Provenance:
+    """The provenance of ``views``' prepared scene: pixels, poses, weights and refinement, the
+    nadir mask where the sources have one, and the device when not the CPU (another device's
+    arithmetic gets its own entry)."""
     setting = "" if views.refine is None else f"refine {views.refine!r}"
-    mask = getattr(views, "nadir_mask", None)  # sources masked at the nadir: keyed by the mask
+    mask = views.nadir_mask
     if mask is not None:
+        import hashlib
+
         mask = mask.to(torch.uint8).cpu().contiguous()
         digest = hashlib.sha256(mask.numpy().tobytes()).hexdigest()
         setting += f" nadir {tuple(mask.shape)} {digest}"
-    if views.images.device.type != "cpu":  # another device's arithmetic: its own entry
+    if views.images.device.type != "cpu":
         setting += f" on {views.images.device.type}"
-    key = content_key(views.images, views.c2w, weight_files, setting)
-    return key, cache_dir / f"{key}.safetensors"
+    return Provenance.of(views.images, views.c2w, weight_files, setting)
+
+
+def _store(store: Store | None, cache_dir: Path | None) -> Store:
+    return store if store is not None else DiskStore(cache_dir)
+
+
+def _adopt(views: SourceViews, entry: Entry, channels: int) -> None:
+    """Hand a stored scene's depth and maps to ``views``."""
+    depth, maps = (entry.tensors[k].to(views.images.device) for k in ("depth", "maps"))
+    views.depth[METHOD.depth_mode] = depth
+    views.caches[METHOD.cache_key] = SceneCache(views.images, views.c2w, depth, maps, channels)
 
 
 def load_cached(
-    views: SourceViews, models: Models, cache_dir: Path | None, weight_files: list[Path]
+    views: SourceViews,
+    models: Models,
+    cache_dir: Path | None,
+    weight_files: list[Path],
+    store: Store | None = None,
 ) -> tuple[CacheResult | None, str | None]:
-    """(the loaded cache's result, None) when a valid cache of ``views`` is on disk (``views``
-    filled with its depth and renderer maps), else (None, why not: None if there is none)."""
-    import time
-
+    """(the loaded scene's result, None) when the store (default: the cache folder
+    ``cache_dir``) holds a valid entry of ``views`` (handed to ``views``: its depth and
+    renderer maps), else (None, why not: None if there is none)."""
     start = time.perf_counter()
-    loaded, why = _load(views, models, *_cache_path(views, cache_dir, weight_files))
-    if loaded is not None:
-        loaded.seconds = time.perf_counter() - start
-    return loaded, why
-
-
-def _load(
-    views: SourceViews, models: Models, key: str, path: Path
-) -> tuple[CacheResult | None, str | None]:
-    """`load_cached` with the cache's key and file already computed (the key hashes the
-    weight files' bytes: done once per preparation)."""
-    if not path.exists():
-        return None, None
+    store = _store(store, cache_dir)
+    key = scene_provenance(views, weight_files).key
     c = models.renderer(METHOD.renderer).config.feature_channels
-    try:
-        tensors = load_file(str(path))
-        with safe_open_metadata(path) as meta:
-            stored = meta.get("sha256")
-        why = _problem(tensors, key, views, c)
-        if why is None and stored != _checksum(tensors):
-            why = "checksum mismatch (the file was changed)"
-        tensors = {k: t.to(views.images.device) for k, t in tensors.items()}
-    except (SafetensorError, OSError, ValueError, RuntimeError) as exc:
-        why = f"unreadable ({type(exc).__name__})"
-    if why is not None:
+    entry, why = read_valid(store, key, lambda e: _problem(e, views, c))
+    if entry is None:
         return None, why
-    views.depth[METHOD.depth_mode] = tensors["depth"]
-    views.caches[METHOD.cache_key] = SceneCache(
-        views.images, views.c2w, tensors["depth"], tensors["maps"], c
-    )
-    return CacheResult(path, "loaded", 0.0), None
+    _adopt(views, entry, c)
+    return CacheResult(store.where(key), "loaded", time.perf_counter() - start), None
 
 
 def build_maps(views: SourceViews, models: Models, method=METHOD) -> SceneCache:
@@ -174,36 +141,28 @@ def build_maps(views: SourceViews, models: Models, method=METHOD) -> SceneCache:
 
 
 def prepare_cached(
-    views: SourceViews, models: Models, cache_dir: Path | None, weight_files: list[Path]
+    views: SourceViews,
+    models: Models,
+    cache_dir: Path | None,
+    weight_files: list[Path],
+    store: Store | None = None,
 ) -> CacheResult:
-    """Fill ``views`` with the depth and renderer cache of the method, from disk when a valid
-    cache exists, else by computing them (depth already in ``views`` is used as it is) and
-    writing the cache, atomically."""
-    import time
-
+    """Fill ``views`` with the depth and renderer cache of the method: from the store (default:
+    the cache folder ``cache_dir``) when it holds a valid entry, else computed (depth already
+    in ``views`` is used as it is) and put."""
     start = time.perf_counter()
-    key, path = _cache_path(views, cache_dir, weight_files)
-    loaded, why = _load(views, models, key, path)
-    if loaded is not None:
-        loaded.seconds = time.perf_counter() - start
-        return loaded
-    cache = build_maps(views, models)
-    tensors = {
-        "depth": cache.depth.cpu().contiguous(),
-        "maps": cache.maps.cpu().contiguous(),
-        "__key__": torch.tensor(list(key.encode()), dtype=torch.uint8),
-    }
-    status = "built" if why is None else f"rebuilt: {why}"
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with atomic_output(path) as tmp:
-            meta = {"format": FORMAT, "sha256": _checksum(tensors)}
-            save_file(tensors, str(tmp), metadata=meta)
-    # A read-only or full disk (safetensors reports it as its own error) costs the cache only.
-    except (OSError, SafetensorError) as exc:
-        reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc
-        status += f" (not saved: {reason})"
-    return CacheResult(path, status, time.perf_counter() - start)
+    store = _store(store, cache_dir)
+    key = scene_provenance(views, weight_files).key
+    c = models.renderer(METHOD.renderer).config.feature_channels
+
+    def compute() -> Entry:
+        cache = build_maps(views, models)
+        return Entry({"depth": cache.depth, "maps": cache.maps})
+
+    fetched = get_or_compute(store, key, compute, lambda e: _problem(e, views, c))
+    if fetched.status == "loaded":
+        _adopt(views, fetched.entry, c)
+    return CacheResult(fetched.where, fetched.status, time.perf_counter() - start)
 
 
 # -- the depth of `panogrf depth` and the demo's depth check --------------------------------------
@@ -226,16 +185,17 @@ def estimate_key(images: torch.Tensor, c2w: torch.Tensor, estimator, mode: str) 
 
 
 def estimate_cached(
-    estimator, images: torch.Tensor, c2w: torch.Tensor, mode: str, cache_dir: Path | None
+    estimator,
+    images: torch.Tensor,
+    c2w: torch.Tensor,
+    mode: str,
+    cache_dir: Path | None,
+    store: Store | None = None,
 ):
-    """``estimator(images, c2w, mode)`` (a `DepthEstimate` on the CPU), from the cache when a
-    valid one is there, else estimated and written; (estimate, `CacheResult`). Nothing is read
-    or written for an estimator not loaded from the weights files (`estimate_key`)."""
-    import json
-    import time
-
-    from panogrf.model.depth import DepthEstimate
-
+    """``estimator(images, c2w, mode)`` (a `DepthEstimate` on the CPU), from the store (default:
+    the cache folder ``cache_dir``) when it holds a valid entry, else estimated and put;
+    (estimate, `CacheResult`). Nothing is read or put for an estimator not loaded from the
+    weights files (`estimate_key`)."""
     start = time.perf_counter()
     key = estimate_key(images, c2w, estimator, mode)
     if key is None:
@@ -243,68 +203,35 @@ def estimate_cached(
         return est, CacheResult(
             Path("-"), "computed (given networks, not cached)", time.perf_counter() - start
         )
-    cache_dir = Path(cache_dir) if cache_dir is not None else default_cache_dir()
-    path = cache_dir / f"{key}.safetensors"
     v, _, h, w = images.shape
-    why = None
-    if path.exists():
-        try:
-            tensors = load_file(str(path))
-            with safe_open_metadata(path) as meta:
-                sources = json.loads(meta["sources"])
-                warnings = json.loads(meta["warnings"])
-            why = _estimate_problem(tensors, key, v, h, w, sources, warnings)
-        except (SafetensorError, OSError, ValueError, RuntimeError, KeyError, TypeError) as exc:
-            why = f"unreadable ({type(exc).__name__})"
-        if why is None:
-            est = DepthEstimate(
-                tensors["depth"],
-                tensors["mono_depth"],
-                tensors["out_of_range"].bool(),
-                [list(map(int, s)) for s in sources],
-                list(warnings),
-            )
-            return est, CacheResult(path, "loaded", time.perf_counter() - start)
-    est = estimator(images, c2w, mode)
-    tensors = {
-        "depth": est.depth.float().cpu().contiguous(),
-        "mono_depth": est.mono.float().cpu().contiguous(),
-        "out_of_range": est.out_of_range.cpu().to(torch.uint8).contiguous(),
-        "__key__": torch.tensor(list(key.encode()), dtype=torch.uint8),
-    }
-    metadata = {
-        "format": FORMAT,
-        "sources": json.dumps([list(map(int, s)) for s in est.sources]),
-        "warnings": json.dumps(list(est.warnings)),
-    }
-    status = "built" if why is None else f"rebuilt: {why}"
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with atomic_output(path) as tmp:
-            save_file(tensors, str(tmp), metadata=metadata)
-    except (OSError, SafetensorError) as exc:
-        reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc
-        status += f" (not saved: {reason})"
-    return est, CacheResult(path, status, time.perf_counter() - start)
+
+    def compute() -> Entry:
+        est = estimator(images, c2w, mode)
+        tensors = {
+            "depth": est.depth.float(),
+            "mono_depth": est.mono.float(),
+            "out_of_range": est.out_of_range.to(torch.uint8),
+        }
+        sources = json.dumps([list(map(int, s)) for s in est.sources])
+        return Entry(tensors, {"sources": sources, "warnings": json.dumps(list(est.warnings))})
+
+    fetched = get_or_compute(
+        _store(store, cache_dir), key, compute, lambda e: _estimate_problem(e, v, h, w)
+    )
+    t, meta = fetched.entry.tensors, fetched.entry.meta
+    est = DepthEstimate(
+        t["depth"].cpu(),
+        t["mono_depth"].cpu(),
+        t["out_of_range"].cpu().bool(),
+        [list(map(int, s)) for s in json.loads(meta["sources"])],
+        list(json.loads(meta["warnings"])),
+    )
+    return est, CacheResult(fetched.where, fetched.status, time.perf_counter() - start)
 
 
-@contextmanager
-def safe_open_metadata(path: Path):
-    """The metadata (str -> str) of a safetensors file."""
-    from safetensors import safe_open
-
-    with safe_open(str(path), framework="pt") as f:
-        yield f.metadata() or {}
-
-
-def _estimate_problem(tensors, key, v, h, w, sources, warnings) -> str | None:
-    """Why a loaded depth estimate cannot be trusted (None: it can)."""
-    meta_key = tensors.get("__key__")
-    if meta_key is None or meta_key.dtype != torch.uint8 or meta_key.ndim != 1:
-        return "no key"
-    if bytes(meta_key.tolist()).decode(errors="replace") != key:
-        return "stale (another scene or other weights)"
-    depth, mono, far = (tensors.get(k) for k in ("depth", "mono_depth", "out_of_range"))
+def _estimate_problem(entry: Entry, v: int, h: int, w: int) -> str | None:
+    """Why a stored depth estimate cannot be trusted (None: it can)."""
+    depth, mono, far = (entry.tensors.get(k) for k in ("depth", "mono_depth", "out_of_range"))
     if depth is None or mono is None or far is None:
         return "missing tensors"
     for name, t in (("depth", depth), ("mono_depth", mono), ("out_of_range", far)):
@@ -316,8 +243,15 @@ def _estimate_problem(tensors, key, v, h, w, sources, warnings) -> str | None:
         return "non-finite values"
     if (depth < 0).any() or depth.max() > MAX_DEPTH_M:
         return f"depth out of range (expected 0 to {MAX_DEPTH_M:g} m)"
+    try:
+        sources, warnings = json.loads(entry.meta["sources"]), json.loads(entry.meta["warnings"])
+    except (KeyError, TypeError, ValueError):
+        return "malformed sources or warnings"
     if not isinstance(sources, list) or len(sources) != v or not isinstance(warnings, list):
         return "malformed sources or warnings"
-    if any(not isinstance(s, list) or any(not 0 <= int(j) < v for j in s) for s in sources):
+    try:
+        if any(not isinstance(s, list) or any(not 0 <= int(j) < v for j in s) for s in sources):
+            return "malformed sources"
+    except (TypeError, ValueError):
         return "malformed sources"
     return None

@@ -20,14 +20,20 @@ instead of each other's modules:
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import torch
 
+from panogrf.app.scene.cache import CacheResult
 from panogrf.app.scene.estimate import DepthRun, estimate_scene
+from panogrf.app.scene.store import DiskStore, Store
 from panogrf.model.refine import RefineConfig
 from panogrf.renderer.methods import METHODS, Models, SourceViews
+
+if TYPE_CHECKING:
+    from panogrf.app.scene.folder import Scene
 
 #: Largest panorama height (rows; width = 2x) of a render, single or along a camera path.
 MAX_HEIGHT = 4096
@@ -89,19 +95,23 @@ def weight_files(method: str = "panogrf") -> list[Path]:
     return [dw.weights_path(name) for name in names]
 
 
-@dataclass
+@dataclass(frozen=True)
 class PreparedScene:
-    """A scene ready to render: its files, its source views (depth and caches filled) and the
-    networks that prepared it. ``pending_refine``: the per-scene refinement still to be done
-    (`refine_prepared`) when the preparation was asked to defer it."""
+    """A scene ready to render: its files, its source views (depth and caches filled), the
+    networks that prepared it and where its preparation is kept. Immutable: the per-scene
+    refinement (`refine_prepared`) makes a new one."""
 
-    scene: object  # panogrf.app.scene.folder.Scene
+    scene: Scene
     views: SourceViews
     models: Models
-    cache: object  # panogrf.app.scene.cache.CacheResult
-    cache_dir: Path | None = None
-    on_disk: bool = True  # the shipped networks: the disk cache is read and written
+    cache: CacheResult
+    """Where the preparation came from or went ("loaded", "built", "not cached: why", ...)."""
+    store: Store | None = None
+    """The store the preparation is read from and put in; None: none (networks other than the
+    shipped files, or ``use_cache=False``)."""
     pending_refine: RefineConfig | None = None
+    """The per-scene refinement still to be done (`refine_prepared`) when the preparation was
+    asked to defer it."""
 
 
 def prepare_scene(
@@ -113,6 +123,7 @@ def prepare_scene(
     defer_refine: bool = False,
     use_cache: bool = True,
     nadir_cap=None,
+    store: Store | None = None,
 ) -> PreparedScene:
     """Load the scene folder and prepare PanoGRF's depth and caches with ``models`` (default:
     the shipped weights), reading or writing the on-disk cache in ``cache_dir`` (default
@@ -134,8 +145,10 @@ def prepare_scene(
     scene = load_scene(scene_dir, load_images=True)  # a bad scene: its error before any stage
     nadir = nadir_setting(scene.metadata, nadir_cap)  # and a bad nadir setting's
     with stage(PREPARING, 1) as progress:
+        if use_cache and store is None:
+            store = DiskStore(cache_dir)
         prepared = _prepare_scene(
-            scene, scene_dir, cache_dir, models, log, refine, defer_refine, use_cache, nadir
+            scene, scene_dir, store if use_cache else None, models, log, refine, defer_refine, nadir
         )
         progress.advance()
     return prepared
@@ -146,10 +159,8 @@ def prepare_scene(
 PREPARING = "preparing the scene"
 
 
-def _prepare_scene(
-    scene, scene_dir, cache_dir, models, log, refine, defer_refine, use_cache, nadir=None
-):
-    """`prepare_scene`'s work, on the loaded ``scene``."""
+def _prepare_scene(scene, scene_dir, store, models, log, refine, defer_refine, nadir=None):
+    """`prepare_scene`'s work, on the loaded ``scene``, kept in ``store`` (None: nowhere)."""
     import time
 
     from panogrf.app.scene.cache import CacheResult, build_maps, load_cached, prepare_cached
@@ -161,13 +172,11 @@ def _prepare_scene(
     )
     log(f"preparing {scene_dir} ({scene.num_views} views, {scene.width}x{scene.height})...")
     deferring = defer_refine and refine is not None
-    on_disk = use_cache and isinstance(models, ShippedModels)
+    kept = store if isinstance(models, ShippedModels) else None
     _check_shipped(models, "panogrf")
-    result = files = None
-    if on_disk:
-        files = weight_files("panogrf")
-        if deferring:
-            result, _ = load_cached(views, models, cache_dir, files)
+    result = None
+    if kept is not None and deferring:
+        result, _ = load_cached(views, models, None, weight_files("panogrf"), kept)
     pending = None
     if deferring and result is None:  # the plain scene now, the refined one later
         views = SourceViews(
@@ -178,26 +187,26 @@ def _prepare_scene(
             nadir_notes=views.nadir_notes,
         )
         pending = refine
-    if result is None and on_disk:
-        result = prepare_cached(views, models, cache_dir, files)
+    if result is None and kept is not None:
+        result = prepare_cached(views, models, None, weight_files("panogrf"), kept)
     elif result is None:
-        # Other networks than the shipped files: the disk cache (keyed by those files) is
-        # neither read nor written.
+        # Other networks than the shipped files: the store (keyed by those files) is neither
+        # read nor written.
         start = time.perf_counter()
         build_maps(views, models)
         seconds = time.perf_counter() - start
-        why = "given networks" if use_cache else "--no-cache"
+        why = "given networks" if store is not None else "--no-cache"
         result = CacheResult(Path("-"), f"computed ({why}, not cached)", seconds)
     what = "scene" if refine is None or pending else "refined scene"
     log(f"{what} {result.status} in {result.seconds:.2f} s ({result.path})")
-    return PreparedScene(scene, views, models, result, cache_dir, on_disk, pending)
+    return PreparedScene(scene, views, models, result, kept, pending)
 
 
 def refine_prepared(prepared: PreparedScene, should_stop=None, log=print) -> PreparedScene | None:
     """``prepared``'s pending refinement done: a new `PreparedScene` whose depth is the plain
-    one refined and whose renderer maps are built on it (written to the disk cache when the
-    networks are the shipped ones, as `prepare_scene` without deferring would). None when
-    ``should_stop`` said so (nothing written)."""
+    one refined and whose renderer maps are built on it (put in the store when it has one, as
+    `prepare_scene` without deferring would). None when ``should_stop`` said so (nothing
+    written)."""
     import time
 
     from panogrf.app.scene.cache import CacheResult, build_maps, prepare_cached
@@ -209,16 +218,14 @@ def refine_prepared(prepared: PreparedScene, should_stop=None, log=print) -> Pre
     views = prepared.views.refined(refine, prepared.models, should_stop)
     if views is None:
         return None
-    if not prepared.on_disk:
+    if prepared.store is None:
         build_maps(views, prepared.models)
         result = CacheResult(Path("-"), "computed (not cached)", 0.0)
     else:
-        result = prepare_cached(views, prepared.models, prepared.cache_dir, weight_files())
+        result = prepare_cached(views, prepared.models, None, weight_files(), prepared.store)
     result.seconds = time.perf_counter() - start
     log(f"refined scene {result.status} in {result.seconds:.2f} s ({result.path})")
-    return PreparedScene(
-        prepared.scene, views, prepared.models, result, prepared.cache_dir, prepared.on_disk
-    )
+    return replace(prepared, views=views, cache=result, pending_refine=None)
 
 
 def _check_shipped(models: Models, method: str) -> None:
@@ -246,25 +253,29 @@ def prepare_views(
     quality: str = "fast",
     cache_dir: Path | None = None,
     use_cache: bool = True,
-):
+    store: Store | None = None,
+) -> CacheResult:
     """Compute (once) what ``method`` at ``quality`` needs of ``views`` before the first
     pixel, every stage showing its progress (`panogrf.model.progress`). Where the method reads
     what the scene cache holds (`uses_cache`) and the networks are the shipped ones
-    (`ShippedModels`), PanoGRF's depth and feature maps come from the disk cache in
-    ``cache_dir`` (default ``~/.cache/panogrf``) when a valid one is there, and are written to
-    it otherwise; ``use_cache=False`` neither reads nor writes it. Returns the cache's
-    `CacheResult` (its ``status``: "loaded", "built", "rebuilt: why", or "not cached: why").
+    (`ShippedModels`), PanoGRF's depth and feature maps come from ``store`` (default: the
+    cache folder ``cache_dir``, itself by default ``~/.cache/panogrf``) when it holds a valid
+    entry, and are put there otherwise; ``use_cache=False`` neither reads nor writes it.
+    Returns the cache's `CacheResult` (its ``status``: "loaded", "built", "rebuilt: why", or
+    "not cached: why").
     The whole is a progress stage around the inner ones."""
     from panogrf.model.progress import stage
 
     with stage(PREPARING, 1) as progress:
-        result = _prepare_views(views, models, method, quality, cache_dir, use_cache)
+        if use_cache and store is None:
+            store = DiskStore(cache_dir)
+        result = _prepare_views(views, models, method, quality, store if use_cache else None)
         progress.advance()
     return result
 
 
-def _prepare_views(views, models, method, quality, cache_dir, use_cache):
-    """`prepare_views`' work."""
+def _prepare_views(views, models, method, quality, store):
+    """`prepare_views`' work, kept in ``store`` (None: nowhere)."""
     import time
 
     from panogrf.app.scene.cache import CacheResult, build_maps, prepare_cached
@@ -279,12 +290,12 @@ def _prepare_views(views, models, method, quality, cache_dir, use_cache):
     result = None
     if not uses_cache(method, quality):
         why = f"not cached: {method} does not read PanoGRF's depth"
-    elif not use_cache:
+    elif store is None:
         why = "not cached: --no-cache"
     elif not isinstance(models, ShippedModels):
         why = "not cached: given networks"
     else:
-        result = prepare_cached(views, models, cache_dir, weight_files("panogrf"))
+        result = prepare_cached(views, models, None, weight_files("panogrf"), store)
     if quality == "preview":
         views.depth_for(METHODS["panogrf"].depth_mode, models)
     elif spec.kind is Kind.NEURAL:
