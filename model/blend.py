@@ -27,6 +27,7 @@ the time per pair of views.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, cast
 
 import torch
 import torch.nn.functional as F
@@ -34,6 +35,9 @@ from torch import Tensor, nn
 
 from panogrf.model.erp import erp_directions, erp_to_world, latitude_weights
 from panogrf.model.select import dilated_trunk, local_std, scene_summary
+
+if TYPE_CHECKING:
+    from panogrf.model.sweep import SweepConfig
 
 #: Channels of `blend_features`.
 FEATURES = 11
@@ -111,17 +115,18 @@ class DepthBlend(nn.Module):
         """A scene-wide summary (the latitude-weighted mean of the hidden features) added to
         every pixel's: whether the prior holds is a property of the whole capture."""
         with torch.no_grad():
-            self.net[-1].bias.fill_(-3.0)  # starts at the fused depth
+            cast(Tensor, self.net[-1].bias).fill_(-3.0)  # starts at the fused depth
 
     def forward(self, features: Tensor) -> Tensor:
         hidden = self.net[:4](features)
         hidden = hidden + self.context(scene_summary(hidden))[..., None, None]
-        return self.net[4:](hidden)
+        logit: Tensor = self.net[4:](hidden)
+        return logit
 
     def blend(self, features: Tensor, log_fused: Tensor, log_mono: Tensor) -> Tensor:
         """The blended log depth [B, h, w] of log_fused, log_mono [B, h, w] (the weight made
         at the features' rows, resized to the depth's)."""
-        logit = self(features)
+        logit: Tensor = self(features)
         if logit.shape[-2:] != log_fused.shape[-2:]:
             logit = F.interpolate(
                 logit, size=log_fused.shape[-2:], mode="bilinear", align_corners=False
@@ -137,10 +142,10 @@ def blend_views(
     depth: Tensor,
     mono: Tensor,
     sources: list[list[int]],
-    sweep,
+    sweep: SweepConfig,
     d_max: float,
     scale: float,
-    record: list[dict] | None = None,
+    record: list[dict[str, Any]] | None = None,
 ) -> Tensor:
     """``depth`` [V, 1, h, w] (clean, metres) blended with the monocular depth ``mono`` by
     ``blend``, every view with sources (``sources``: those the sweep compared it with; the
@@ -156,7 +161,7 @@ def blend_views(
     dirs = erp_directions(hh, ww, device=depth.device, dtype=depth.dtype)
     d_range = (0.05, d_max)
     logs = torch.log(torch.stack((depth, mono), 1)[:, :, 0])
-    up = dict(size=(hh, ww), mode="bilinear", align_corners=False)
+    up: dict[str, Any] = dict(size=(hh, ww), mode="bilinear", align_corners=False)
     ends = {r: logs[r] for r, src in enumerate(sources) if src}
     consistency = cross_view_consistency(ends, c2w, sources)
     rows = blend.config.rows if blend is not None else depth.shape[-2]
@@ -179,6 +184,7 @@ def blend_views(
             if record is not None:
                 record.append({"view": r, "features": feats, "logs": log_pair, "scale": scale})
             else:
+                assert blend is not None  # the caller blends or records
                 blended = torch.exp(blend.blend(feats[None], log_pair[:1], log_pair[1:]))
                 out[r] = torch.nan_to_num(blended, nan=d_max, posinf=d_max).clamp(0.05, d_max)
             progress.advance()

@@ -19,7 +19,9 @@ from panogrf.model.erp import erp_directions, rotation_about, sample_erp_directi
 FACE_NAMES = ("front", "right", "back", "left", "up", "down")
 
 
-def face_rotations(dtype: torch.dtype = torch.float32, device=None) -> Tensor:
+def face_rotations(
+    dtype: torch.dtype = torch.float32, device: torch.device | str | None = None
+) -> Tensor:
     """Camera-to-panorama rotations of the six faces [6, 3, 3] (front = identity), on
     ``device`` (default: the CPU)."""
     half = math.pi / 2
@@ -34,7 +36,9 @@ def face_rotations(dtype: torch.dtype = torch.float32, device=None) -> Tensor:
     return torch.stack(rots).to(device or "cpu", dtype)
 
 
-def face_directions(face_size: int, *, device=None, dtype=torch.float32) -> Tensor:
+def face_directions(
+    face_size: int, *, device: torch.device | str | None = None, dtype: torch.dtype = torch.float32
+) -> Tensor:
     """Unit directions (panorama camera frame) of every face pixel centre: [6, F, F, 3]."""
     t = (torch.arange(face_size, device=device, dtype=dtype) + 0.5) / face_size * 2.0 - 1.0
     y, x = torch.meshgrid(-t, t, indexing="ij")

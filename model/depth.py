@@ -23,7 +23,10 @@ does, to keep its depth caches cheap).
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, cast
 
 import torch
 import torch.nn.functional as F
@@ -37,6 +40,7 @@ from panogrf.model.progress import open_stage, stage
 from panogrf.model.refine import nearest_sources
 from panogrf.model.select import HypothesisSelector, SelectorChooser
 from panogrf.model.sweep import (
+    SweepConfig,
     median_filter,
     sweep_depth,
 )
@@ -72,6 +76,19 @@ class DepthEstimator(nn.Module):
 
     _FIXED = ("selector", "blend", "weight_files", "config")
 
+    # `DepthConfig`'s fields, read-only properties set below the class (`_setting`).
+    working_height: int
+    min_baseline: float
+    sweep: SweepConfig | None
+    fusion_sweep: SweepConfig
+    median: int
+    sweep_sources: int
+    fuse: bool
+    switch_gain: float
+    mono_hypothesis: bool
+    select_margin: float
+    canonical: bool
+
     def __init__(
         self,
         mono: MonoDepthNet,
@@ -80,8 +97,8 @@ class DepthEstimator(nn.Module):
         *,
         selector: HypothesisSelector | None = None,
         blend: DepthBlend | None = None,
-        weight_files: tuple = (),
-        **settings,
+        weight_files: Sequence[str | Path] = (),
+        **settings: Any,
     ) -> None:
         """``settings``: `DepthConfig` fields that override ``config``'s."""
         super().__init__()
@@ -93,14 +110,14 @@ class DepthEstimator(nn.Module):
         self.config = dataclasses.replace(config or DepthConfig(), **settings)
         self._frozen = True
 
-    def __setattr__(self, name: str, value) -> None:
+    def __setattr__(self, name: str, value: Any) -> None:
         if name in self._FIXED and self.__dict__.get("_frozen"):
             raise AttributeError(
                 f"DepthEstimator.{name} is fixed at construction: use configured({name}=...)"
             )
         super().__setattr__(name, value)
 
-    def configured(self, **changes) -> DepthEstimator:
+    def configured(self, **changes: Any) -> DepthEstimator:
         """An estimator with other settings (`DepthConfig` fields, ``selector``, ``blend``)
         sharing this one's networks, in the same mode (training or evaluation); with settings
         other than these it has no ``weight_files`` (its estimates are never cached)."""
@@ -109,7 +126,7 @@ class DepthEstimator(nn.Module):
         same = config == self.config and all(parts[k] is getattr(self, k) for k in parts)
         return DepthEstimator(
             self.mono,
-            dict(self.mvs),
+            cast(dict[str, MVSNet], dict(self.mvs)),
             config,
             # Estimates are cached under the weights files' key only as the files configure it.
             weight_files=self.weight_files if same else (),
@@ -154,21 +171,38 @@ class DepthEstimator(nn.Module):
             sources[ref] = src
         return sources, warnings
 
-    def _mvs(self, mode, small, c2w, mono, sources, depth: Tensor) -> Tensor:
+    def _mvs(
+        self,
+        mode: str,
+        small: Tensor,
+        c2w: Tensor,
+        mono: MonoOutput,
+        sources: list[list[int]],
+        depth: Tensor,
+    ) -> Tensor:
         """``depth`` with every view that has sources replaced by network ``mode``'s estimate."""
         return self._mvs_confidence(mode, small, c2w, mono, sources, depth)[0]
 
-    def _mvs_confidence(self, mode, small, c2w, mono, sources, depth: Tensor, step=None):
+    def _mvs_confidence(
+        self,
+        mode: str,
+        small: Tensor,
+        c2w: Tensor,
+        mono: MonoOutput,
+        sources: list[list[int]],
+        depth: Tensor,
+        step: Callable[[], object] | None = None,
+    ) -> tuple[Tensor, Tensor]:
         """(`_mvs`'s depth, the network's confidence [V, 1, h, w]: the peak of its
         cost-volume softmax, 1 for views without sources). ``step``: called after each view
         (progress)."""
-        net = self.mvs[mode]
+        net = cast(MVSNet, self.mvs[mode])
         confidence = torch.ones_like(depth)
         cfg = net.config
         for ref, src in enumerate(sources):
             if not src:
                 continue
-            mono_kw = {}
+            mono_kw: dict[str, Tensor] = {}
             if cfg.use_mono or cfg.n_mono > 0:
                 mono_kw = {
                     "mono_depth": mono.depth[ref : ref + 1],
@@ -202,7 +236,9 @@ class DepthEstimator(nn.Module):
             return 1.0
         return float((mono[ok] / mvs[ok]).median().clamp(0.25, 4.0))
 
-    def _chooser(self, pixels: Tensor, mono: Tensor, confidence: Tensor, record) -> SelectorChooser:
+    def _chooser(
+        self, pixels: Tensor, mono: Tensor, confidence: Tensor, record: list[dict[str, Any]] | None
+    ) -> SelectorChooser:
         """`sweep_depth`'s ``chooser`` for the two fused hypotheses (`SelectorChooser`).
         mono, confidence: [V, 1 | 2, h, w] at the working resolution."""
         return SelectorChooser(
@@ -223,8 +259,8 @@ class DepthEstimator(nn.Module):
         mode: str = "full",
         detail: Tensor | None = None,
         *,
-        record: list[dict] | None = None,
-        blend_record: list[dict] | None = None,
+        record: list[dict[str, Any]] | None = None,
+        blend_record: list[dict[str, Any]] | None = None,
     ) -> DepthEstimate:
         """images [V, 3, H, W] in [0, 1] (W = 2H), c2w [V, 4, 4] -> `DepthEstimate`.
 
@@ -271,7 +307,7 @@ class DepthEstimator(nn.Module):
         passes = 1 + int(fuses or canonical) + int(canonical)
         progress = open_stage("depth: multi-view stereo", passes * sum(map(bool, sources)))
         step = progress.advance
-        conf_u = None
+        conf_u: Tensor | None = None
         if fuses or canonical:
             unguided, conf_u = self._mvs_confidence(
                 "mvs", small, c2w, mono, sources, mono.depth.clone(), step
@@ -288,10 +324,21 @@ class DepthEstimator(nn.Module):
         depth, conf = self._mvs_confidence(mode, small, c2w, mono, sources, net.depth, step)
         progress.close()
         net.c2w, net.depth = c2w, self._clean(depth)
-        net.confidence = torch.cat((conf, conf_u), 1) if len(net.others) == 1 else conf
+        if len(net.others) == 1:
+            assert conf_u is not None  # the unguided pass ran: it gave the other hypothesis
+            net.confidence = torch.cat((conf, conf_u), 1)
+        else:
+            net.confidence = conf
         return net
 
-    def _photometric(self, mode, pixels, net: _NetworkDepth, record, blend_record) -> Tensor:
+    def _photometric(
+        self,
+        mode: str,
+        pixels: Tensor,
+        net: _NetworkDepth,
+        record: list[dict[str, Any]] | None,
+        blend_record: list[dict[str, Any]] | None,
+    ) -> Tensor:
         """The sweep (fusing the hypotheses), the median and, mode "full" fused, the blend with
         the monocular depth, in the networks' world."""
         nearest = nearest_sources(net.c2w, net.sources, self.sweep_sources)
@@ -299,13 +346,16 @@ class DepthEstimator(nn.Module):
         fused = len(clean) == 1
         chooser = None
         if fused and (self.selector is not None or record is not None):
+            assert net.confidence is not None  # `_networks` sets it in every multi-view mode
             chooser = self._chooser(pixels, net.mono.depth, net.confidence, record)
+        sweep = self.fusion_sweep if mode == "full" else self.sweep
+        assert sweep is not None  # `forward` runs the photometric stages with a sweep only
         depth = sweep_depth(
             pixels,
             net.c2w,
             net.depth,
             nearest,
-            self.fusion_sweep if mode == "full" else self.sweep,
+            sweep,
             (0.05, self.d_max),
             others=clean,
             switch_gain=self.switch_gain,
@@ -340,7 +390,7 @@ class DepthEstimator(nn.Module):
             depth = self._clean(depth / net.scale)
         mono_depth = net.mono.depth
         if tuple(depth.shape[-2:]) != tuple(size):
-            up = dict(size=size, mode="bilinear", align_corners=False)
+            up: dict[str, Any] = dict(size=size, mode="bilinear", align_corners=False)
             depth, mono_depth = F.interpolate(depth, **up), F.interpolate(mono_depth, **up)
             if canonical_far is not None:
                 canonical_far = F.interpolate(canonical_far.float(), size=size) > 0.5

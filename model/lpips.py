@@ -49,6 +49,9 @@ class LPIPS(nn.Module):
     with H, W >= ``MIN_SIZE``. Differentiable in the inputs (usable as a loss).
     """
 
+    shift: Tensor  # buffers (`register_buffer`)
+    scale: Tensor
+
     def __init__(self) -> None:
         super().__init__()
         self.convs = nn.ModuleList(

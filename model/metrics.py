@@ -10,6 +10,7 @@ meaningful for full 2:1 panoramas.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 
 import torch
@@ -202,10 +203,11 @@ def depth_metrics_batch(pred: Tensor, gt: Tensor, mask: Tensor | None = None) ->
     ws_l1 = (w * err.abs()).sum(dim=(1, 2)) / wsum
     ws_l2 = (w * err.pow(2)).sum(dim=(1, 2)) / wsum
     rows = torch.stack([l1, l2, l2.sqrt(), ws_l1, ws_l2, ws_l2.sqrt()], dim=1).tolist()
-    return [
-        DepthMetrics(*(float(v) for v in row), valid=int(k))
-        for row, k in zip(rows, counts.tolist(), strict=True)
-    ]
+    out = []
+    for row, k in zip(rows, counts.tolist(), strict=True):
+        l1_, l2_, rmse, ws_l1_, ws_l2_, ws_rmse = (float(v) for v in row)
+        out.append(DepthMetrics(l1_, l2_, rmse, ws_l1_, ws_l2_, ws_rmse, valid=int(k)))
+    return out
 
 
 def depth_metrics(pred: Tensor, gt: Tensor, mask: Tensor | None = None) -> DepthMetrics:
@@ -229,7 +231,7 @@ def band_key(band: tuple[int, int]) -> str:
 
 
 def depth_l1_by_band(
-    pred: Tensor, gt: Tensor, mask: Tensor, bands=ELEVATION_BANDS
+    pred: Tensor, gt: Tensor, mask: Tensor, bands: Sequence[tuple[int, int]] = ELEVATION_BANDS
 ) -> dict[str, tuple[float, int]]:
     """The absolute depth error summed over each band of elevation, with its pixel count:
     {`band_key`: (sum, count)}, so that bands can be pooled over views and scenes (the mean is

@@ -17,6 +17,7 @@ Sized for a 2-core CPU: a few hundred thousand parameters at 128 x 256.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any, cast
 
 import torch
 import torch.nn.functional as F
@@ -44,9 +45,12 @@ class MonoDepthConfig:
     mono network starts from an ImageNet ResNet-18 for the same reason). 0: none."""
 
     @classmethod
-    def from_dict(cls, stored: dict) -> MonoDepthConfig:
+    def from_dict(cls, stored: dict[str, Any]) -> MonoDepthConfig:
         """The config as stored with trained weights (JSON: tuples came back as lists)."""
-        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in stored.items()})
+        fields: dict[str, Any] = {
+            k: tuple(v) if isinstance(v, list) else v for k, v in stored.items()
+        }
+        return cls(**fields)
 
 
 def _block(cin: int, cout: int, stride: int, circular: bool) -> nn.Sequential:
@@ -87,9 +91,11 @@ class CubeToErp(nn.Module):
 
     def __init__(self) -> None:
         super().__init__()
-        self._grids: dict[tuple, Tensor] = {}
+        self._grids: dict[tuple[int, int, int, str, torch.dtype], Tensor] = {}
 
-    def _grid(self, face: int, height: int, width: int, device, dtype) -> Tensor:
+    def _grid(
+        self, face: int, height: int, width: int, device: torch.device, dtype: torch.dtype
+    ) -> Tensor:
         key = (face, height, width, str(device), dtype)
         if key not in self._grids:
             from panogrf.model.cubemap import face_rotations
@@ -124,7 +130,7 @@ class ErpToCube(nn.Module):
 
     def __init__(self) -> None:
         super().__init__()
-        self._grids: dict[tuple, Tensor] = {}
+        self._grids: dict[tuple[int, int, int, str, torch.dtype], Tensor] = {}
 
     def forward(self, erp: Tensor, face: int) -> Tensor:
         b, c, h, w = erp.shape
@@ -173,13 +179,15 @@ class PretrainedTrunk(nn.Module):
     def projections(self, widths: list[int]) -> nn.ModuleList:
         """1x1 convolutions from each trunk level to ``widths``, zero-initialised: a network
         with the trunk added starts out as the network without it."""
-        projs = nn.ModuleList(
-            nn.Conv2d(conv.out_channels, w, 1) for conv, w in zip(self.convs, widths, strict=True)
-        )
+        projs = [
+            nn.Conv2d(cast(nn.Conv2d, conv).out_channels, w, 1)
+            for conv, w in zip(self.convs, widths, strict=True)
+        ]
         for proj in projs:
+            assert proj.bias is not None  # made with one
             nn.init.zeros_(proj.weight)
             nn.init.zeros_(proj.bias)
-        return projs
+        return nn.ModuleList(projs)
 
     def forward(self, x: Tensor) -> list[Tensor]:
         h, w = x.shape[-2:]
@@ -233,7 +241,8 @@ class _Fuse(nn.Module):
 
     def forward(self, erp: Tensor, cube_on_erp: Tensor) -> Tensor:
         both = torch.cat((erp, cube_on_erp), 1)
-        return erp + self.gate(both) * self.mix(both)
+        out: Tensor = erp + self.gate(both) * self.mix(both)
+        return out
 
 
 class _Up(nn.Module):
@@ -243,7 +252,8 @@ class _Up(nn.Module):
 
     def forward(self, x: Tensor, skip: Tensor) -> Tensor:
         x = F.interpolate(x, size=skip.shape[-2:], mode="bilinear", align_corners=False)
-        return self.conv(torch.cat((x, skip), 1))
+        out: Tensor = self.conv(torch.cat((x, skip), 1))
+        return out
 
 
 @dataclass
@@ -254,6 +264,9 @@ class MonoOutput:
 
 class MonoDepthNet(nn.Module):
     """ERP image [B, 3, H, W] in [0, 1] (W = 2H, H divisible by 32) -> `MonoOutput`."""
+
+    mean: Tensor  # buffers (`register_buffer`)
+    std: Tensor
 
     def __init__(self, config: MonoDepthConfig = MonoDepthConfig()) -> None:
         super().__init__()

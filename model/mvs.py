@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import torch
 import torch.nn.functional as F
@@ -66,7 +67,7 @@ PRESETS = {
 }
 
 
-def mono_offsets(n_mono: int, beta: float = 3.0, dtype=torch.float64) -> Tensor:
+def mono_offsets(n_mono: int, beta: float = 3.0, dtype: torch.dtype = torch.float64) -> Tensor:
     """Offsets b_k (in sigmas) of the mono-guided candidates, PanoGRF eq. 4: [n_mono].
 
     The Gaussian truncated at +-beta holds probability P* = erf(beta / sqrt 2); it is cut into
@@ -79,7 +80,7 @@ def mono_offsets(n_mono: int, beta: float = 3.0, dtype=torch.float64) -> Tensor:
     edges = (1.0 - p_star) / 2.0 + p_star * torch.arange(
         n_mono + 1, dtype=torch.float64, device="cpu"
     ) / n_mono
-    probit = math.sqrt(2.0) * torch.special.erfinv(2.0 * edges - 1.0)
+    probit: Tensor = math.sqrt(2.0) * torch.special.erfinv(2.0 * edges - 1.0)
     return (0.5 * (probit[:-1] + probit[1:])).to(dtype)
 
 
@@ -98,15 +99,19 @@ def depth_candidates(
     """
     if config.n_mono > 0 and mu is None:
         raise ValueError("mono-guided candidates need the monocular depth mu")
-    if mu is None and size is None:
-        raise ValueError("depth_candidates needs mu or size")
-    ref = mu if mu is not None else torch.zeros(1, 1, *size, device=device, dtype=dtype)
+    if mu is None:
+        if size is None:
+            raise ValueError("depth_candidates needs mu or size")
+        ref = torch.zeros(1, 1, *size, device=device, dtype=dtype)
+    else:
+        ref = mu
     b, _, h, w = ref.shape
     uni = torch.linspace(
         config.d_min, config.d_max, config.n_uni, device=ref.device, dtype=ref.dtype
     )
     cands = [uni.view(1, -1, 1, 1).expand(b, -1, h, w)]
     if config.n_mono > 0:
+        assert mu is not None  # checked above
         off = mono_offsets(config.n_mono, config.beta, mu.dtype).to(mu.device).view(1, -1, 1, 1)
         cands.insert(0, (mu + off * config.sigma).clamp(config.d_min, config.d_max))
     return torch.sort(torch.cat(cands, 1), dim=1).values
@@ -161,7 +166,8 @@ class _CircConv3d(nn.Module):
     def forward(self, x: Tensor) -> Tensor:
         if self.pad:
             x = torch.cat((x[..., -self.pad :], x, x[..., : self.pad]), -1)
-        return self.post(self.conv(x))
+        out: Tensor = self.post(self.conv(x))
+        return out
 
 
 class CostRegularizer(nn.Module):
@@ -198,7 +204,8 @@ class CostRegularizer(nn.Module):
             x = skip + self.lift[level](x)
             if level > 0:
                 x = self.up[level - 1](x)
-        return self.out(x)[:, 0]
+        logits: Tensor = self.out(x)[:, 0]
+        return logits
 
 
 def _conv2(cin: int, cout: int, stride: int = 1) -> nn.Sequential:
@@ -219,6 +226,9 @@ class MVSOutput:
 
 class MVSNet(nn.Module):
     """Reference + source panoramas (and the monocular output) -> reference depth."""
+
+    mean: Tensor  # buffers (`register_buffer`)
+    std: Tensor
 
     def __init__(self, config: MVSConfig = MVSConfig()) -> None:
         super().__init__()
@@ -304,18 +314,20 @@ class MVSNet(nn.Module):
         prob = torch.softmax(logits, 1)
         expected = (prob * cands).sum(1, keepdim=True)
         scale = 1.0 / cfg.d_max
-        x = [logits, expected * scale]
+        xs = [logits, expected * scale]
         if cfg.use_mono:
-            x.append(mu_q * scale)
-        x = self.dec_quarter(torch.cat(x, 1))
+            assert mu_q is not None  # use_mono: mono_depth is given (checked above)
+            xs.append(mu_q * scale)
+        x = self.dec_quarter(torch.cat(xs, 1))
         hh, wh = feats_h.shape[-2:]
         x = F.interpolate(x, size=(hh, wh), mode="bilinear", align_corners=False)
         expected_h = F.interpolate(expected, size=(hh, wh), mode="bilinear", align_corners=False)
         y = [x, feats_h.unflatten(0, (b, s + 1))[:, 0], expected_h * scale]
         if cfg.use_mono:
+            assert mono_depth is not None and mono_features is not None  # checked above
             y += [F.interpolate(mono_depth, size=(hh, wh), mode="area") * scale, mono_features]
         depth_h = (expected_h + self.dec_half(torch.cat(y, 1))).clamp(cfg.d_min, cfg.d_max)
-        up = dict(size=(h, w), mode="bilinear", align_corners=False)
+        up: dict[str, Any] = dict(size=(h, w), mode="bilinear", align_corners=False)
         return MVSOutput(
             depth=F.interpolate(depth_h, **up),
             expected=F.interpolate(expected, **up),

@@ -16,7 +16,12 @@ from panogrf.model.erp import sample_erp_directions
 
 
 def perspective_directions(
-    width: int, height: int, fov_deg: float, *, device=None, dtype=torch.float32
+    width: int,
+    height: int,
+    fov_deg: float,
+    *,
+    device: torch.device | str | None = None,
+    dtype: torch.dtype = torch.float32,
 ) -> Tensor:
     """Unit ray directions [h, w, 3] of a pinhole camera's pixel centres (camera frame)."""
     if not 0 < fov_deg < 180:
@@ -28,7 +33,8 @@ def perspective_directions(
         indexing="ij",
     )
     d = torch.stack(((x - width / 2) / f, -(y - height / 2) / f, -torch.ones_like(x)), -1)
-    return d / torch.linalg.vector_norm(d, dim=-1, keepdim=True)
+    unit: Tensor = d / torch.linalg.vector_norm(d, dim=-1, keepdim=True)
+    return unit
 
 
 def erp_to_perspective(erp: Tensor, width: int, height: int, fov_deg: float) -> Tensor:

@@ -107,10 +107,11 @@ PREPARE_REFINE = RefineConfig(
 def nearest_sources(c2w: Tensor, sources: list[list[int]], k: int) -> list[list[int]]:
     """Each view's ``k`` sources nearest to it (by camera centre), from ``sources``."""
     centres = c2w[:, :3, 3]
-    return [
-        sorted(src, key=lambda j, r=r: float((centres[j] - centres[r]).norm()))[:k]
-        for r, src in enumerate(sources)
-    ]
+
+    def nearest(r: int, src: list[int]) -> list[int]:
+        return sorted(src, key=lambda j: float((centres[j] - centres[r]).norm()))[:k]
+
+    return [nearest(r, src) for r, src in enumerate(sources)]
 
 
 def _pad_w(x: Tensor, p: int = 1) -> Tensor:
@@ -283,7 +284,9 @@ def refine_depth(
         return torch.exp(log_d0 + delta * moves).clamp(*d_range)
 
 
-def _photometric_sum(errs: Tensor, spans, wlat: Tensor, config: RefineConfig) -> Tensor:
+def _photometric_sum(
+    errs: Tensor, spans: list[tuple[int, int]], wlat: Tensor, config: RefineConfig
+) -> Tensor:
     """The latitude-weighted mean photometric error of every reference view, summed: each
     pixel's best source (``errs`` [P, H, W] per pair, ``spans`` each reference's pairs),
     capped at ``config.cap``."""
@@ -294,7 +297,14 @@ def _photometric_sum(errs: Tensor, spans, wlat: Tensor, config: RefineConfig) ->
     return loss
 
 
-def _free_space_at(log_d, log_full, hh: int, c2w, sources, config: RefineConfig) -> Tensor:
+def _free_space_at(
+    log_d: Tensor,
+    log_full: Tensor,
+    hh: int,
+    c2w: Tensor,
+    sources: list[list[int]],
+    config: RefineConfig,
+) -> Tensor:
     """`free_space_violation` of the stage at ``hh`` rows, at ``config.free_space_shrink``
     times fewer rows (``log_full``: the depth at the stage's rows, ``log_d`` at its own)."""
     k = max(1, config.free_space_shrink)

@@ -16,6 +16,7 @@ Everything here is per sample; the ray casting, projection and compositing are f
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import cast
 
 import torch
 import torch.nn.functional as F
@@ -109,7 +110,8 @@ class AppearanceEncoder(nn.Module):
             skip = skips.pop()
             x = F.interpolate(x, size=skip.shape[-2:], mode="bilinear", align_corners=False)
             x = up(torch.cat((x, skip), 1))
-        return self.out(x)
+        out: Tensor = self.out(x)
+        return out
 
 
 class GeometryEncoder(nn.Module):
@@ -128,14 +130,17 @@ class GeometryEncoder(nn.Module):
             _conv(width, width),
             CircularConv2d(width, 6, 3, padding=1),
         )
-        nn.init.zeros_(self.net[-1].weight)
-        nn.init.zeros_(self.net[-1].bias)
+        head = cast(CircularConv2d, self.net[-1])
+        assert head.bias is not None  # made with one
+        nn.init.zeros_(head.weight)
+        nn.init.zeros_(head.bias)
 
     def forward(self, image: Tensor, depth: Tensor) -> Tensor:
         inv = 1.0 / depth.clamp(min=0.1)
         # Inverse depth relative to its local mean: edges and their side, scale-free.
         local = F.avg_pool2d(F.pad(inv, (2, 2, 2, 2), mode="replicate"), 5, stride=1)
-        return self.net(torch.cat((image * 2.0 - 1.0, inv, inv / local - 1.0), 1))
+        params: Tensor = self.net(torch.cat((image * 2.0 - 1.0, inv, inv / local - 1.0), 1))
+        return params
 
 
 def visibility(params: Tensor, depth: Tensor, z: Tensor) -> Tensor:

@@ -34,6 +34,7 @@ choice (`choose`'s ``fallback``; `DepthEstimator.select_margin`).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any, cast
 
 import torch
 import torch.nn.functional as F
@@ -178,7 +179,8 @@ class HypothesisSelector(nn.Module):
         hidden = self.net[:4](features[:, : self.inputs])
         if self.context is not None:
             hidden = hidden + self.context(scene_summary(hidden))[..., None, None]
-        return self.net[4:](hidden)
+        logit: Tensor = self.net[4:](hidden)
+        return logit
 
     def choose(
         self,
@@ -190,7 +192,7 @@ class HypothesisSelector(nn.Module):
         """Index [H, W] (0 mono-guided, 1 unguided) at ``size`` from features [C, h, w].
         With ``fallback`` (an index [H, W]), pixels whose probability is within ``margin`` of
         one half take the fallback's choice instead."""
-        logit = self(features[None])
+        logit: Tensor = self(features[None])
         if logit.shape[-2:] != size:
             logit = F.interpolate(logit, size=size, mode="bilinear", align_corners=False)
         choice = (logit[0, 0] > 0).long()
@@ -216,8 +218,8 @@ class SelectorChooser:
         pixels: Tensor,
         log_mono: Tensor,
         confidence: Tensor,
-        record: list[dict] | None = None,
-    ):
+        record: list[dict[str, Any]] | None = None,
+    ) -> None:
         self.selector, self.margin, self.switch_gain = selector, margin, switch_gain
         self.pixels, self.log_mono, self.confidence = pixels, log_mono, confidence
         self.record = record
@@ -225,14 +227,16 @@ class SelectorChooser:
         self.images: dict[int, Tensor] = {}
         self.pending: dict[int, tuple[Tensor, Tensor]] = {}  # view -> (features, rule)
 
-    def __call__(self, r: int, cost: Tensor, log_hyp: Tensor, ends: Tensor, offsets: Tensor):
+    def __call__(
+        self, r: int, cost: Tensor, log_hyp: Tensor, ends: Tensor, offsets: Tensor
+    ) -> None:
         from panogrf.model.sweep import photometric_choice
 
         hh, ww = cost.shape[-2:]
         if hh not in self.images:
             mode = "area" if self.pixels.shape[-2] > hh else "bilinear"
             self.images[hh] = F.interpolate(self.pixels, size=(hh, ww), mode=mode)
-        up = dict(size=(hh, ww), mode="bilinear", align_corners=False)
+        up: dict[str, Any] = dict(size=(hh, ww), mode="bilinear", align_corners=False)
         log_mono = F.interpolate(self.log_mono[r : r + 1], **up)[0, 0]
         conf = F.interpolate(self.confidence[r : r + 1], **up)[0]
         feats = selection_features(
@@ -241,17 +245,19 @@ class SelectorChooser:
         self.pending[r] = (feats, photometric_choice(cost, offsets, self.switch_gain))
         return None
 
-    def finish(self, ends: dict[int, Tensor], c2w: Tensor, sources: list[list[int]]):
+    def finish(
+        self, ends: dict[int, Tensor], c2w: Tensor, sources: list[list[int]]
+    ) -> dict[int, Tensor]:
         pooled = {
             r: F.interpolate(ends[r][None], size=feats.shape[-2:], mode="area")[0]
             for r, (feats, _) in self.pending.items()
         }
         consistency = cross_view_consistency(pooled, c2w, sources)
-        out = {}
+        out: dict[int, Tensor] = {}
         for r, (feats, rule) in self.pending.items():
             feats = torch.cat((feats, consistency[r]))
             if self.record is not None:
-                pool = dict(size=feats.shape[-2:], mode="area")
+                pool: dict[str, Any] = dict(size=feats.shape[-2:], mode="area")
                 self.record.append(
                     {
                         "view": r,
@@ -263,5 +269,7 @@ class SelectorChooser:
             if self.selector is None:
                 out[r] = rule
             else:
-                out[r] = self.selector.choose(feats, tuple(rule.shape), rule, self.margin)
+                out[r] = self.selector.choose(
+                    feats, cast(tuple[int, int], tuple(rule.shape)), rule, self.margin
+                )
         return out

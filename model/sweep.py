@@ -13,6 +13,7 @@ sweep's speckle. Pure torch, ERP throughout.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -129,6 +130,7 @@ def sweep_depth(
             continue
         cost, ends = _view_search(img, c2w, r, sources[r], log_hyp[:, r], offsets, dirs, config,
                                   d_range, progress.advance)  # fmt: skip
+        start: Tensor | None
         if chooser is None:
             start = photometric_choice(cost, offsets, switch_gain)
         else:
@@ -138,13 +140,14 @@ def sweep_depth(
         else:
             move(r, ends, start)
     if pending:
+        assert chooser is not None  # only a chooser leaves views pending
         for r, start in chooser.finish(pending, c2w, sources).items():
             move(r, pending[r], start)
     progress.close()
     return out
 
 
-def _moved(depth: Tensor, log_first: Tensor, end: Tensor, d_range) -> Tensor:
+def _moved(depth: Tensor, log_first: Tensor, end: Tensor, d_range: tuple[float, float]) -> Tensor:
     """One view's depth [1, h, w] moved by where its search ended (log depth [H, W]) against
     its first hypothesis ``log_first``, the change averaged down to the depth's grid: pixels
     that keep the first hypothesis and do not move stay exactly as given."""
@@ -153,7 +156,18 @@ def _moved(depth: Tensor, log_first: Tensor, end: Tensor, d_range) -> Tensor:
     return (depth * torch.exp(small)).clamp(*d_range)
 
 
-def _view_search(img, c2w, r, sources, log_hyp, offsets, dirs, config, d_range, advance):
+def _view_search(
+    img: Tensor,
+    c2w: Tensor,
+    r: int,
+    sources: list[int],
+    log_hyp: Tensor,
+    offsets: Tensor,
+    dirs: Tensor,
+    config: SweepConfig,
+    d_range: tuple[float, float],
+    advance: Callable[[], object],
+) -> tuple[Tensor, Tensor]:
     """View r's cost curves [K, D, H, W], one per hypothesis of ``log_hyp`` [K, H, W], and where
     the search from each ends (log depth) [K, H, W]; ``advance()`` after each hypothesis."""
     centre = int(torch.argmin(offsets.abs()))
@@ -191,14 +205,33 @@ def _search(cost: Tensor, offsets: Tensor, centre: int, step: float, config: Swe
     return torch.where(gain > config.min_gain, off, torch.zeros_like(off))
 
 
-def cost_at(img, c2w, r, sources, log_depth, dirs, config, d_range) -> Tensor:
+def cost_at(
+    img: Tensor,
+    c2w: Tensor,
+    r: int,
+    sources: list[int],
+    log_depth: Tensor,
+    dirs: Tensor,
+    config: SweepConfig,
+    d_range: tuple[float, float],
+) -> Tensor:
     """The sweep's photometric cost [H, W] of view r at the log depth [H, W] itself (images,
     directions and ``config`` as `sweep_depth` passes them to its search)."""
     zero = torch.zeros(1, dtype=log_depth.dtype, device=log_depth.device)
     return _sweep_costs(img, c2w, r, sources, log_depth, zero, dirs, config, d_range)[0]
 
 
-def _sweep_costs(img, c2w, r, sources, log_d0, offsets, dirs, config, d_range) -> Tensor:
+def _sweep_costs(
+    img: Tensor,
+    c2w: Tensor,
+    r: int,
+    sources: list[int],
+    log_d0: Tensor,
+    offsets: Tensor,
+    dirs: Tensor,
+    config: SweepConfig,
+    d_range: tuple[float, float],
+) -> Tensor:
     """Window-summed photometric cost [D, H, W] of view r at log depths log_d0 + offsets.
 
     One candidate at a time: batched over the candidates and sources it is 1.6 times slower on

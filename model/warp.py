@@ -19,7 +19,9 @@ from panogrf.model.erp import (
 )
 
 
-def _check_image(name: str, x: Tensor, batch: int | None = None, channels: int | None = None):
+def _check_image(
+    name: str, x: Tensor, batch: int | None = None, channels: int | None = None
+) -> None:
     if x.ndim != 4 or (batch is not None and x.shape[0] != batch):
         raise ValueError(f"{name} must be [B, C, H, W] with B = {batch}, got {tuple(x.shape)}")
     if channels is not None and x.shape[1] != channels:

@@ -42,6 +42,7 @@ class SceneCache:
         ``height`` x ``width`` grid (None without a mask)."""
         if self.mask_padded is None:
             return None
+        assert self.mask is not None  # mask_padded is made from it
         hm, wm = self.mask.shape[-2:]
         if (hm, wm) != (height, width):
             uv = uv * (wm / width) + 0.5 * (wm / width - 1.0)

@@ -31,7 +31,7 @@ window) or is a standalone EGL context made here (`create_headless_context`).
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Any, NamedTuple, Protocol, cast
 
 import moderngl
 import numpy as np
@@ -59,6 +59,18 @@ MAX_VIEWS = 16
 LOG_TOLERANCE = float(np.log1p(BLEND_TOLERANCE) / np.log(FAR / LOG_NEAR))
 
 
+class _GLObject(Protocol):
+    """A moderngl object this renderer makes and releases."""
+
+    def release(self) -> None: ...
+
+
+def _uniform(prog: moderngl.Program, name: str) -> moderngl.Uniform:
+    """``prog[name]``, a uniform (moderngl types members as any of uniform, uniform block,
+    attribute or varying)."""
+    return cast(moderngl.Uniform, prog[name])
+
+
 class SharpInputs(NamedTuple):
     """What the sharp preview's colours (shaders/preview_sharp.glsl) are computed from; a pass
     that computes them binds these with `PreviewRenderer.bind_sharp`."""
@@ -84,7 +96,11 @@ class PreviewTextures(NamedTuple):
 
 def create_headless_context() -> moderngl.Context:
     """A standalone OpenGL 3.3+ context on EGL (no display needed)."""
-    return moderngl.create_context(standalone=True, backend="egl", require=330)
+    return moderngl.create_context(
+        standalone=True,
+        backend="egl",  # type: ignore[arg-type]  # moderngl's stub: **settings as dict values
+        require=330,
+    )
 
 
 def sphere_mesh(rows: int) -> tuple[np.ndarray, np.ndarray]:
@@ -120,7 +136,9 @@ def sphere_mesh(rows: int) -> tuple[np.ndarray, np.ndarray]:
     return uv, np.concatenate(tris).astype(np.int32)
 
 
-def _uv_world_points(uv: np.ndarray, depth: np.ndarray, c2w: np.ndarray) -> tuple:
+def _uv_world_points(
+    uv: np.ndarray, depth: np.ndarray, c2w: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Depth [h, w] sampled (nearest) at ERP coordinates uv [N, 2] -> (world points [N, 3],
     the depths [N]) of a camera c2w [4, 4]."""
     h, w = depth.shape
@@ -139,7 +157,8 @@ def _uv_masked(uv: np.ndarray, mask: np.ndarray) -> np.ndarray:
     h, w = mask.shape
     row = np.minimum((uv[:, 1] * h).astype(np.int64), h - 1)
     col = np.minimum(((uv[:, 0] % 1.0) * w).astype(np.int64), w - 1)
-    return mask[row, col]
+    masked: np.ndarray = mask[row, col]
+    return masked
 
 
 def decimate(
@@ -249,7 +268,7 @@ class PreviewRenderer:
         )
         self.blend_vaos = {k: ctx.vertex_array(p, []) for k, p in self.blend_progs.items()}
         self.fill_vao = ctx.vertex_array(self.fill_prog, [])
-        self._objects: list = [
+        self._objects: list[_GLObject] = [
             *self.mesh_progs.values(),
             *self.blend_progs.values(),
             self.sharp_prog,
@@ -304,10 +323,10 @@ class PreviewRenderer:
         self.images.repeat_x, self.images.repeat_y = True, False
         self.images.filter = (moderngl.LINEAR, moderngl.LINEAR)
         self._objects.append(self.images)
-        self._targets: dict[tuple[int, int], tuple] = {}
-        self._sharp: dict[int, tuple] = {}
+        self._targets: dict[tuple[int, int], dict[str, Any]] = {}
+        self._sharp: dict[int, tuple[moderngl.Texture, moderngl.Framebuffer]] = {}
 
-    def _targets_for(self, height: int, width: int) -> dict:
+    def _targets_for(self, height: int, width: int) -> dict[str, Any]:
         key = (height, width)
         if key not in self._targets:
             ctx = self.ctx
@@ -317,7 +336,7 @@ class PreviewRenderer:
                     f"{self.max_views} layers of width {width} exceed this GL's texture size "
                     f"limit ({limit}): draw fewer views (max_views) or a smaller preview"
                 )
-            t: dict = {}
+            t: dict[str, Any] = {}
             # The sources' layers side by side in one texture, one viewport each: clipping in
             # clip space keeps every layer inside its own strip.
             # 8-bit colour; the distance is the depth buffer's (linear in distance, 24 bits
@@ -378,7 +397,7 @@ class PreviewRenderer:
         ordinary[suspect] = span <= MAX_LON_SPAN
         return tris[ordinary], cand[wrapped]
 
-    def _geo_fbo(self, t: dict, height: int, width: int) -> moderngl.Framebuffer:
+    def _geo_fbo(self, t: dict[str, Any], height: int, width: int) -> moderngl.Framebuffer:
         """The sharp preview's layers (32-bit floats: the direction in which each source saw
         the surface, and its log distance; sampled bilinearly by the sharp colours) with the
         layers' depth buffer; made on first use. (16-bit floats were as sharp and slower to
@@ -391,9 +410,10 @@ class PreviewRenderer:
             t["geo_fbo"] = self.ctx.framebuffer(
                 color_attachments=[geo], depth_attachment=t["depth"]
             )
-        return t["geo_fbo"]
+        fbo: moderngl.Framebuffer = t["geo_fbo"]
+        return fbo
 
-    def _sharp_target(self, height: int) -> tuple:
+    def _sharp_target(self, height: int) -> tuple[moderngl.Texture, moderngl.Framebuffer]:
         if height not in self._sharp:
             tex = self.ctx.texture((2 * height, height), 4)
             tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
@@ -426,7 +446,7 @@ class PreviewRenderer:
         triangles scores 25.12 dB, drawing it all at 512 rows 24.98, for 0.74 times the cost."""
         width = 2 * height
         sharp = sharp_height is not None
-        if sharp and sharp_height < height:
+        if sharp_height is not None and sharp_height < height:
             raise ValueError(f"sharp_height {sharp_height} is below the geometry's {height} rows")
         t = self._targets_for(height, width)
         layer_fbo = self._geo_fbo(t, height, width) if sharp else t["layer_fbo"]
@@ -436,10 +456,10 @@ class PreviewRenderer:
         w2c[:3, 3] = -rot.T @ np.asarray(c2w, np.float64)[:3, 3]
         ctx = self.ctx
         prog = self.mesh_progs[sharp]
-        prog["u_w2c"].write(w2c.T.astype("f4").tobytes())  # GL is column-major
-        prog["u_far"].value = FAR
+        _uniform(prog, "u_w2c").write(w2c.T.astype("f4").tobytes())  # GL is column-major
+        _uniform(prog, "u_far").value = FAR
         if not sharp:
-            prog["u_images"].value = 0
+            _uniform(prog, "u_images").value = 0
         centre = np.asarray(c2w, np.float64)[:3, 3]
         dists = np.linalg.norm(self.c2w[:, :3, 3] - centre, axis=-1)
         chosen = np.argsort(dists, kind="stable")[: self.max_views]
@@ -452,19 +472,19 @@ class PreviewRenderer:
         for slot, k in enumerate(chosen):
             layer_fbo.viewport = (slot * width, 0, width, height)
             if not sharp:
-                prog["u_source"].value = float(k)
+                _uniform(prog, "u_source").value = float(k)
             ordinary, crossing = self._split_seam(k, w2c)
             main_ibo, seam_ibo, vaos = self.buffers[k]
             main_vao, seam_vao = vaos[sharp]
             main_ibo.write(ordinary.tobytes())
-            prog["u_unwrap"].value = 0
-            prog["u_shift"].value = 0.0
+            _uniform(prog, "u_unwrap").value = 0
+            _uniform(prog, "u_shift").value = 0.0
             main_vao.render(moderngl.TRIANGLES, vertices=ordinary.size)
             if crossing.size:
                 seam_ibo.write(crossing.tobytes())
-                prog["u_unwrap"].value = 1
+                _uniform(prog, "u_unwrap").value = 1
                 for shift in (0.0, -2.0):
-                    prog["u_shift"].value = shift
+                    _uniform(prog, "u_shift").value = shift
                     seam_vao.render(moderngl.TRIANGLES, vertices=crossing.size)
         ctx.disable(moderngl.DEPTH_TEST)
         bp = self.blend_progs[distance, sharp]
@@ -479,11 +499,11 @@ class PreviewRenderer:
         }
         for name, value in uniforms.items():
             if name in bp:  # some are compiled out (one view; no exact distances)
-                bp[name].value = value
-        bp["u_weights"].write(weights.tobytes())
+                _uniform(bp, name).value = value
+        _uniform(bp, "u_weights").write(weights.tobytes())
         if sharp:
-            bp["u_images"].value = 0
-            bp["u_source"].write(sources.tobytes())
+            _uniform(bp, "u_images").value = 0
+            _uniform(bp, "u_source").write(sources.tobytes())
         t["geo" if sharp else "layers"].use(location=1)
         t["depth"].use(location=4)
         t["blend_fbo"].use()
@@ -497,6 +517,7 @@ class PreviewRenderer:
             inputs = SharpInputs(
                 t["geo"], levels[0][0], weights, sources, (float(width), float(height))
             )
+            assert sharp_height is not None  # sharp
             color = self._draw_sharp(inputs, sharp_height) if sharp_pass else None
         return PreviewTextures(
             color=color,
@@ -520,9 +541,9 @@ class PreviewRenderer:
         }
         for name, value in values.items():
             if name in prog:  # some are compiled out (one view)
-                prog[name].value = value
-        prog["u_weights"].write(inputs.weights.tobytes())
-        prog["u_source"].write(inputs.sources.tobytes())
+                _uniform(prog, name).value = value
+        _uniform(prog, "u_weights").write(inputs.weights.tobytes())
+        _uniform(prog, "u_source").write(inputs.sources.tobytes())
         self.images.use(location=first_unit)
         inputs.geo.use(location=first_unit + 1)
         inputs.filled.use(location=first_unit + 2)
@@ -531,26 +552,26 @@ class PreviewRenderer:
         """The sharp colours as a pass of their own, into an ``out_height``-row texture."""
         tex, fbo = self._sharp_target(out_height)
         self.bind_sharp(self.sharp_prog, inputs, 0)
-        self.sharp_prog["u_size"].value = (float(2 * out_height), float(out_height))
+        _uniform(self.sharp_prog, "u_size").value = (float(2 * out_height), float(out_height))
         fbo.use()
         fbo.viewport = (0, 0, 2 * out_height, out_height)
         self.sharp_vao.render(moderngl.TRIANGLES, vertices=3)
         return tex
 
-    def _fill(self, t: dict, last: int) -> None:
+    def _fill(self, t: dict[str, Any], last: int) -> None:
         """Push-pull: mipmap the blended preview, then fill each level's holes from the filled
         next coarser one, coarsest first, down to level ``last`` (in ``t["filled"][last]``)."""
         t["blend"].build_mipmaps()
         t["blend"].use(location=2)
         fp = self.fill_prog
-        fp["u_level"].value = 2
-        fp["u_coarser"].value = 3
+        _uniform(fp, "u_level").value = 2
+        _uniform(fp, "u_coarser").value = 3
         levels = t["filled"]
         for lod in range(len(levels) - 1, last - 1, -1):
             tex, fbo = levels[lod]
-            fp["u_lod"].value = lod
-            fp["u_coarsest"].value = int(lod == len(levels) - 1)
-            fp["u_size"].value = (float(tex.width), float(tex.height))
+            _uniform(fp, "u_lod").value = lod
+            _uniform(fp, "u_coarsest").value = int(lod == len(levels) - 1)
+            _uniform(fp, "u_size").value = (float(tex.width), float(tex.height))
             if lod < len(levels) - 1:
                 levels[lod + 1][0].use(location=3)
             fbo.use()
@@ -565,10 +586,11 @@ class PreviewRenderer:
         it and the colour was filled in). ``geometry_height`` (below ``height``): the sharp
         preview, its geometry drawn at that many rows (the distances too, repeated to H)."""
         sharp = geometry_height is not None and geometry_height < height
-        g = geometry_height if sharp else height
+        g = geometry_height if sharp and geometry_height is not None else height
         out = self.render_to_framebuffer(c2w, g, sharp_height=height if sharp else None)
         rgba = np.empty((height, 2 * height, 4), np.uint8)
         d = np.empty((g, 2 * g), np.float32)
+        assert out.color is not None  # filled at the top level, sharp colours drawn
         out.color.read_into(rgba)
         out.dist_fbo.read_into(d, components=1, attachment=1, dtype="f4")
         if sharp:  # nearest: a distance between two surfaces would be neither
@@ -597,5 +619,5 @@ class PreviewRenderer:
     def __enter__(self) -> PreviewRenderer:
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.release()

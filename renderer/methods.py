@@ -19,10 +19,11 @@ Networks come from injected loaders, so this module reads no files. The renderer
 
 from __future__ import annotations
 
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from enum import StrEnum
+from typing import TYPE_CHECKING, cast
 
 import torch
 from torch import Tensor
@@ -40,6 +41,20 @@ from panogrf.renderer.nadir import (
     nadir_masks,
 )
 from panogrf.renderer.render import render_perspective
+
+if TYPE_CHECKING:
+    from panogrf.renderer.snerf import SNeRF
+
+if sys.version_info >= (3, 11):
+    from enum import StrEnum
+else:  # Python 3.10 (requires-python) has no enum.StrEnum: the same str() and format()
+    from enum import Enum
+
+    class StrEnum(str, Enum):
+        """Python 3.11's `enum.StrEnum`: a member's str() and format() are its value."""
+
+        def __str__(self) -> str:
+            return str.__str__(self)
 
 
 class Kind(StrEnum):
@@ -68,6 +83,7 @@ class MethodSpec:
         """What a neural method's `SceneCache` depends on: (renderer preset, depth mode)."""
         if self.kind is not Kind.NEURAL:
             raise ValueError(f"method {self.name!r} has no renderer cache")
+        assert self.renderer is not None and self.depth_mode is not None  # a neural method's
         return (self.renderer, self.depth_mode)
 
 
@@ -140,6 +156,7 @@ class SourceViews:
                 self.nadir_mask = self.nadir_mask.to(self.device)
         if self.nadir_mask is None and self.nadir is not None:
             start = time.perf_counter()
+            mask: Tensor | None
             if isinstance(self.nadir, Tensor):
                 mask, self.nadir_notes = self.nadir.bool(), ["given"] * len(self.images)
             else:
@@ -162,7 +179,9 @@ class SourceViews:
                 out = est(_resize(self.images, small), self.c2w, mode, detail=self.images)
             depth = self._floor_filled(out.depth)
             if self.refine is not None and mode != "mono":
-                depth = self._floor_filled(self.refined_depth(depth, mode, models))
+                refined = self.refined_depth(depth, mode, models)
+                assert refined is not None  # None only when told to stop, and nothing tells it
+                depth = self._floor_filled(refined)
             self.depth[mode] = depth
             self.seconds[f"depth:{mode}"] = time.perf_counter() - start
         return self.depth[mode]
@@ -192,11 +211,17 @@ class SourceViews:
                 should_stop,
             )
 
-    def refined(self, refine: RefineConfig, models: Models, should_stop=None) -> SourceViews | None:
+    def refined(
+        self,
+        refine: RefineConfig,
+        models: Models,
+        should_stop: Callable[[], bool] | None = None,
+    ) -> SourceViews | None:
         """A copy with mode full's depth (estimated here, or already) refined by ``refine``:
         the refinement's input is this depth, so a viewer can show the plain scene first. None
         when ``should_stop`` said so."""
         mode = METHODS["panogrf"].depth_mode
+        assert mode is not None  # panogrf reads the depth of mode "full"
         out = SourceViews(
             self.images,
             self.c2w,
@@ -269,16 +294,20 @@ def render_view(
     if spec.kind is Kind.NEAREST:
         return render_nearest(views.images, views.c2w, tgt_c2w, height)
     if spec.kind is Kind.MESHWARP:
+        assert spec.depth_mode is not None  # meshwarp reads a depth
         depth = views.depth[spec.depth_mode]
         return render_meshwarp(views.images, views.c2w, depth, tgt_c2w, height)[0]
     if spec.kind is Kind.SNERF:
         from panogrf.renderer.snerf import render_snerf
 
-        return render_snerf(views.fitted["snerf"], tgt_c2w, height)
+        return render_snerf(cast("SNeRF", views.fitted["snerf"]), tgt_c2w, height)
+    assert spec.renderer is not None  # a neural method's
     net = models.renderer(spec.renderer)
     cache = views.cache_for(spec, models)
     # Above the renderer's training resolution: the network at it plus the sources' detail.
-    return render_detailed(net, cache, tgt_c2w, height, quality).rgb
+    out = render_detailed(net, cache, tgt_c2w, height, quality)
+    assert out is not None  # None only when told to stop
+    return out.rgb
 
 
 def render_perspective_view(
@@ -297,7 +326,10 @@ def render_perspective_view(
     if spec.kind is not Kind.NEURAL:
         return None
     prepare(method, views, models)
+    assert spec.renderer is not None  # a neural method's
     net = models.renderer(spec.renderer)
     cache = views.cache_for(spec, models)
     tgt = tgt_c2w.to(views.c2w)
-    return render_perspective(net, cache, tgt, width, height, fov_deg, quality).rgb
+    out = render_perspective(net, cache, tgt, width, height, fov_deg, quality)
+    assert out is not None  # None only when told to stop
+    return out.rgb

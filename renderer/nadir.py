@@ -30,6 +30,7 @@ overrides it (`nadir_setting`).
 
 from __future__ import annotations
 
+import argparse
 import math
 from collections.abc import Mapping
 from typing import Any
@@ -105,7 +106,7 @@ def nadir_setting(metadata: Mapping[str, Any] | None, cli: Any = None) -> NadirS
     return "auto"
 
 
-def add_nadir_argument(parser) -> None:
+def add_nadir_argument(parser: argparse.ArgumentParser) -> None:
     """``--nadir-cap`` on an argparse parser (dest ``nadir_cap``, default None)."""
     parser.add_argument(
         "--nadir-cap",
@@ -129,7 +130,9 @@ def _polar_grid(radius_deg: float, step_deg: float) -> tuple[np.ndarray, np.ndar
     return np.hypot(xx, yy), np.arctan2(yy, xx)
 
 
-def _erp_coords(rho_deg: np.ndarray, theta: np.ndarray, h: int, w: int) -> tuple:
+def _erp_coords(
+    rho_deg: np.ndarray, theta: np.ndarray, h: int, w: int
+) -> tuple[np.ndarray, np.ndarray]:
     """ERP pixel coordinates (col, row; centres at integers) of the directions at colatitude
     ``rho_deg`` from the nadir and longitude ``theta`` (rad)."""
     lat = np.radians(rho_deg - 90.0)
@@ -138,7 +141,9 @@ def _erp_coords(rho_deg: np.ndarray, theta: np.ndarray, h: int, w: int) -> tuple
     return col.astype(np.float32), row.astype(np.float32)
 
 
-def to_polar(erp: np.ndarray, radius_deg: float, step_deg: float, nearest: bool = False):
+def to_polar(
+    erp: np.ndarray, radius_deg: float, step_deg: float, nearest: bool = False
+) -> np.ndarray:
     """An ERP image [H, W, C] seen from the nadir: [N, N, C] (``radius_deg`` around it)."""
     import cv2
 
@@ -151,7 +156,9 @@ def to_polar(erp: np.ndarray, radius_deg: float, step_deg: float, nearest: bool 
     return out.reshape(*rho.shape, -1) if out.ndim == 2 else out
 
 
-def _polar_pixels_of_erp(h: int, w: int, radius_deg: float, step_deg: float):
+def _polar_pixels_of_erp(
+    h: int, w: int, radius_deg: float, step_deg: float
+) -> tuple[int, np.ndarray, np.ndarray]:
     """For the ERP rows within ``radius_deg`` of the nadir: (first such row, the polar view's
     (x, y) pixel coordinates of those rows' pixels [rows, W] each)."""
     rows = np.arange(h)
@@ -166,7 +173,7 @@ def _polar_pixels_of_erp(h: int, w: int, radius_deg: float, step_deg: float):
     return first, x.astype(np.float32), y.astype(np.float32)
 
 
-def from_polar(polar: np.ndarray, h: int, w: int, radius_deg: float, step_deg: float):
+def from_polar(polar: np.ndarray, h: int, w: int, radius_deg: float, step_deg: float) -> np.ndarray:
     """A nadir-centred view [N, N] (float) back on the bottom rows of an H x W ERP: [H, W]
     (0 above ``radius_deg``)."""
     import cv2
@@ -184,13 +191,17 @@ def from_polar(polar: np.ndarray, h: int, w: int, radius_deg: float, step_deg: f
 # --- detection -----------------------------------------------------------------------------
 
 
-def cap_mask(height: int, width: int, degrees: float, device=None) -> Tensor:
+def cap_mask(
+    height: int, width: int, degrees: float, device: torch.device | str | None = None
+) -> Tensor:
     """[1, H, W] bool: the ERP pixels within ``degrees`` of the nadir."""
     lat = 90.0 - 180.0 * (torch.arange(height, dtype=torch.float64, device=device) + 0.5) / height
     return (lat < degrees - 90.0).view(1, height, 1).expand(1, height, width).clone()
 
 
-def _floor_model(polar: np.ndarray, rho: np.ndarray, theta: np.ndarray, ring: np.ndarray):
+def _floor_model(
+    polar: np.ndarray, rho: np.ndarray, theta: np.ndarray, ring: np.ndarray
+) -> tuple[np.ndarray, float]:
     """Colour linear in floor coordinates (tan(rho) cos, sin), fitted on ``ring`` (twice, the
     second time without the first fit's outliers): the model's colours [N, N, 3] and the
     ring's spread (median residual)."""

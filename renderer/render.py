@@ -25,6 +25,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, replace
+from typing import Any
 
 import torch
 from torch import Tensor
@@ -149,7 +150,15 @@ def surface_colour(
     return Composite(rgb[:, 0] * comp.opacity[:, None], comp.depth, comp.opacity, comp.weights)
 
 
-def _finish(net, cache, origins, dirs, sampling, final: Composite, coarse=None) -> RayOutput:
+def _finish(
+    net: RendererNet,
+    cache: SceneCache,
+    origins: Tensor,
+    dirs: Tensor,
+    sampling: Sampling,
+    final: Composite,
+    coarse: Composite | None = None,
+) -> RayOutput:
     if not sampling.surface:
         return RayOutput(final, coarse)
     return RayOutput(surface_colour(net, cache, origins, dirs, final), coarse, final)
@@ -186,7 +195,9 @@ def point_features(cache: SceneCache, points: Tensor, ray_dirs: Tensor, t: Tenso
     )
 
 
-def _shade(net: RendererNet, cache: SceneCache, origins: Tensor, dirs: Tensor, t: Tensor):
+def _shade(
+    net: RendererNet, cache: SceneCache, origins: Tensor, dirs: Tensor, t: Tensor
+) -> tuple[Tensor, Tensor]:
     """Density [R, S] and colour [R, S, 3] at samples t [R, S] of rays (origins, dirs) [R, 3]."""
     r, s = t.shape
     pts = origins[:, None] + t[..., None] * dirs[:, None]  # [R, S, 3]
@@ -213,6 +224,7 @@ def render_rays(
         sampling = with_range(sampling, cache, origins[0])
 
     def uniform() -> Tensor:
+        assert sampling.near is not None and sampling.far is not None  # set above (with_range)
         return inverse_depth_samples(
             r,
             sampling.n_coarse,
@@ -358,13 +370,21 @@ class _Rays:
 
 
 def _render_chunks(
-    net, cache, origins, dirs, sampling, proxy, chunk, progress, should_stop
+    net: RendererNet,
+    cache: SceneCache,
+    origins: Tensor,
+    dirs: Tensor,
+    sampling: Sampling,
+    proxy: tuple[Tensor, Tensor] | None,
+    chunk: int,
+    progress: Callable[[float], None] | None,
+    should_stop: Callable[[], bool] | None,
 ) -> _Rays | None:
     """`render_rays` over N rays, ``chunk`` sample points per view at a time."""
     n = origins.shape[0]
     per_ray = max(sampling.n_guided, sampling.n_coarse, sampling.n_fine)
     chunk = max(64, chunk // per_ray)
-    kw = {"dtype": origins.dtype, "device": origins.device}
+    kw: dict[str, Any] = {"dtype": origins.dtype, "device": origins.device}
     rgb, depth, opacity = torch.empty(n, 3, **kw), torch.empty(n, **kw), torch.empty(n, **kw)
     for start in range(0, n, chunk):
         if should_stop is not None and should_stop():

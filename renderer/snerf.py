@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import cast
 
 import torch
 import torch.nn.functional as F
@@ -74,7 +75,9 @@ def _query(grid: Tensor, centre: Tensor, points: Tensor, cfg: SNeRFConfig) -> tu
     return F.softplus(out[:, 0]), torch.sigmoid(out[:, 1:])
 
 
-def _render_rays(model: SNeRF, origins: Tensor, dirs: Tensor, generator=None) -> Tensor:
+def _render_rays(
+    model: SNeRF, origins: Tensor, dirs: Tensor, generator: torch.Generator | None = None
+) -> Tensor:
     cfg = model.config
     r = origins.shape[0]
     t = inverse_depth_samples(r, cfg.samples, cfg.near, cfg.far, generator=generator)
@@ -84,7 +87,8 @@ def _render_rays(model: SNeRF, origins: Tensor, dirs: Tensor, generator=None) ->
 
 
 def _tv(grid: Tensor) -> Tensor:
-    return sum((grid.diff(dim=d) ** 2).mean() for d in (2, 3, 4))  # smoothness along every axis
+    # smoothness along every axis (a sum of tensors: a tensor, never sum's start, 0)
+    return cast(Tensor, sum((grid.diff(dim=d) ** 2).mean() for d in (2, 3, 4)))
 
 
 def fit_snerf(images: Tensor, c2w: Tensor, config: SNeRFConfig = SNeRFConfig()) -> SNeRF:

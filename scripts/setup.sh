@@ -28,7 +28,7 @@ if [ ! -x .venv/bin/python ]; then
   "$PYTHON" -m venv .venv
 fi
 # torch is pinned to 2.13.0 in pyproject.toml: the CPU build (an unpinned torch pulls CUDA).
-if ! .venv/bin/python -c "import panogrf.app.cli, torch, moderngl, pytest, pyrender" 2>/dev/null \
+if ! .venv/bin/python -c "import panogrf.app.cli, torch, moderngl, pytest, pyrender, mypy" 2>/dev/null \
    || [ pyproject.toml -nt .venv/.panogrf-installed ] || [ setup.py -nt .venv/.panogrf-installed ]; then
   echo "setup: installing panogrf and its dependencies into .venv"
   .venv/bin/python -m pip install -q --disable-pip-version-check -e ".[dev]"
