@@ -19,10 +19,10 @@ Networks come from injected loaders, so this module reads no files. The renderer
 
 from __future__ import annotations
 
-import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from enum import StrEnum
 from typing import TYPE_CHECKING, cast
 
 import torch
@@ -44,17 +44,6 @@ from panogrf.renderer.render import render_perspective
 
 if TYPE_CHECKING:
     from panogrf.renderer.snerf import SNeRF
-
-if sys.version_info >= (3, 11):
-    from enum import StrEnum
-else:  # Python 3.10 (requires-python) has no enum.StrEnum: the same str() and format()
-    from enum import Enum
-
-    class StrEnum(str, Enum):
-        """Python 3.11's `enum.StrEnum`: a member's str() and format() are its value."""
-
-        def __str__(self) -> str:
-            return str.__str__(self)
 
 
 class Kind(StrEnum):
