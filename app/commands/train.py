@@ -12,15 +12,12 @@ from pathlib import Path
 
 from panogrf.app.options import add_options, from_args
 from panogrf.app.train.configs import (
-    LR,
     RunOptions,
     TrainBlendConfig,
     TrainDepthConfig,
     TrainRendererConfig,
     TrainSelectConfig,
 )
-
-__all__ = ["LR", "register"]
 
 
 def register(subparsers) -> None:

@@ -25,7 +25,7 @@ DEPTHS = ("networks", "shipped")
 
 @dataclass(frozen=True)
 class RunOptions:
-    """How a training runs, besides what it trains (not recorded with the weights)."""
+    """How a training runs, besides what it trains (not among the settings the weights record)."""
 
     threads: int = option(0, "torch threads (default: all)", parse=thread_count)
     """Torch threads (0: torch's default, every core)."""
