@@ -16,16 +16,15 @@ and of the better of the two per pixel.
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
 
 import torch
 from torch import Tensor
 
 from panogrf.app.errors import UserError
 from panogrf.app.files.atomic import save_tensors_atomic
+from panogrf.app.train.configs import TrainBlendConfig
 from panogrf.app.train.loop import Steps, save_trained
 from panogrf.app.train.select import (
-    FusionRecordingConfig,
     cached_record,
     canonical_truth,
     fusion_runs,
@@ -34,12 +33,6 @@ from panogrf.app.train.select import (
 )
 from panogrf.model.blend import FEATURES, BlendConfig, DepthBlend
 from panogrf.model.depth import DepthEstimator
-
-
-@dataclass
-class TrainBlendConfig(FusionRecordingConfig):
-    """One training run of the blend (the fields are the selector's recording's)."""
-
 
 #: What `record_scenes` returns (and caches).
 RECORD_KEYS = ("features", "logs", "truth")

@@ -12,7 +12,7 @@ from __future__ import annotations
 import copy
 import json
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from pathlib import Path
 
 import torch
@@ -26,82 +26,11 @@ from panogrf.app.train.augment import (
     seen_warped,
     wrong_heights,
 )
+from panogrf.app.train.configs import TrainDepthConfig
 from panogrf.app.train.data import TripletSet, load_triplets, yaw_roll
 from panogrf.app.train.loop import Steps, held_back, init_from, save_trained
 from panogrf.model.erp import latitude_weights
 from panogrf.model.mono import MonoDepthConfig, MonoDepthNet, MonoOutput
-
-
-@dataclass(frozen=True)
-class TrainDepthConfig:
-    """One training run."""
-
-    data: Path
-    """Dataset folder of the train split (made by `panogrf dataset make --split train`)."""
-    stage: str
-    """"mono" or "mvs"."""
-    out: Path
-    """Where the weights go (safetensors)."""
-    steps: int = 2500
-    """Optimiser steps."""
-    batch: int = 8
-    """Panoramas (mono) or reference/source pairs (mvs) per step."""
-    lr: float = 1e-3
-    """Adam learning rate at the start (cosine decay to 1 % of it)."""
-    height: int = 128
-    """Working resolution (height; width is twice this)."""
-    val_scenes: int = 24
-    """Scenes of the train split held back for validation."""
-    seed: int = 0
-    """Seed of the initialisation and of the batches."""
-    mono_weights: Path | None = None
-    """Stage mvs: the trained monocular network (frozen)."""
-    mvs_preset: str = "full"
-    """Stage mvs: "full" (mono-guided) or "mvs" (no mono guidance, N_mono = 0, N_uni = 64)."""
-    log_every: int = 50
-    """Steps between log lines."""
-    limit_scenes: int | None = None
-    """Load only this many scenes (smoke tests)."""
-    init: Path | None = None
-    """Start from these weights (same network) instead of a random initialisation."""
-    augment: bool = True
-    """Real-camera corruptions (`panogrf.app.train.augment.photometric`) on every view instead
-    of the mild exposure / white-balance jitter."""
-    mono_noise: float = 0.5
-    """Stage mvs, mono-guided: fraction of pairs whose monocular depth is corrupted
-    (`corrupt_mono`), so the fusion learns to check its prior."""
-    mono_shift: float = 0.0
-    """Stage mvs, mono-guided: fraction of pairs whose monocular network sees its reference
-    out of its domain (`out_of_domain`), so that its depth and its features are wrong
-    together, as on real rooms; `corrupt_mono` only makes the depth wrong, and a network can
-    tell that from the features it did not touch."""
-    mono_heights: float = 0.0
-    """Stage mvs, mono-guided: fraction of pairs whose monocular depth has the ceiling and the
-    floor at wrong heights (`wrong_heights`, after `corrupt_mono`): plausible but for the
-    room's height, and wrong exactly where a blank ceiling gives the cost volume nothing to
-    correct it with, as on a real room whose ceiling is higher or lower than the rooms the
-    monocular network learned."""
-    mono_warp: float = 0.0
-    """Stage mvs, mono-guided: fraction of pairs whose monocular network sees the reference as
-    a room of other heights (`seen_warped`, `room_factors`: log factors in +-0.3 above and
-    below the camera): a plausible room of the wrong height, depth and features wrong
-    together."""
-    mono_features_shift: float = 0.0
-    """Stage mvs, mono-guided: fraction of pairs whose monocular *features* come from the
-    reference seen out of its domain (`out_of_domain`) while the monocular depth stays the one
-    of the reference as it is (then corrupted as the other options say). Measured
-    (`lab/analysis.md`): the guided network reads the features more than its prior: given the
-    true depth as the prior, it was still behind the unguided network on the real triplet, led
-    by the features of a real image (`benchmarks/depth_fusion.py --mono-true`)."""
-    trunk: int = 0
-    """Frozen pretrained AlexNet convolutions feeding the network (`MonoDepthConfig.trunk`,
-    `MVSConfig.trunk`), filled from the bundled LPIPS weights."""
-    device: str = "cpu"
-    """The torch device the network trains on (stage mvs: the frozen monocular network runs
-    there too). Batches are drawn and corrupted on the CPU with the same generator, so the
-    data a run sees does not depend on it; the held-back figures are measured on the CPU."""
-    extra: dict = field(default_factory=dict)
-    """Free-form notes stored with the weights."""
 
 
 def weighted_l1(pred: Tensor, gt: Tensor, d_max: float) -> Tensor:

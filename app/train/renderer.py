@@ -28,7 +28,6 @@ import dataclasses
 import hashlib
 import json
 import math
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import torch
@@ -37,6 +36,7 @@ from torch import Tensor
 from tqdm import tqdm
 
 from panogrf.app.files.atomic import save_tensors_atomic
+from panogrf.app.train.configs import DEPTHS, TrainRendererConfig
 from panogrf.app.train.data import TripletSet, load_triplets, yaw_roll
 from panogrf.app.train.loop import Steps, held_back, init_from, save_trained
 from panogrf.model.depth import DepthEstimator
@@ -48,57 +48,7 @@ from panogrf.renderer.cache import build_cache
 from panogrf.renderer.render import QUALITY, Sampling, render_panorama, render_rays, target_rays
 
 PAIRS = ((0, 1), (0, 2), (1, 2))
-DEPTHS = ("networks", "shipped")
 SAVE_EVERY = 20  # scenes between the shipped depth's partial saves
-
-
-@dataclass(frozen=True)
-class TrainRendererConfig:
-    """One training run of the renderer."""
-
-    data: Path
-    """Train-split dataset folder (`panogrf dataset make --split train`)."""
-    out: Path
-    """Where the weights go (safetensors)."""
-    preset: str = "panogrf"
-    """Renderer preset: "panogrf" or "no_geometry" (the ablation)."""
-    steps: int = 2000
-    """Optimiser steps."""
-    scenes_per_step: int = 2
-    """Scenes (target views) per step."""
-    rays: int = 256
-    """Rays per scene per step."""
-    lr: float = 1e-3
-    """Adam learning rate at the start (cosine decay to 1 % of it)."""
-    height: int = 256
-    """Height of the panoramas (and of the target rays)."""
-    depth_height: int = 128
-    """Working height of the depth networks."""
-    coarse: int = 32
-    """Stratified coarse samples per ray while training."""
-    fine: int = 32
-    """Importance samples per ray while training."""
-    val_scenes: int = 24
-    """Scenes of the train split held back for validation."""
-    seed: int = 0
-    """Seed of initialisation, batches and samples."""
-    log_every: int = 50
-    """Steps between log lines."""
-    limit_scenes: int | None = None
-    """Load only this many scenes (smoke tests)."""
-    init: Path | None = None
-    """Start from these weights (same preset) instead of a random initialisation."""
-    surface_loss: bool = True
-    """Also train the depth-guided pass's surface colour (`Sampling.surface`): density that
-    peaks at the surface and blend weights that pick the sources that see it."""
-    depth: str = "networks"
-    """The sources' depth: "networks" (the depth networks alone, every ordered pair) or
-    "shipped" (what the app renders with, outer pair only; `shipped_depths`)."""
-    device: str = "cpu"
-    """The torch device the renderer trains on (and, with ``depth="networks"``, where the
-    depth networks estimate the training pairs' depth)."""
-    extra: dict = field(default_factory=dict)
-    """Free-form notes stored with the weights."""
 
 
 def _weights_key(estimator: DepthEstimator) -> str:

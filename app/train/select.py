@@ -25,7 +25,6 @@ from __future__ import annotations
 import hashlib
 import json
 from contextlib import ExitStack
-from dataclasses import dataclass
 from pathlib import Path
 
 import torch
@@ -37,73 +36,12 @@ from tqdm import tqdm
 from panogrf.app.errors import UserError
 from panogrf.app.files.atomic import save_tensors_atomic
 from panogrf.app.train.augment import mono_out_of_domain, mono_wrong_heights, photometric
+from panogrf.app.train.configs import FusionRecordingConfig, TrainSelectConfig
 from panogrf.app.train.data import load_triplets
 from panogrf.app.train.loop import Steps, held_back, save_trained
 from panogrf.app.train.renderer import _weights_key
 from panogrf.model.depth import DepthEstimator
 from panogrf.model.select import CONSISTENCY, FEATURES, HypothesisSelector, SelectorConfig
-
-
-@dataclass
-class FusionRecordingConfig:
-    """What the trainings that record mode full's fusion share (`fusion_runs`)."""
-
-    data: Path
-    """Train-split dataset folder."""
-    out: Path
-    """Where the weights go (safetensors)."""
-    scenes: int = 240
-    """Training scenes sampled (seeded) from the data, besides the held-back ones."""
-    val_scenes: int = 24
-    """The data's last scenes, held back for the log's validation figures."""
-    shift: float = 0.3
-    """Fraction of the scenes whose monocular network sees its input out of its domain."""
-    photometric: float = 0.5
-    """Fraction of the scenes whose views are put through the camera corruptions."""
-    heights: float = 0.0
-    """Fraction of the scenes whose monocular depth puts the ceiling and the floor at wrong
-    heights (`wrong_heights`), drawn independently of ``shift``."""
-    heights_shared: bool = False
-    """Those scenes' wrong heights drawn once per scene, the same in both views
-    (`mono_wrong_heights` ``shared``), instead of once per view."""
-    features_shift: float = 0.0
-    """Fraction of the scenes not under ``shift`` whose monocular network gives the features
-    of its input seen out of its domain and the depth of the input as it is
-    (`mono_out_of_domain` ``features_only``: on a real capture the mono-guided
-    network is led astray by these features more than by the depth)."""
-    height: int = 256
-    """Rows the panoramas are loaded at (the sweep's resolution)."""
-    steps: int = 1500
-    """Optimiser steps."""
-    batch: int = 8
-    """Views per step."""
-    lr: float = 2e-3
-    """Adam learning rate at the start (cosine decay)."""
-    seed: int = 0
-    log_every: int = 100
-    limit_scenes: int | None = None
-    """Load only this many scenes (smoke tests)."""
-
-    @property
-    def extra_key(self) -> list:
-        """What a recording's cache key adds for ``heights_shared`` and ``features_shift``
-        (nothing without them, so the recordings made before them keep their keys)."""
-        key: list = ["shared"] if self.heights and self.heights_shared else []
-        return key + (["features", self.features_shift] if self.features_shift else [])
-
-
-@dataclass
-class TrainSelectConfig(FusionRecordingConfig):
-    """One training run of the selector."""
-
-    cap: float = 0.5
-    """Largest weight of a pixel (metres by which one search end is nearer the truth)."""
-    context: bool = True
-    """The selector sees a scene-wide summary of its features (`SelectorConfig.context`)."""
-    consistency: bool = True
-    """The selector sees the cross-view consistency of the search ends
-    (`SelectorConfig.consistency`)."""
-
 
 #: What `record_scenes` returns (and caches).
 RECORD_KEYS = ("features", "ends", "truth", "rule")

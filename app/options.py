@@ -1,0 +1,124 @@
+"""Command-line options declared on dataclass fields.
+
+A field made with `option` is also an option: `add_options` adds the options of a dataclass to
+an argparse parser, and `from_args` builds the dataclass from the parsed arguments, so a setting
+is written once, with its default, its help and its checks (the dataclass's ``__post_init__``).
+
+The option of field ``field_name`` is ``--field-name`` unless the field names its own flag. Its
+value is parsed by the field's ``parse`` function, else by the field's type (``Path | None``
+parses a Path). A bool field is a flag that sets the opposite of its default (``--no-field-name``
+for a field true by default). A field without a default is a required option. A field made
+without `option` is no option. A subclass gives an inherited option another default by
+declaring the field again with a plain default: the option keeps its flag, help and parse.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import types
+import typing
+from collections.abc import Callable
+from typing import Any
+
+_KEY = "panogrf.option"
+
+
+@dataclasses.dataclass(frozen=True)
+class Option:
+    """The command-line side of a field (`option`)."""
+
+    help: str
+    """Help text; ``{default}`` in it reads the field's default."""
+    flag: str | None = None
+    """The option's name when it is not ``--field-name`` (or ``--no-field-name``)."""
+    parse: Callable[[str], Any] | None = None
+    """Parses the option's text (an argparse ``type``); None: the field's type."""
+    choices: tuple | None = None
+    """The values allowed, if only some are."""
+
+
+def option(
+    default: Any = dataclasses.MISSING,
+    help: str = "",
+    *,
+    flag: str | None = None,
+    parse: Callable[[str], Any] | None = None,
+    choices: tuple | None = None,
+) -> Any:
+    """A dataclass field that is also a command-line option (no ``default``: a required one)."""
+    return dataclasses.field(default=default, metadata={_KEY: Option(help, flag, parse, choices)})
+
+
+def _declared(cls: type, name: str) -> Option | None:
+    """The `Option` of field ``name`` of ``cls``, looked up in its bases when ``cls`` declares
+    the field again without one."""
+    for klass in cls.__mro__:
+        found = getattr(klass, "__dataclass_fields__", {}).get(name)
+        if found is not None and _KEY in found.metadata:
+            return found.metadata[_KEY]
+    return None
+
+
+def options(cls: type) -> list[tuple[dataclasses.Field, Option]]:
+    """The fields of dataclass ``cls`` that are options, in field order, with their `Option`."""
+    found = ((f, _declared(cls, f.name)) for f in dataclasses.fields(cls))
+    return [(f, opt) for f, opt in found if opt is not None]
+
+
+def flag_of(cls: type, name: str) -> str:
+    """The command-line flag of field ``name`` of ``cls`` (for messages that name it)."""
+    field = cls.__dataclass_fields__[name]
+    opt = _declared(cls, name)
+    if opt is not None and opt.flag:
+        return opt.flag
+    negated = field.type in ("bool", bool) and field.default is True
+    return ("--no-" if negated else "--") + name.replace("_", "-")
+
+
+def _value_type(cls: type, name: str) -> type:
+    """The type a field holds, ``X`` for ``X | None``."""
+    hint = typing.get_type_hints(cls)[name]
+    if isinstance(hint, types.UnionType) or typing.get_origin(hint) is typing.Union:
+        (hint,) = [arg for arg in typing.get_args(hint) if arg is not type(None)]
+    return hint
+
+
+def _argument(cls: type, field: dataclasses.Field, opt: Option) -> tuple[str, dict[str, Any]]:
+    """The flag and the `add_argument` keywords of option ``field`` of ``cls``."""
+    flag = flag_of(cls, field.name)
+    default = field.default
+    kwargs: dict[str, Any] = {
+        "dest": field.name,
+        "help": opt.help.replace("{default}", str(default)),
+    }
+    if _value_type(cls, field.name) is bool:
+        kwargs["action"] = "store_false" if default else "store_true"
+        return flag, kwargs
+    kwargs["type"] = opt.parse or _value_type(cls, field.name)
+    if default is dataclasses.MISSING:
+        kwargs["required"] = True
+    else:
+        kwargs["default"] = default
+    if opt.choices is not None:
+        kwargs["choices"] = opt.choices
+    else:
+        kwargs["metavar"] = flag.lstrip("-").replace("-", "_").upper()
+    return flag, kwargs
+
+
+def add_options(parser: argparse.ArgumentParser, *classes: type) -> None:
+    """Add the options of each dataclass in ``classes`` to ``parser`` (`option`), the required
+    ones first, then in the order of the classes and of their fields; each parses into the
+    attribute named as its field."""
+    arguments = [_argument(cls, f, opt) for cls in classes for f, opt in options(cls)]
+    arguments.sort(key=lambda argument: not argument[1].get("required", False))
+    for flag, kwargs in arguments:
+        parser.add_argument(flag, **kwargs)
+
+
+def from_args(cls: type, args: argparse.Namespace, **fields: Any) -> Any:
+    """Dataclass ``cls`` from the parsed ``args`` of its options (`add_options`) and the other
+    ``fields`` given; its own checks run as it is built."""
+    values = {field.name: getattr(args, field.name) for field, _ in options(cls)}
+    return cls(**values, **fields)
