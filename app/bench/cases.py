@@ -99,10 +99,11 @@ def _render(renderer, scene: SynthScene, poses: list[np.ndarray], height: int) -
 
 
 def make_cases(
-    height: int, names: tuple[str, ...] = CASES, sweep: tuple[float, ...] = ()
+    height: int, names: tuple[str, ...] = CASES, sweep: tuple[float, ...] = (), per: int = 1
 ) -> list[Case]:
-    """The hard cases ``names`` and, for each baseline of ``sweep``, a plain scene with that
-    first-to-last distance (target: the middle camera), rendered at ``height`` rows."""
+    """The hard cases ``names`` and, for each baseline of ``sweep``, ``per`` plain scenes with
+    that first-to-last distance (target: the middle camera; named ``sweep B m`` and, past the
+    first, ``sweep B m #k``), rendered at ``height`` rows."""
     from panogrf.app.synth.gl_render import PanoramaRenderer
     from panogrf.app.synth.make import build_scene, build_textures
 
@@ -119,9 +120,12 @@ def make_cases(
             out.append(
                 Case(name, imgs[:-1], c2w, torch.from_numpy(target).float(), imgs[-1:], dist)
             )
-        for j, b in enumerate(sweep):
-            scene = build_scene("test", 2 * (SEED + 100 + j) + 1, b, len(textures) - 1)
-            imgs = _render(renderer, scene, list(scene.cameras), height)
-            c2w = torch.from_numpy(scene.cameras).float()
-            out.append(Case(f"sweep {b:g} m", imgs[[0, 2]], c2w[[0, 2]], c2w[1], imgs[1:2], b))
+        for k in range(per):
+            for j, b in enumerate(sweep):
+                seed = 2 * (SEED + 100 + 16 * k + j) + 1
+                scene = build_scene("test", seed, b, len(textures) - 1)
+                imgs = _render(renderer, scene, list(scene.cameras), height)
+                c2w = torch.from_numpy(scene.cameras).float()
+                name = f"sweep {b:g} m" + (f" #{k + 1}" if k else "")
+                out.append(Case(name, imgs[[0, 2]], c2w[[0, 2]], c2w[1], imgs[1:2], b))
     return out

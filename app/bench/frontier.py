@@ -4,7 +4,8 @@
   marker per setting and baseline, one large per setting (its mean over the baselines, named,
   with parameters and peak memory), the frontier through the large ones, the real triplet as
   stars;
-- ``stability.png``: WS-PSNR and LPIPS against the baseline (0.2-5 m), a line per setting;
+- ``stability.png``: WS-PSNR and LPIPS against the baseline (0.2-5 m), a line per setting
+  (the mean over the sweep's scenes) and its band (their lowest to highest);
 - ``gallery.png``: the hard cases, a row each: the truth, then every setting side by side.
 """
 
@@ -71,7 +72,7 @@ def plot_frontier(results: dict, path: Path, title: str, time_height: int = 512)
     names = list(results)
     colour = _colours(names)
     baselines = sorted({b for r in results.values() for b in r["baselines"]}, key=float)
-    fig, axes = plt.subplots(1, 2, figsize=(16, 7))
+    fig, axes = plt.subplots(1, 2, figsize=(19, 7))
     for ax, metric, better in ((axes[0], "ws_psnr", 1), (axes[1], "lpips", -1)):
         xs = [results[n]["seconds"] for n in names]
         ys = [results[n]["mean"][metric] for n in names]
@@ -84,15 +85,13 @@ def plot_frontier(results: dict, path: Path, title: str, time_height: int = 512)
                     ax.scatter(x, s[metric], marker=m, s=18, color=colour[n], alpha=0.55)
             if r.get("real") and _finite(x, r["real"][metric]):
                 ax.scatter(x, r["real"][metric], marker="*", s=140, color=colour[n], ec="k")
-        for n, x, y in zip(names, xs, ys, strict=True):
+        for i, (n, x, y) in enumerate(zip(names, xs, ys, strict=True)):
             if not _finite(x, y):
                 continue
             ax.scatter(x, y, s=90, color=colour[n], ec="k", zorder=3)
-            r = results[n]
-            note = f"{n}\n{_human(r['params'])} p, {r['peak_mib']:.0f} MiB"
-            if r.get("time_scaled"):
-                note += " (t scaled)"
-            ax.annotate(note, (x, y), xytext=(5, 4), textcoords="offset points", fontsize=7)
+            # A number by each mean; the names, sizes and memory in the key beside the charts
+            # (names written on the points overlap where settings cost alike).
+            ax.annotate(str(i + 1), (x, y), xytext=(4, 3), textcoords="offset points", fontsize=8)
         front = pareto_front(xs, [better * y for y in ys])
         ax.step(
             [xs[i] for i in front],
@@ -122,9 +121,24 @@ def plot_frontier(results: dict, path: Path, title: str, time_height: int = 512)
         )
     handles.append(plt.Line2D([], [], ls="--", color="k", label="Pareto frontier"))
     axes[0].legend(handles=handles, loc="lower right", fontsize=8)
+    fig.legend(handles=_setting_key(results, colour), loc="center right", fontsize=8)
     fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0, 0.8, 1))
     _save(fig, path, 110)
+
+
+def _setting_key(results: dict, colour: dict) -> list:
+    """The key of the numbered means: number, setting, parameters and peak memory."""
+    plt = _plt()
+    key = []
+    for i, (n, r) in enumerate(results.items()):
+        label = f"{i + 1}  {n}: {_human(r['params'])} p, {r['peak_mib']:.0f} MiB"
+        if r.get("time_scaled"):
+            label += " (t scaled)"
+        key.append(
+            plt.Line2D([], [], ls="", marker="o", ms=8, color=colour[n], mec="k", label=label)
+        )
+    return key
 
 
 def plot_stability(sweep: dict, path: Path, title: str) -> None:
@@ -135,14 +149,12 @@ def plot_stability(sweep: dict, path: Path, title: str) -> None:
     for ax, metric in ((axes[0], "ws_psnr"), (axes[1], "lpips")):
         for n, per_b in sweep.items():
             bs = sorted(per_b, key=float)
-            ax.plot(
-                [float(b) for b in bs],
-                [per_b[b][metric] for b in bs],
-                marker="o",
-                ms=4,
-                color=colour[n],
-                label=n,
-            )
+            x = [float(b) for b in bs]
+            ax.plot(x, [per_b[b][metric] for b in bs], marker="o", ms=4, color=colour[n], label=n)
+            if all(f"{metric}_min" in per_b[b] for b in bs):  # the spread over the scenes
+                low = [per_b[b][f"{metric}_min"] for b in bs]
+                high = [per_b[b][f"{metric}_max"] for b in bs]
+                ax.fill_between(x, low, high, color=colour[n], alpha=0.12, lw=0)
         ax.set_xlabel("baseline: distance between the two sources (m)")
         ax.set_ylabel({"ws_psnr": "WS-PSNR (dB)", "lpips": "LPIPS (lower is better)"}[metric])
         ax.grid(True, alpha=0.3)

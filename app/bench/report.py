@@ -52,7 +52,8 @@ def format_table(report: dict) -> str:
     if sweep:
         lines += [
             "",
-            f"Stability sweep, WS-PSNR at {cfg['case_height']} rows, one scene per baseline:",
+            f"Stability sweep, WS-PSNR at {cfg['case_height']} rows, "
+            f"{cfg.get('sweep_scenes', 1)} scene(s) per baseline: mean (lowest to highest):",
             "",
         ]
         lines += [
@@ -61,9 +62,7 @@ def format_table(report: dict) -> str:
         ]
         for name, r in res.items():
             lines.append(
-                f"| `{name}` | "
-                + " | ".join(_f(r["sweep"][b]["ws_psnr"], ".2f") for b in sweep)
-                + " |"
+                f"| `{name}` | " + " | ".join(_spread(r["sweep"][b]) for b in sweep) + " |"
             )
     cases = list(cfg["cases"])
     if cases:
@@ -107,7 +106,8 @@ def write_outputs(report: dict, out: Path) -> list[Path]:
         plot_stability(
             sweep,
             out / "stability.png",
-            f"one synthetic scene per baseline, {cfg['case_height']} rows",
+            f"{cfg.get('sweep_scenes', 1)} synthetic scene(s) per baseline, "
+            f"{cfg['case_height']} rows: mean, and lowest to highest",
         )
         written.append(out / "stability.png")
     if gallery:
@@ -122,3 +122,11 @@ def write_outputs(report: dict, out: Path) -> list[Path]:
         plot_gallery(rows, out / "gallery.png")
         written.append(out / "gallery.png")
     return written
+
+
+def _spread(scores: dict) -> str:
+    """A sweep cell: the mean WS-PSNR and, over several scenes, its lowest to highest."""
+    mean = _f(scores["ws_psnr"], ".2f")
+    if scores.get("n", 1) > 1 and "ws_psnr_min" in scores:
+        return f"{mean} ({_f(scores['ws_psnr_min'], '.1f')}-{_f(scores['ws_psnr_max'], '.1f')})"
+    return mean

@@ -65,6 +65,8 @@ class BenchConfig:
     """Rows of the sweep's and the hard cases' renders."""
     sweep: tuple[float, ...] = SWEEP_BASELINES
     """Baselines (m) of the stability sweep (empty: no sweep)."""
+    sweep_scenes: int = 5
+    """Scenes per baseline of the sweep: its mean and spread."""
     cases: tuple[str, ...] = CASES
     """Hard cases for the gallery (empty: none)."""
     refine: RefineConfig | None = None
@@ -120,6 +122,24 @@ def _mean(items: list[dict[str, float]]) -> dict[str, float]:
         vals = [x[m] for x in items if x.get(m) is not None and math.isfinite(x[m])]
         out[m] = statistics.fmean(vals) if vals else math.nan
     return out | {"n": len(items)}
+
+
+def _sweep(cases, case_out, setting: str) -> dict[str, dict[str, float]]:
+    """The sweep of ``setting``: per baseline (metres, as text) the mean of its scenes' scores
+    and the spread of WS-PSNR and LPIPS (``_min``, ``_max``, ``_std`` over the scenes)."""
+    by_b: dict[str, list[dict[str, float]]] = {}
+    for c in cases:
+        if c.name.startswith("sweep"):
+            by_b.setdefault(f"{c.baseline:g}", []).append(case_out[c.name][setting].scores)
+    out = {}
+    for b, items in by_b.items():
+        out[b] = _mean(items)
+        for m in ("ws_psnr", "lpips"):
+            vals = [x[m] for x in items if x.get(m) is not None and math.isfinite(x[m])]
+            out[b][f"{m}_min"] = min(vals) if vals else math.nan
+            out[b][f"{m}_max"] = max(vals) if vals else math.nan
+            out[b][f"{m}_std"] = statistics.pstdev(vals) if vals else math.nan
+    return out
 
 
 def _timing(setting, views, c2w, cfg, models, gl, seconds_at_height) -> dict:
@@ -199,7 +219,11 @@ def run_bench(cfg: BenchConfig, models: Models, log: Callable[[str], None] = pri
                 line.append(f"{s.name} {scores['ws_psnr']:.2f}")
             release_scene(views)
             log("  ".join(line))
-        cases = make_cases(cfg.case_height, cfg.cases, cfg.sweep) if cfg.cases or cfg.sweep else []
+        cases = (
+            make_cases(cfg.case_height, cfg.cases, cfg.sweep, cfg.sweep_scenes)
+            if cfg.cases or cfg.sweep
+            else []
+        )
         case_out: dict[str, dict[str, Rendered]] = {}
         for case in cases:
             views = SourceViews(case.images, case.c2w, refine=cfg.refine, device=models.device)
@@ -241,11 +265,7 @@ def _report(cfg, baselines, per, cases, case_out, models) -> dict:
             "baselines": by_b,
             "mean": _mean(all_items),
             "real": _mean(p["real"]) if p["real"] else None,
-            "sweep": {
-                f"{c.baseline:g}": case_out[c.name][s.name].scores
-                for c in cases
-                if c.name.startswith("sweep")
-            },
+            "sweep": _sweep(cases, case_out, s.name),
             "cases": {
                 c.name: case_out[c.name][s.name].scores
                 | {"problems": case_out[c.name][s.name].problems}
@@ -278,6 +298,7 @@ def _report(cfg, baselines, per, cases, case_out, models) -> dict:
             "real": None if cfg.real is None else str(cfg.real),
             "case_height": cfg.case_height,
             "sweep": list(cfg.sweep),
+            "sweep_scenes": cfg.sweep_scenes,
             "cases": list(cfg.cases),
             "refine_depth": None if cfg.refine is None else repr(cfg.refine),
         },

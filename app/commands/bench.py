@@ -3,10 +3,10 @@
 Every method and setting (nearest, the GL preview at each mesh size, meshwarp, PanoGRF draft /
 fast / paper, the no-mono and no-MVS ablations, S-NeRF) renders the middle view of --scenes
 test triplets per baseline from the outer two; each is timed once at --time-height rows (512 x
-1024: the chart's x axis) with its peak memory. A stability sweep (one synthetic scene per
-baseline, 0.2-5 m) and six hard cases made by the synthetic generator (heavy occlusion,
-textureless walls, objects at the poles, a target off the line, extrapolation, a pose at a
-source) follow, every render checked for NaN, inf and emptiness.
+1024: the chart's x axis) with its peak memory. A stability sweep (--sweep-scenes synthetic
+scenes per baseline, 0.2-5 m: mean and spread) and six hard cases made by the synthetic
+generator (heavy occlusion, textureless walls, objects at the poles, a target off the line,
+extrapolation, a pose at a source) follow, every render checked for NaN, inf and emptiness.
 
 Writes DIR/frontier.png (seconds against WS-PSNR and LPIPS, the Pareto frontier dashed),
 DIR/stability.png, DIR/gallery.png, DIR/results.json and DIR/table.md. A few minutes on two
@@ -93,6 +93,12 @@ def register(subparsers) -> None:
         "'' for none)",
     )
     parser.add_argument(
+        "--sweep-scenes",
+        type=int,
+        default=5,
+        help="synthetic scenes per sweep baseline: the sweep's mean and spread (default 5)",
+    )
+    parser.add_argument(
         "--cases",
         default=",".join(CASES),
         help=f"hard cases for the gallery (default all: {','.join(CASES)}; '' for none)",
@@ -121,6 +127,8 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--case-height must be between 8 and {MAX_HEIGHT}, got {args.case_height}")
     if args.scenes < 1:
         raise UserError(f"--scenes must be at least 1, got {args.scenes}")
+    if not 1 <= args.sweep_scenes <= 100:
+        raise UserError(f"--sweep-scenes must be between 1 and 100, got {args.sweep_scenes}")
     try:
         settings = select(args.settings, args.skip)
     except ValueError as exc:
@@ -153,6 +161,7 @@ def run(args: argparse.Namespace) -> int:
         use_cache=not args.no_cache,
         case_height=args.case_height,
         sweep=args.sweep,
+        sweep_scenes=args.sweep_scenes,
         cases=cases,
     )
     models = session.default_models(resolve_device(args.device))

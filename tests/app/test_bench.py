@@ -122,6 +122,7 @@ def test_bench_command_on_a_tiny_dataset(tmp_path, capsys):
     out = tmp_path / "bench"
     args = ["bench", str(root), "--out", str(out), "--baselines", str(baseline)]
     args += ["--height", "32", "--time-height", "48", "--case-height", "32", "--sweep", "0.5"]
+    args += ["--sweep-scenes", "2"]
     args += ["--cases", "at_source", "--settings", "nearest,gl:32,panogrf:draft", "--real", "none"]
     assert cli.main(args + ["--threads", "1"]) == 0
     for name in ("results.json", "table.md", "frontier.png", "stability.png", "gallery.png"):
@@ -131,6 +132,9 @@ def test_bench_command_on_a_tiny_dataset(tmp_path, capsys):
     r = report["results"]["panogrf:draft"]
     assert r["seconds"] > 0 and r["params"] > 0 and r["time_scaled"] is False
     assert set(r["sweep"]) == {"0.5"} and set(r["cases"]) == {"at_source"}
+    swept = r["sweep"]["0.5"]  # two scenes: their mean and spread
+    assert swept["n"] == 2 and swept["ws_psnr_min"] <= swept["ws_psnr"] <= swept["ws_psnr_max"]
+    assert swept["ws_psnr_min"] < swept["ws_psnr_max"] and swept["ws_psnr_std"] > 0
     # The cheapest setting (by the time measured in this run: any of them on a loaded
     # machine) is always on the frontier.
     cheapest = min(report["results"], key=lambda k: report["results"][k]["seconds"])
