@@ -33,17 +33,13 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from panogrf.model.blend import DepthBlend, blend_views
-from panogrf.model.depth_config import DEFAULT_SWEEP, SHORT_SWEEP, DepthConfig
+from panogrf.model.depth_config import DEFAULT_SWEEP, SHORT_SWEEP, DepthConfig, view_sources
 from panogrf.model.mono import MonoDepthNet, MonoOutput
 from panogrf.model.mvs import MVSNet
 from panogrf.model.progress import open_stage, stage
 from panogrf.model.refine import nearest_sources
 from panogrf.model.select import HypothesisSelector, SelectorChooser
-from panogrf.model.sweep import (
-    SweepConfig,
-    median_filter,
-    sweep_depth,
-)
+from panogrf.model.sweep import SweepConfig, median_filter, sweep_depth
 
 MODES = ("full", "mono", "mvs")
 __all__ = [
@@ -149,39 +145,8 @@ class DepthEstimator(nn.Module):
         return torch.nan_to_num(depth, nan=self.d_max, posinf=self.d_max).clamp(0.05, self.d_max)
 
     def view_sources(self, c2w: Tensor) -> tuple[list[list[int]], list[str]]:
-        """Each view's sources (every other view at least `min_baseline` away: closer ones
-        give no parallax) and warnings about the views left without."""
-        v = c2w.shape[0]
-        sources: list[list[int]] = [[] for _ in range(v)]
-        warnings: list[str] = []
-        centres = c2w[:, :3, 3]
-        for ref in range(v):
-            dist = torch.linalg.vector_norm(centres - centres[ref], dim=-1)
-            src = [j for j in range(v) if j != ref and float(dist[j]) >= self.min_baseline]
-            close = [j for j in range(v) if j != ref and float(dist[j]) < self.min_baseline]
-            if close:
-                warnings.append(
-                    f"view {ref}: views {close} are within {self.min_baseline} m of it "
-                    "(no parallax): not used as sources"
-                )
-            if not src:
-                if v > 1:
-                    warnings.append(f"view {ref}: no usable source, monocular depth")
-                continue
-            sources[ref] = src
-        return sources, warnings
-
-    def _mvs(
-        self,
-        mode: str,
-        small: Tensor,
-        c2w: Tensor,
-        mono: MonoOutput,
-        sources: list[list[int]],
-        depth: Tensor,
-    ) -> Tensor:
-        """``depth`` with every view that has sources replaced by network ``mode``'s estimate."""
-        return self._mvs_confidence(mode, small, c2w, mono, sources, depth)[0]
+        """Each view's sources and warnings about the views left without (`view_sources`)."""
+        return view_sources(c2w, self.min_baseline)
 
     def _mvs_confidence(
         self,

@@ -5,6 +5,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import torch
+from torch import Tensor
+
 from panogrf.model.sweep import SweepConfig
 
 DEFAULT_SWEEP = SweepConfig()
@@ -58,3 +61,27 @@ class DepthConfig:
     cost volume agree on scale, as in training. One more pass of the unguided network.
     Mean L1 (classic and home) with the world scaled by 1, 0.7 and 1.4: off 0.156 / 0.210 /
     0.301, on 0.155 / 0.126 / 0.215."""
+
+
+def view_sources(c2w: Tensor, min_baseline: float) -> tuple[list[list[int]], list[str]]:
+    """Each view's sources (every other view at least ``min_baseline`` away: closer ones give
+    no parallax) and warnings about the views left without."""
+    v = c2w.shape[0]
+    sources: list[list[int]] = [[] for _ in range(v)]
+    warnings: list[str] = []
+    centres = c2w[:, :3, 3]
+    for ref in range(v):
+        dist = torch.linalg.vector_norm(centres - centres[ref], dim=-1)
+        src = [j for j in range(v) if j != ref and float(dist[j]) >= min_baseline]
+        close = [j for j in range(v) if j != ref and float(dist[j]) < min_baseline]
+        if close:
+            warnings.append(
+                f"view {ref}: views {close} are within {min_baseline} m of it "
+                "(no parallax): not used as sources"
+            )
+        if not src:
+            if v > 1:
+                warnings.append(f"view {ref}: no usable source, monocular depth")
+            continue
+        sources[ref] = src
+    return sources, warnings
