@@ -10,6 +10,8 @@ parses a Path). A bool field is a flag that sets the opposite of its default (``
 for a field true by default). A field without a default is a required option. A field made
 without `option` is no option. A subclass gives an inherited option another default by
 declaring the field again with a plain default: the option keeps its flag, help and parse.
+A ``positional`` field is an argument named by its place (shown as its ``metavar``, else its
+name), with ``nargs`` as argparse's (``"+"``: one or more, a list).
 """
 
 from __future__ import annotations
@@ -36,6 +38,12 @@ class Option:
     """Parses the option's text (an argparse ``type``); None: the field's type."""
     choices: tuple | None = None
     """The values allowed, if only some are."""
+    positional: bool = False
+    """An argument named by its place, not by a flag."""
+    metavar: str | None = None
+    """The name shown for the value, when not the one made from the flag (or field)."""
+    nargs: str | None = None
+    """argparse's ``nargs`` (``"+"``: one value or more, a list)."""
 
 
 def option(
@@ -45,9 +53,13 @@ def option(
     flag: str | None = None,
     parse: Callable[[str], Any] | None = None,
     choices: tuple | None = None,
+    positional: bool = False,
+    metavar: str | None = None,
+    nargs: str | None = None,
 ) -> Any:
     """A dataclass field that is also a command-line option (no ``default``: a required one)."""
-    return dataclasses.field(default=default, metadata={_KEY: Option(help, flag, parse, choices)})
+    opt = Option(help, flag, parse, choices, positional, metavar, nargs)
+    return dataclasses.field(default=default, metadata={_KEY: opt})
 
 
 def _declared(cls: type, name: str) -> Option | None:
@@ -67,9 +79,12 @@ def options(cls: type) -> list[tuple[dataclasses.Field, Option]]:
 
 
 def flag_of(cls: type, name: str) -> str:
-    """The command-line flag of field ``name`` of ``cls`` (for messages that name it)."""
+    """The command-line flag of field ``name`` of ``cls`` (for messages that name it; a
+    positional argument's metavar or name)."""
     field = cls.__dataclass_fields__[name]
     opt = _declared(cls, name)
+    if opt is not None and opt.positional:
+        return opt.metavar or name
     if opt is not None and opt.flag:
         return opt.flag
     negated = field.type in ("bool", bool) and field.default is True
@@ -85,7 +100,12 @@ def _value_type(cls: type, name: str) -> type:
 
 
 def _argument(cls: type, field: dataclasses.Field, opt: Option) -> tuple[str, dict[str, Any]]:
-    """The flag and the `add_argument` keywords of option ``field`` of ``cls``."""
+    """The flag (a positional argument: its name) and the `add_argument` keywords of option
+    ``field`` of ``cls``."""
+    if opt.positional:
+        kwargs = {"type": opt.parse or _value_type(cls, field.name), "help": opt.help}
+        extra = {"metavar": opt.metavar, "nargs": opt.nargs, "choices": opt.choices}
+        return field.name, kwargs | {k: v for k, v in extra.items() if v is not None}
     flag = flag_of(cls, field.name)
     default = field.default
     kwargs: dict[str, Any] = {
@@ -103,7 +123,9 @@ def _argument(cls: type, field: dataclasses.Field, opt: Option) -> tuple[str, di
     if opt.choices is not None:
         kwargs["choices"] = opt.choices
     else:
-        kwargs["metavar"] = flag.lstrip("-").replace("-", "_").upper()
+        kwargs["metavar"] = opt.metavar or flag.lstrip("-").replace("-", "_").upper()
+    if opt.nargs is not None:
+        kwargs["nargs"] = opt.nargs
     return flag, kwargs
 
 

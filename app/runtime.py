@@ -5,7 +5,10 @@ from __future__ import annotations
 import argparse
 import ctypes
 import ctypes.util
+from dataclasses import dataclass
 from pathlib import Path
+
+from panogrf.app.options import option
 
 _M_TRIM_THRESHOLD, _M_TOP_PAD, _M_MMAP_THRESHOLD, _M_ARENA_MAX = -1, -2, -3, -8
 _MB = 1 << 20
@@ -107,6 +110,21 @@ def thread_count(text: str) -> int:
             f"expected at most {4 * cores} (4 per core; this machine has {cores}), got {value}"
         )
     return value
+
+
+@dataclass(frozen=True)
+class ThreadOptions:
+    """``--threads``, of the commands that run torch (`panogrf.app.options`)."""
+
+    threads: int = option(0, "torch threads (default: all)", parse=thread_count)
+    """Torch threads (0: torch's default, every core)."""
+
+    def apply(self) -> None:
+        """Set torch's threads, if ``threads`` asks for a number."""
+        if self.threads:
+            import torch
+
+            torch.set_num_threads(self.threads)
 
 
 def number(kind=float, low=None, high=None, low_open: bool = False):

@@ -35,39 +35,73 @@ from panogrf.app.bench.settings import (
     release_scene,
     render_setting,
 )
+from panogrf.app.errors import UserError
+from panogrf.app.options import flag_of, option
+from panogrf.app.runtime import metres_list, number
 from panogrf.model.refine import RefineConfig
 from panogrf.renderer.methods import Models, SourceViews
 
 METRICS = ("ws_psnr", "lpips", "psnr", "ssim")
 
 
+def names(text: str) -> tuple[str, ...]:
+    """``--cases a, b`` -> ("a", "b") (argparse type): comma-separated names, blanks dropped."""
+    return tuple(name.strip() for name in text.split(",") if name.strip())
+
+
 @dataclass(frozen=True)
 class BenchConfig:
-    """What `run_bench` measures."""
+    """What `run_bench` measures. A field made with `option` is also an option of `panogrf
+    bench` (`panogrf.app.options`); the settings are checked as they are built (`UserError`,
+    one line naming the option)."""
 
-    data: Path
+    data: Path = option(
+        help="a dataset (dataset.json), a folder of triplet scene folders, or one scene folder",
+        positional=True,
+        metavar="DATASET_OR_SCENES",
+    )
     """A dataset, a folder of triplet scene folders, or one scene folder."""
     settings: tuple[Setting, ...]
     """The settings to chart (`panogrf.app.bench.settings.SETTINGS`)."""
-    scenes: int = 1
+    scenes: int = option(1, "triplets per baseline (default {default})")
     """Triplets per baseline for the quality."""
-    baselines: tuple[float, ...] | None = None
+    baselines: tuple[float, ...] | None = option(
+        None,
+        "baselines (m) to score (default: 1.0,1.5,2.0 for a dataset, all for a folder)",
+        parse=metres_list,
+    )
     """Baselines (m) of the quality; None: 1.0, 1.5, 2.0 for a dataset, all for a folder."""
-    height: int = 256
+    height: int = option(256, "rows of the quality renders")
     """Rows of the quality renders."""
-    time_height: int = 512
+    time_height: int = option(512, "rows of the timed render (default {default})")
     """Rows of the timed render (the chart's x axis)."""
-    time_budget: float = 30.0
+    time_budget: float = option(
+        30.0,
+        "seconds: a setting predicted slower at --time-height is not rendered there; its "
+        "time is predicted from the --height render (marked * in the table)",
+        parse=number(float, 0.0, low_open=True),
+    )
     """Seconds above which a timed render is predicted from the quality render instead."""
     real: Path | None = None
     """A dataset of real triplets, charted as its own marker (None: none)."""
-    case_height: int = 128
+    case_height: int = option(128, "rows of the sweep and hard cases")
     """Rows of the sweep's and the hard cases' renders."""
-    sweep: tuple[float, ...] = SWEEP_BASELINES
+    sweep: tuple[float, ...] = option(
+        SWEEP_BASELINES,
+        f"sweep baselines in m (default {','.join(f'{b:g}' for b in SWEEP_BASELINES)}; "
+        "'' for none)",
+        parse=metres_list,
+    )
     """Baselines (m) of the stability sweep (empty: no sweep)."""
-    sweep_scenes: int = 5
+    sweep_scenes: int = option(
+        5, "synthetic scenes per sweep baseline: the sweep's mean and spread (default {default})"
+    )
     """Scenes per baseline of the sweep: its mean and spread."""
-    cases: tuple[str, ...] = CASES
+    cases: tuple[str, ...] = option(
+        CASES,
+        f"hard cases for the gallery (default all: {','.join(CASES)}; '' for none)",
+        parse=names,
+    )
     """Hard cases for the gallery (empty: none)."""
     refine: RefineConfig | None = None
     """The per-scene depth refinement of every depth-reading setting (the CLI's default)."""
@@ -75,6 +109,26 @@ class BenchConfig:
     """The scene cache's folder (`panogrf.app.scene.session.prepare_views`; None: default)."""
     use_cache: bool = True
     """Read and write the scene cache for the test triplets' PanoGRF depth and maps."""
+
+    def __post_init__(self) -> None:
+        """Refuse heights outside 8 to `MAX_HEIGHT` rows, no scene, a sweep of more than 100
+        scenes, no setting and an unknown case."""
+        from panogrf.app.scene.session import MAX_HEIGHT
+
+        for name in ("height", "time_height", "case_height"):
+            rows = getattr(self, name)
+            if not 8 <= rows <= MAX_HEIGHT:
+                flag = flag_of(BenchConfig, name)
+                raise UserError(f"{flag} must be between 8 and {MAX_HEIGHT}, got {rows}")
+        if self.scenes < 1:
+            raise UserError(f"--scenes must be at least 1, got {self.scenes}")
+        if not 1 <= self.sweep_scenes <= 100:
+            raise UserError(f"--sweep-scenes must be between 1 and 100, got {self.sweep_scenes}")
+        if not self.settings:
+            raise UserError("--settings / --skip leave no setting to run")
+        unknown = [c for c in self.cases if c not in CASES]
+        if unknown:
+            raise UserError(f"--cases: unknown {unknown}; choose from {','.join(CASES)}")
 
 
 @dataclass

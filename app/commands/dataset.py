@@ -1,12 +1,19 @@
-"""`panogrf dataset make`: procedural indoor 360-degree scenes for training and benchmarks."""
+"""`panogrf dataset make|pack|merge`: procedural indoor 360-degree scenes for training and
+benchmarks.
+
+Each subcommand's options are the fields of its dataclass (`MakeOptions`, `PackOptions`,
+`MergeOptions`), declared once with their defaults, help and checks (`panogrf.app.options`).
+"""
 
 from __future__ import annotations
 
 import argparse
 import json
+from dataclasses import dataclass, fields
 from pathlib import Path
 
 from panogrf.app.errors import UserError
+from panogrf.app.options import add_options, from_args, option
 from panogrf.app.runtime import metres_list, number
 
 
@@ -15,6 +22,162 @@ def _baselines(text: str) -> tuple[float, ...]:
     if not values:
         raise argparse.ArgumentTypeError(f"baselines must be between 0.05 and 5 m, got {text!r}")
     return values
+
+
+def _pack_source(text: str) -> tuple[Path, int, int]:
+    folder, _, span = text.partition(":")
+    if not span:
+        return Path(folder), 0, -1
+    try:
+        first, count = (int(x) for x in span.split(":"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected FOLDER or FOLDER:FIRST:COUNT, got {text!r}"
+        ) from None
+    if first < 0 or count < 1:
+        raise argparse.ArgumentTypeError(f"FIRST must be >= 0 and COUNT >= 1, got {text!r}")
+    return Path(folder), first, count
+
+
+@dataclass(frozen=True)
+class MakeOptions:
+    """The options of `panogrf dataset make`: the dataset it renders (`config`, a
+    `panogrf.app.synth.make.MakeConfig`) and how it reports."""
+
+    out: Path = option(help="output folder")
+    """Output folder."""
+    split: str = option("train", "data split", choices=("train", "test"))
+    """"train" or "test"."""
+    count: int = option(12, "number of scenes (default {default})")
+    """Number of scenes."""
+    height: int = option(256, "panorama height; width = 2x")
+    """Panorama height in pixels (8-4096)."""
+    baselines: tuple[float, ...] = option(
+        (),
+        "comma-separated first-to-last distances in metres to cycle through, e.g. 1.0,1.5,2.0 "
+        "(default: random in 0.2-2.0)",
+        parse=_baselines,
+    )
+    """First-to-last distances (m) to cycle through; empty: random."""
+    world: str = option(
+        "classic",
+        "classic rooms, or home: household materials, bright windows, rugs, sun patches, "
+        "camera heights 1.0-1.8 m, baselines up to 3.5 m, middle view off the line",
+        choices=("classic", "home"),
+    )
+    """"classic" or "home"."""
+    renderer: str = option(
+        "gl",
+        "gl: fast unshadowed shading (default); pyrender: physically based, with "
+        "shadow-casting lights, sun through the windows, glossy floors and auto exposure "
+        "(about 30x slower; runs in --workers processes)",
+        choices=("gl", "pyrender"),
+    )
+    """"gl" or "pyrender"."""
+    workers: int = option(2, "pyrender worker processes (default {default})")
+    """Worker processes of the "pyrender" renderer."""
+    trims: float = option(
+        0.0,
+        "home world: the fraction of scenes whose main room has a picture rail with a "
+        "frieze above it and maybe a dado with wainscot below (default 0)",
+    )
+    """Home world: the fraction of scenes with trimmed walls (0-1)."""
+    coves: float = option(
+        0.0,
+        "home world: the fraction of scenes whose main room meets its ceiling in a cove or "
+        "a crown moulding (default 0)",
+    )
+    """Home world: the fraction of scenes with a cove or crown moulding (0-1)."""
+    sheers: float = option(
+        0.0,
+        "home world: the fraction of scenes whose windows get sheer or lace curtains, "
+        "pleated and glowing in front of the glass (default 0)",
+    )
+    """Home world: the fraction of scenes with sheer curtains (0-1)."""
+    seed: int = option(0, "base seed (default {default})", parse=number(int, 0))
+    """Base seed."""
+    start: int = option(0, "index of the first scene", parse=number(int, 0))
+    """Index of the first scene."""
+    json: bool = option(False, "print the summary as JSON")
+    """Print the summary as JSON."""
+    progress: bool = option(True, "no progress bar")
+    """Show a progress bar."""
+
+    def __post_init__(self) -> None:
+        """Refuse no scene, a height outside 8-4096, no worker, a finish outside 0-1 or
+        outside the home world, and an ``out`` that is a file."""
+        from panogrf.app.synth.make import FINISHES
+
+        if self.count < 1:
+            raise UserError(f"--count must be at least 1, got {self.count}")
+        if self.height < 8 or self.height > 4096:
+            raise UserError(f"--height must be between 8 and 4096, got {self.height}")
+        if self.workers < 1:
+            raise UserError(f"--workers must be at least 1, got {self.workers}")
+        for name in FINISHES:
+            p = getattr(self, name)
+            if not 0.0 <= p <= 1.0:
+                raise UserError(f"--{name} must be between 0 and 1, got {p}")
+            if p > 0 and self.world != "home":
+                raise UserError(f"--{name} needs --world home")
+        if self.out.exists() and not self.out.is_dir():
+            raise UserError(f"--out {self.out} exists and is not a folder")
+
+    def config(self):
+        """The `MakeConfig` of these options."""
+        from panogrf.app.synth.make import MakeConfig
+
+        names = {f.name for f in fields(MakeConfig)} & {f.name for f in fields(self)}
+        return MakeConfig(**{name: getattr(self, name) for name in names})
+
+
+@dataclass(frozen=True, kw_only=True)
+class PackOptions:
+    """The options of `panogrf dataset pack` (`panogrf.app.train.pack.pack_scenes`)."""
+
+    out: Path = option(help="the pack (.safetensors)")
+    """The pack (safetensors); its folder is made as the options are checked."""
+    height: int = option(128, "working height (default {default})", parse=number(int, 8, 4096))
+    """Working height (a multiple of 32)."""
+    colour_only: bool = option(
+        False,
+        "leave the true depth out (a third of the size): for `panogrf train renderer`, "
+        "which never reads it; a depth training refuses such a pack",
+    )
+    """Leave the true depth out."""
+    sources: list = option(
+        help="dataset folders, each FOLDER (every scene) or FOLDER:FIRST:COUNT",
+        positional=True,
+        nargs="+",
+        parse=_pack_source,
+    )
+    """(folder, first scene, count; -1: all) of each source."""
+
+    def __post_init__(self) -> None:
+        """Refuse an ``out`` not ending in .safetensors or not writable (its folder made,
+        as before) and a height that is no multiple of 32."""
+        from panogrf.app.files.atomic import check_writable
+
+        if self.out.suffix != ".safetensors":
+            raise UserError(f"--out must end in .safetensors, got {self.out}")
+        try:  # the pack's folder is made for it, as before
+            self.out.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            why = exc.strerror or exc
+            raise UserError(f"--out: cannot make {self.out.parent} ({why})") from None
+        check_writable(self.out)  # a folder of that name, a read-only place (T13)
+        if self.height % 32:
+            raise UserError(f"--height must be a multiple of 32, got {self.height}")
+
+
+@dataclass(frozen=True, kw_only=True)
+class MergeOptions:
+    """The options of `panogrf dataset merge` (`panogrf.app.synth.make.merge_datasets`)."""
+
+    out: Path = option(help="the merged dataset folder")
+    """The merged dataset folder."""
+    sources: list = option(help="dataset folders to merge", positional=True, nargs="+", parse=Path)
+    """The dataset folders to merge."""
 
 
 def register(subparsers) -> None:
@@ -34,60 +197,7 @@ def register(subparsers) -> None:
             "--seed; train and test use disjoint seeds and disjoint textures."
         ),
     )
-    make.add_argument("--out", type=Path, required=True, help="output folder")
-    make.add_argument("--split", choices=("train", "test"), default="train", help="data split")
-    make.add_argument("--count", type=int, default=12, help="number of scenes (default 12)")
-    make.add_argument("--height", type=int, default=256, help="panorama height; width = 2x")
-    make.add_argument(
-        "--baselines",
-        type=_baselines,
-        default=(),
-        help="comma-separated first-to-last distances in metres to cycle through, e.g. 1.0,1.5,2.0 "
-        "(default: random in 0.2-2.0)",
-    )
-    make.add_argument(
-        "--world",
-        choices=("classic", "home"),
-        default="classic",
-        help="classic rooms, or home: household materials, bright windows, rugs, sun patches, "
-        "camera heights 1.0-1.8 m, baselines up to 3.5 m, middle view off the line",
-    )
-    make.add_argument(
-        "--renderer",
-        choices=("gl", "pyrender"),
-        default="gl",
-        help="gl: fast unshadowed shading (default); pyrender: physically based, with "
-        "shadow-casting lights, sun through the windows, glossy floors and auto exposure "
-        "(about 30x slower; runs in --workers processes)",
-    )
-    make.add_argument(
-        "--workers", type=int, default=2, help="pyrender worker processes (default 2)"
-    )
-    make.add_argument(
-        "--trims",
-        type=float,
-        default=0.0,
-        help="home world: the fraction of scenes whose main room has a picture rail with a "
-        "frieze above it and maybe a dado with wainscot below (default 0)",
-    )
-    make.add_argument(
-        "--coves",
-        type=float,
-        default=0.0,
-        help="home world: the fraction of scenes whose main room meets its ceiling in a cove or "
-        "a crown moulding (default 0)",
-    )
-    make.add_argument(
-        "--sheers",
-        type=float,
-        default=0.0,
-        help="home world: the fraction of scenes whose windows get sheer or lace curtains, "
-        "pleated and glowing in front of the glass (default 0)",
-    )
-    make.add_argument("--seed", type=number(int, 0), default=0, help="base seed (default 0)")
-    make.add_argument("--start", type=number(int, 0), default=0, help="index of the first scene")
-    make.add_argument("--json", action="store_true", help="print the summary as JSON")
-    make.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_options(make, MakeOptions)
     make.set_defaults(func=run_make)
     pack = sub.add_parser(
         "pack",
@@ -102,22 +212,7 @@ def register(subparsers) -> None:
         epilog="example: panogrf dataset pack --out packs/lit.safetensors data/train_pbr "
         "data/train_mix:600:200",
     )
-    pack.add_argument("--out", type=Path, required=True, help="the pack (.safetensors)")
-    pack.add_argument(
-        "--height", type=number(int, 8, 4096), default=128, help="working height (default 128)"
-    )
-    pack.add_argument(
-        "--colour-only",
-        action="store_true",
-        help="leave the true depth out (a third of the size): for `panogrf train renderer`, "
-        "which never reads it; a depth training refuses such a pack",
-    )
-    pack.add_argument(
-        "sources",
-        type=_pack_source,
-        nargs="+",
-        help="dataset folders, each FOLDER (every scene) or FOLDER:FIRST:COUNT",
-    )
+    add_options(pack, PackOptions)
     pack.set_defaults(func=run_pack)
     merge = sub.add_parser(
         "merge",
@@ -129,103 +224,53 @@ def register(subparsers) -> None:
             "different --start)."
         ),
     )
-    merge.add_argument("--out", type=Path, required=True, help="the merged dataset folder")
-    merge.add_argument("sources", type=Path, nargs="+", help="dataset folders to merge")
+    add_options(merge, MergeOptions)
     merge.set_defaults(func=run_merge)
 
 
 def run_make(args: argparse.Namespace) -> int:
-    from panogrf.app.synth.make import MakeConfig, make_dataset
+    from panogrf.app.synth.make import make_dataset
 
-    if args.count < 1:
-        raise UserError(f"--count must be at least 1, got {args.count}")
-    if args.height < 8 or args.height > 4096:
-        raise UserError(f"--height must be between 8 and 4096, got {args.height}")
-    if args.workers < 1:
-        raise UserError(f"--workers must be at least 1, got {args.workers}")
-    from panogrf.app.synth.make import FINISHES
-
-    for name in FINISHES:
-        p = getattr(args, name)
-        if not 0.0 <= p <= 1.0:
-            raise UserError(f"--{name} must be between 0 and 1, got {p}")
-        if p > 0 and args.world != "home":
-            raise UserError(f"--{name} needs --world home")
-    if args.out.exists() and not args.out.is_dir():
-        raise UserError(f"--out {args.out} exists and is not a folder")
-    cfg = MakeConfig(
-        out=args.out,
-        split=args.split,
-        count=args.count,
-        height=args.height,
-        baselines=args.baselines,
-        world=args.world,
-        renderer=args.renderer,
-        workers=args.workers,
-        **{name: getattr(args, name) for name in FINISHES},
-        seed=args.seed,
-        start=args.start,
-    )
+    options = from_args(MakeOptions, args)
+    out = options.out
     try:
-        summary = make_dataset(cfg, progress=not args.no_progress)
+        summary = make_dataset(options.config(), progress=options.progress)
     except PermissionError as exc:
-        raise UserError(f"cannot write to {args.out}: {exc.strerror}") from None
+        raise UserError(f"cannot write to {out}: {exc.strerror}") from None
     except OSError as exc:  # a file where a scene folder goes, a full disk, ...
         where = f" ({exc.filename})" if exc.filename else ""
-        raise UserError(f"cannot write to {args.out}: {exc.strerror or exc}{where}") from None
-    if args.json:
+        raise UserError(f"cannot write to {out}: {exc.strerror or exc}{where}") from None
+    if options.json:
         print(json.dumps(summary, indent=2))
     else:
         print(
             f"wrote {summary['scenes']} scenes ({summary['panoramas']} panoramas, "
             f"{summary['width']}x{summary['height']}, "
             f"at most {summary['max_triangles']} triangles) "
-            f"to {args.out} in {summary['seconds']:.1f} s: {summary['panoramas_per_s']:.1f} "
+            f"to {out} in {summary['seconds']:.1f} s: {summary['panoramas_per_s']:.1f} "
             f"panoramas/s end to end (render {summary['render_panoramas_per_s']:.1f}/s)"
         )
     return 0
 
 
-def _pack_source(text: str) -> tuple[Path, int, int]:
-    folder, _, span = text.partition(":")
-    if not span:
-        return Path(folder), 0, -1
-    try:
-        first, count = (int(x) for x in span.split(":"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"expected FOLDER or FOLDER:FIRST:COUNT, got {text!r}"
-        ) from None
-    if first < 0 or count < 1:
-        raise argparse.ArgumentTypeError(f"FIRST must be >= 0 and COUNT >= 1, got {text!r}")
-    return Path(folder), first, count
-
-
 def run_pack(args: argparse.Namespace) -> int:
     from panogrf.app.train.pack import pack_scenes
 
-    if args.out.suffix != ".safetensors":
-        raise UserError(f"--out must end in .safetensors, got {args.out}")
-    from panogrf.app.files.atomic import check_writable
-
-    try:  # the pack's folder is made for it, as before
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise UserError(f"--out: cannot make {args.out.parent} ({exc.strerror or exc})") from None
-    check_writable(args.out)  # a folder of that name, a read-only place (T13)
-    if args.height % 32:
-        raise UserError(f"--height must be a multiple of 32, got {args.height}")
+    options = from_args(PackOptions, args)
     try:
-        summary = pack_scenes(args.sources, args.out, args.height, depth=not args.colour_only)
+        summary = pack_scenes(
+            options.sources, options.out, options.height, depth=not options.colour_only
+        )
     except OSError as exc:  # a full disk: the earlier pack, if any, is intact (atomic write)
-        raise UserError(f"cannot write {args.out}: {exc.strerror or exc}") from None
-    print(f"{args.out}: {summary['scenes']} scenes, {summary['bytes'] / 1e6:.1f} MB")
+        raise UserError(f"cannot write {options.out}: {exc.strerror or exc}") from None
+    print(f"{options.out}: {summary['scenes']} scenes, {summary['bytes'] / 1e6:.1f} MB")
     return 0
 
 
 def run_merge(args: argparse.Namespace) -> int:
     from panogrf.app.synth.make import merge_datasets
 
-    summary = merge_datasets(args.out, args.sources)
-    print(f"{args.out}: {summary['scenes']} scenes from {summary['sources']} datasets")
+    options = from_args(MergeOptions, args)
+    summary = merge_datasets(options.out, options.sources)
+    print(f"{options.out}: {summary['scenes']} scenes from {summary['sources']} datasets")
     return 0

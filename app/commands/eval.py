@@ -14,6 +14,8 @@ to time it afresh) and the render itself, in milliseconds per panorama (median o
 A method is a name from `panogrf.renderer.methods.METHODS`, optionally with a sampling for the
 neural ones: ``panogrf:paper`` (64 + 64 samples) or ``panogrf:fast`` (depth-guided, the
 default). Slow methods can run on the first N scenes of every baseline only (``--subset``).
+
+The options are declared once, on the fields of `EvalConfig` (`panogrf.app.options`).
 """
 
 from __future__ import annotations
@@ -23,18 +25,20 @@ import math
 import platform
 import statistics
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
 
 from panogrf.app.errors import UserError
+from panogrf.app.options import add_options, from_args, option
 from panogrf.app.runtime import (
+    ThreadOptions,
     add_prepare_options,
     add_refine_depth,
     refine_setting,
     refuse_scene_inputs,
     resolve_device,
-    thread_count,
 )
 from panogrf.renderer.methods import METHODS, Kind
 from panogrf.renderer.nadir import nadir_setting
@@ -69,6 +73,75 @@ def label(method: str, quality: str) -> str:
     return f"{method}:{quality}"
 
 
+@dataclass(frozen=True)
+class EvalConfig:
+    """What `panogrf eval` scores and where its report goes. A field made with `option` is also
+    an option of the command; the settings are checked as they are built (`UserError`, one
+    line naming the option)."""
+
+    dataset: Path = option(
+        help="a dataset (dataset.json), a folder of scene folders, or one scene folder; every "
+        "scene has three views and the middle one is scored",
+        positional=True,
+        metavar="DATASET",
+    )
+    """A dataset, a folder of scene folders, or one scene folder."""
+    out: Path = option(help="results JSON")
+    """The report (JSON), written after every scene."""
+    methods: str = option(
+        "panogrf,meshwarp,nearest",
+        "comma-separated methods, e.g. panogrf,panogrf:paper,no_mvs,snerf",
+    )
+    """Comma-separated methods, each optionally with a sampling (`parse_methods`)."""
+    height: int | None = option(None, "render height (default: data)")
+    """Rows of the renders (None: each scene's own)."""
+    baselines: str | None = option(
+        None, "baselines (m) to score (default: 1.0,1.5,2.0 for a dataset, all for a folder)"
+    )
+    """Comma-separated baselines in metres (None: 1.0, 1.5, 2.0 for a dataset, all for a
+    folder)."""
+    subset: str = option("", "methods run only on the first --subset-size scenes")
+    """Comma-separated methods (labels or names) run on the first ``subset_size`` scenes of
+    every baseline only."""
+    subset_size: int = option(5, "scenes per baseline")
+    """Scenes per baseline the ``subset`` methods run on."""
+    limit: int | None = option(None, "at most N scenes per baseline")
+    """At most this many scenes per baseline (None: all)."""
+    refine: object | None = None
+    """The per-scene depth refinement (`refine_setting`; None: the networks' depth only)."""
+
+    def __post_init__(self) -> None:
+        """Refuse unknown methods, baselines that are no numbers, a height outside 8 to
+        `MAX_HEIGHT` rows, a ``limit`` under 1 and a negative ``subset_size``."""
+        from panogrf.app.scene.session import MAX_HEIGHT
+
+        self.method_list()
+        self.baseline_list()
+        if self.height is not None and not 8 <= self.height <= MAX_HEIGHT:
+            raise UserError(f"--height must be between 8 and {MAX_HEIGHT}, got {self.height}")
+        if self.limit is not None and self.limit < 1:
+            raise UserError(f"--limit must be at least 1 scene per baseline, got {self.limit}")
+        if self.subset_size < 0:
+            raise UserError(f"--subset-size must be 0 or more, got {self.subset_size}")
+
+    def method_list(self) -> list[tuple[str, str]]:
+        """The (method, sampling) pairs ``methods`` names (`parse_methods`)."""
+        return parse_methods(self.methods)
+
+    def baseline_list(self) -> list[float] | None:
+        """The baselines, to 0.1 m (None: the default)."""
+        if self.baselines is None:
+            return None
+        try:
+            return [round(float(x), 1) for x in self.baselines.split(",") if x.strip()]
+        except ValueError:
+            raise UserError(f"--baselines: expected metres, got {self.baselines!r}") from None
+
+    def subset_names(self) -> set[str]:
+        """The methods ``subset`` names."""
+        return {x.strip() for x in self.subset.split(",") if x.strip()}
+
+
 def register(subparsers) -> None:
     parser = subparsers.add_parser(
         "eval",
@@ -78,33 +151,7 @@ def register(subparsers) -> None:
             "example: panogrf eval data/test --methods panogrf,meshwarp,nearest --out results.json"
         ),
     )
-    parser.add_argument(
-        "dataset",
-        type=Path,
-        metavar="DATASET",
-        help="a dataset (dataset.json), a folder of scene folders, or one scene folder; every "
-        "scene has three views and the middle one is scored",
-    )
-    parser.add_argument(
-        "--methods",
-        default="panogrf,meshwarp,nearest",
-        help="comma-separated methods, e.g. panogrf,panogrf:paper,no_mvs,snerf",
-    )
-    parser.add_argument("--out", type=Path, required=True, help="results JSON")
-    parser.add_argument("--height", type=int, default=None, help="render height (default: data)")
-    parser.add_argument(
-        "--baselines",
-        default=None,
-        help="baselines (m) to score (default: 1.0,1.5,2.0 for a dataset, all for a folder)",
-    )
-    parser.add_argument(
-        "--subset", default="", help="methods run only on the first --subset-size scenes"
-    )
-    parser.add_argument("--subset-size", type=int, default=5, help="scenes per baseline")
-    parser.add_argument("--limit", type=int, default=None, help="at most N scenes per baseline")
-    parser.add_argument(
-        "--threads", type=thread_count, default=0, help="torch threads (default: all)"
-    )
+    add_options(parser, EvalConfig, ThreadOptions)
     add_refine_depth(parser)
     add_prepare_options(parser)
     parser.set_defaults(func=run)
@@ -115,81 +162,30 @@ def run(args: argparse.Namespace) -> int:
     from panogrf.app.scene import session
     from panogrf.app.scene.datasets import triplets_by_baseline
     from panogrf.app.scene.folder import load_scene
-    from panogrf.app.scene.session import MAX_HEIGHT
-    from panogrf.app.scoring import image_scores
-    from panogrf.renderer.methods import SourceViews, render_view
 
-    methods = parse_methods(args.methods)
-    subset = {x.strip() for x in args.subset.split(",") if x.strip()}
-    try:
-        baselines = (
-            None
-            if args.baselines is None
-            else [round(float(x), 1) for x in args.baselines.split(",") if x.strip()]
-        )
-    except ValueError:
-        raise UserError(f"--baselines: expected metres, got {args.baselines!r}") from None
-    if args.height is not None and not 8 <= args.height <= MAX_HEIGHT:
-        raise UserError(f"--height must be between 8 and {MAX_HEIGHT}, got {args.height}")
-    if args.limit is not None and args.limit < 1:
-        raise UserError(f"--limit must be at least 1 scene per baseline, got {args.limit}")
-    if args.subset_size < 0:
-        raise UserError(f"--subset-size must be 0 or more, got {args.subset_size}")
-    if args.threads:
-        torch.set_num_threads(args.threads)
-    check_output(args.out)  # before the work: an hour of rendering must not end unwritable
+    cfg = from_args(EvalConfig, args, refine=refine_setting(args))
+    methods, subset = cfg.method_list(), cfg.subset_names()
+    from_args(ThreadOptions, args).apply()
+    check_output(cfg.out)  # before the work: an hour of rendering must not end unwritable
     skipped: list[dict] = []  # broken scenes: reported, the others scored
-    scenes, baselines = triplets_by_baseline(args.dataset, baselines, args.limit, skipped)
+    scenes, baselines = triplets_by_baseline(cfg.dataset, cfg.baseline_list(), cfg.limit, skipped)
     for broken in skipped:
         print(f"skipping {broken['why']}", flush=True)
     if not scenes:
-        raise UserError(f"{args.dataset}: no scene can be scored")
+        raise UserError(f"{cfg.dataset}: no scene can be scored")
     for _, folder in scenes:  # the report must not replace a scene's own file
-        refuse_scene_inputs(args.out, load_scene(folder))
+        refuse_scene_inputs(cfg.out, load_scene(folder))
     models = session.default_models(resolve_device(args.device))
     rows = {label(*m): {b: [] for b in baselines} for m in methods}
     seen: dict[float, int] = {b: 0 for b in baselines}
     start_all = time.perf_counter()
     for n, (b, folder) in enumerate(scenes, 1):
         try:
-            scene = load_scene(folder, load_images=True)
-            data = scene.images
-            height = args.height or scene.height
-            views = SourceViews(
-                data.images[[0, 2]],
-                data.c2w[[0, 2]],
-                refine=refine_setting(args),
-                nadir=nadir_setting(scene.metadata, args.nadir_cap),
-                device=models.device,
-            )
             index = seen[b]
             seen[b] += 1
             line = [f"[{n}/{len(scenes)}] {folder.name} ({b} m)"]
-            for method, quality in methods:
-                name = label(method, quality)
-                if (name in subset or method in subset) and index >= args.subset_size:
-                    continue
-                before = dict(views.seconds)
-                t0 = time.perf_counter()
-                cache = session.prepare_views(
-                    views, models, method, quality, args.cache_dir, not args.no_cache
-                )
-                prep = time.perf_counter() - t0
-                t0 = time.perf_counter()
-                rgb = render_view(method, views, data.c2w[1], height, models, quality)
-                ms = 1000 * (time.perf_counter() - t0)
-                scores = image_scores(rgb, data.images[1:2])
-                new = {k: v for k, v in views.seconds.items() if k not in before}
-                rows[name][b].append(
-                    scores
-                    | {
-                        "render_ms": ms,
-                        "prepare_s": prep,
-                        "prepared": new,
-                        "cache": cache.status,
-                        "scene": folder.name,
-                    }
-                )
+            for name, scores in _score_scene(cfg, args, models, folder, index):
+                rows[name][b].append(scores)
                 line.append(f"{name} {scores['ws_psnr']:.2f}")
             print("  ".join(line), flush=True)
         except (UserError, OSError) as exc:  # a scene that breaks: reported, the others scored
@@ -198,18 +194,56 @@ def run(args: argparse.Namespace) -> int:
             skipped.append({"scene": str(folder), "why": why})
             for per_b in rows.values():  # a half-scored scene counts for no method
                 per_b[b] = [r for r in per_b[b] if r["scene"] != folder.name]
-        _write(args, _report(args, methods, subset, rows, skipped, start_all), final=False)
-    report = _report(args, methods, subset, rows, skipped, start_all)
+        _write(cfg, _report(cfg, methods, subset, rows, skipped, start_all), final=False)
+    report = _report(cfg, methods, subset, rows, skipped, start_all)
     print(format_table(report["results"], baselines))
-    _write(args, report)
-    print(f"wrote {args.out}")
+    _write(cfg, report)
+    print(f"wrote {cfg.out}")
     if skipped:
         print(f"{len(skipped)} scene(s) skipped: " + "; ".join(x["scene"] for x in skipped))
         return 1
     return 0
 
 
-def _report(args, methods, subset, rows, skipped, start_all) -> dict:
+def _score_scene(cfg: EvalConfig, args: argparse.Namespace, models, folder: Path, index: int):
+    """Each method's scores on the scene in ``folder`` (the ``index``-th of its baseline), as
+    (label, scores) pairs, one as each is scored."""
+    from panogrf.app.scene import session
+    from panogrf.app.scene.folder import load_scene
+    from panogrf.app.scoring import image_scores
+    from panogrf.renderer.methods import SourceViews, render_view
+
+    scene = load_scene(folder, load_images=True)
+    data = scene.images
+    height = cfg.height or scene.height
+    views = SourceViews(
+        data.images[[0, 2]],
+        data.c2w[[0, 2]],
+        refine=cfg.refine,
+        nadir=nadir_setting(scene.metadata, args.nadir_cap),
+        device=models.device,
+    )
+    subset = cfg.subset_names()
+    for method, quality in cfg.method_list():
+        name = label(method, quality)
+        if (name in subset or method in subset) and index >= cfg.subset_size:
+            continue
+        before = dict(views.seconds)
+        t0 = time.perf_counter()
+        cache = session.prepare_views(
+            views, models, method, quality, args.cache_dir, not args.no_cache
+        )
+        prep = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        rgb = render_view(method, views, data.c2w[1], height, models, quality)
+        ms = 1000 * (time.perf_counter() - t0)
+        scores = image_scores(rgb, data.images[1:2])
+        new = {k: v for k, v in views.seconds.items() if k not in before}
+        timing = {"render_ms": ms, "prepare_s": prep, "prepared": new, "cache": cache.status}
+        yield name, scores | timing | {"scene": folder.name}
+
+
+def _report(cfg: EvalConfig, methods, subset, rows, skipped, start_all) -> dict:
     """The report of the scenes scored so far."""
     results = {}
     for name, per_b in rows.items():
@@ -227,11 +261,11 @@ def _report(args, methods, subset, rows, skipped, start_all) -> dict:
             )
     report = {
         "what": "middle view of each test triplet rendered from the first and last views",
-        "dataset": str(args.dataset),
-        "height": args.height or "dataset's",
-        "refine_depth": bool(args.refine_depth),
+        "dataset": str(cfg.dataset),
+        "height": cfg.height or "dataset's",
+        "refine_depth": cfg.refine is not None,
         "methods": [label(*m) for m in methods],
-        "subset": {"methods": sorted(subset), "scenes_per_baseline": args.subset_size},
+        "subset": {"methods": sorted(subset), "scenes_per_baseline": cfg.subset_size},
         "results": results,
         "per_scene": {k: {str(b): v for b, v in per_b.items()} for k, per_b in rows.items()},
         "machine": f"{platform.machine()}, {torch.get_num_threads()} torch threads, CPU",
@@ -241,20 +275,20 @@ def _report(args, methods, subset, rows, skipped, start_all) -> dict:
     return report
 
 
-def _write(args, report: dict, final: bool = True) -> None:
+def _write(cfg: EvalConfig, report: dict, final: bool = True) -> None:
     """``report`` to ``--out``, atomically: after every scene (what was scored survives a
     later failure) and at the end."""
     from panogrf.app.files.atomic import json_text, nan_to_null, write_json_atomic
 
     report = nan_to_null(report)  # a metric undefined at this size (LPIPS below 31 rows)
     try:
-        write_json_atomic(args.out, report)
+        write_json_atomic(cfg.out, report)
     except OSError as exc:  # e.g. the disk filled up meanwhile: the results go to stdout
         if not final:
             return
         print(json_text(report))
         raise UserError(
-            f"cannot write {args.out} ({exc.strerror or exc}); the results are printed above"
+            f"cannot write {cfg.out} ({exc.strerror or exc}); the results are printed above"
         ) from None
 
 

@@ -172,3 +172,26 @@ def test_peak_memory_counts_what_a_block_holds_at_once_even_in_reused_memory():
         peaks.append(mem.mib)
     assert mem.kind == "heap"
     assert all(120 <= p <= 140 for p in peaks), peaks
+
+
+def test_bench_settings_check_themselves_when_built_directly(tmp_path):
+    from panogrf.app.bench.run import BenchConfig
+    from panogrf.app.bench.settings import SETTINGS
+    from panogrf.app.errors import UserError
+
+    with pytest.raises(UserError, match="^--time-height must be between 8 and 4096, got 4$"):
+        BenchConfig(tmp_path, SETTINGS, time_height=4)
+    with pytest.raises(UserError, match="^--case-height must be between 8 and 4096, got 5000$"):
+        BenchConfig(tmp_path, SETTINGS, case_height=5000)
+    with pytest.raises(UserError, match="leave no setting"):
+        BenchConfig(tmp_path, ())
+    with pytest.raises(UserError, match=r"^--cases: unknown \['nope'\]"):
+        BenchConfig(tmp_path, SETTINGS, cases=("at_source", "nope"))
+    assert BenchConfig(tmp_path, SETTINGS, cases=(), sweep=()).height == 256
+
+
+def test_bench_parses_its_cases_and_leaves_out_blanks(tmp_path, capsys):
+    args = ["bench", str(tmp_path), "--out", str(tmp_path / "o"), "--cases", "poles, x,"]
+    assert cli.main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.endswith(f"--cases: unknown ['x']; choose from {','.join(CASES)}")

@@ -105,3 +105,19 @@ def test_broken_scenes_are_reported_and_the_others_scored(tmp_path, monkeypatch,
     assert [s["scene"][-1] for s in report["skipped"]] == ["b", "c"]
     printed = capsys.readouterr().out
     assert "skipping" in printed and "unreadable" in printed
+
+
+def test_the_settings_check_themselves_when_built_directly(tmp_path):
+    from panogrf.app.commands.eval import EvalConfig
+    from panogrf.app.errors import UserError
+
+    out = tmp_path / "r.json"
+    with pytest.raises(UserError, match="^--methods lists no method$"):
+        EvalConfig(tmp_path, out, methods=" , ")
+    with pytest.raises(UserError, match="^--baselines: expected metres, got '1,x'$"):
+        EvalConfig(tmp_path, out, baselines="1,x")
+    with pytest.raises(UserError, match="^--limit must be at least 1 scene per baseline"):
+        EvalConfig(tmp_path, out, limit=0)
+    cfg = EvalConfig(tmp_path, out, methods="panogrf:paper,nearest", baselines="1.04, 2,")
+    assert cfg.method_list() == [("panogrf", "paper"), ("nearest", "fast")]
+    assert cfg.baseline_list() == [1.0, 2.0] and cfg.subset_names() == set()

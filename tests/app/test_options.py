@@ -157,3 +157,22 @@ def test_the_choices_are_the_networks_presets():
     depth = {f.name: opt for f, opt in options(configs.TrainDepthConfig)}
     assert set(depth["mvs_preset"].choices) == set(MVS_PRESETS)
     assert set(configs.RENDERER_PRESETS) == set(RENDERER_PRESETS)
+
+
+@dataclass(frozen=True)
+class Positional:
+    data: Path = option(help="a dataset", positional=True, metavar="DATASET")
+    sources: list = option(help="the sources", positional=True, nargs="+", parse=Path)
+    out: Path = option(help="output")
+
+
+def test_a_positional_field_is_an_argument_named_by_its_place():
+    parser = _parser(Positional)
+    actions = _actions(parser)
+    assert actions["data"].option_strings == [] and actions["data"].metavar == "DATASET"
+    assert actions["sources"].nargs == "+" and actions["sources"].type is Path
+    assert flag_of(Positional, "data") == "DATASET" and flag_of(Positional, "out") == "--out"
+    args = parser.parse_args(["d", "a", "b", "--out", "o"])
+    built = from_args(Positional, args)
+    assert built == Positional(data=Path("d"), sources=[Path("a"), Path("b")], out=Path("o"))
+    assert "DATASET sources [sources ...]" in parser.format_usage()

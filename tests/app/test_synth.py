@@ -208,3 +208,19 @@ def test_merge_datasets_links_every_scene(tmp_path):
     with pytest.raises(UserError, match="no dataset.json"):
         merge_datasets(tmp_path / "ax", [tmp_path / "a", tmp_path / "missing"])
     assert not (tmp_path / "ax").exists()  # nothing written on a refusal
+
+
+def test_dataset_options_check_themselves_and_give_the_make_config(tmp_path):
+    from panogrf.app.commands.dataset import MakeOptions, MergeOptions, PackOptions
+    from panogrf.app.errors import UserError
+
+    with pytest.raises(UserError, match="^--coves needs --world home$"):
+        MakeOptions(out=tmp_path, coves=0.5)
+    with pytest.raises(UserError, match="^--workers must be at least 1, got 0$"):
+        MakeOptions(out=tmp_path, workers=0)
+    options = MakeOptions(out=tmp_path, world="home", sheers=0.5, seed=3, progress=False)
+    assert options.config() == MakeConfig(out=tmp_path, world="home", sheers=0.5, seed=3)
+    with pytest.raises(UserError, match="^--height must be a multiple of 32, got 100$"):
+        PackOptions(out=tmp_path / "p" / "x.safetensors", height=100, sources=[])
+    assert (tmp_path / "p").is_dir()  # the pack's folder is made as before
+    assert MergeOptions(out=tmp_path, sources=[tmp_path]).sources == [tmp_path]
