@@ -33,7 +33,13 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from panogrf.model.blend import DepthBlend, blend_views
-from panogrf.model.depth_config import DEFAULT_SWEEP, SHORT_SWEEP, DepthConfig, view_sources
+from panogrf.model.depth_config import (
+    DEFAULT_SWEEP,
+    SHORT_SWEEP,
+    DepthConfig,
+    DepthMode,
+    view_sources,
+)
 from panogrf.model.mono import MonoDepthNet, MonoOutput
 from panogrf.model.mvs import MVSNet
 from panogrf.model.progress import open_stage, stage
@@ -41,13 +47,14 @@ from panogrf.model.refine import nearest_sources
 from panogrf.model.select import HypothesisSelector, SelectorChooser
 from panogrf.model.sweep import SweepConfig, median_filter, sweep_depth
 
-MODES = ("full", "mono", "mvs")
+MODES = tuple(DepthMode)
 __all__ = [
     "DEFAULT_SWEEP",
     "MODES",
     "SHORT_SWEEP",
     "DepthConfig",
     "DepthEstimate",
+    "DepthMode",
     "DepthEstimator",
 ]
 
@@ -133,13 +140,13 @@ class DepthEstimator(nn.Module):
     def d_max(self) -> float:
         return self.mono.config.d_max
 
-    def _fuses(self, mode: str) -> bool:
+    def _fuses(self, mode: DepthMode) -> bool:
         """Mono-guided depth is fused with the unguided network's by the photometric sweep."""
-        return self.fuse and mode == "full" and "mvs" in self.mvs and self.sweep is not None
+        return self.fuse and mode == DepthMode.FULL and "mvs" in self.mvs and self.sweep is not None
 
-    def _canonical(self, mode: str) -> bool:
+    def _canonical(self, mode: DepthMode) -> bool:
         """The MVS networks (and the sweep) work in the world of the monocular network's scale."""
-        return self.canonical and mode == "full" and "mvs" in self.mvs
+        return self.canonical and mode == DepthMode.FULL and "mvs" in self.mvs
 
     def _clean(self, depth: Tensor) -> Tensor:
         return torch.nan_to_num(depth, nan=self.d_max, posinf=self.d_max).clamp(0.05, self.d_max)
@@ -221,7 +228,7 @@ class DepthEstimator(nn.Module):
         self,
         images: Tensor,
         c2w: Tensor,
-        mode: str = "full",
+        mode: DepthMode | str = DepthMode.FULL,
         detail: Tensor | None = None,
         *,
         record: list[dict[str, Any]] | None = None,
@@ -238,8 +245,9 @@ class DepthEstimator(nn.Module):
         where the search from each hypothesis ends; ``blend_record`` the blend's input and the
         two depths it blends (the depth is then not blended)."""
         if mode not in MODES:
-            raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
-        if mode != "mono" and mode not in self.mvs:
+            raise ValueError(f"mode must be one of {[str(m) for m in MODES]}, got {mode!r}")
+        mode = DepthMode(mode)
+        if mode != DepthMode.MONO and mode not in self.mvs:
             raise ValueError(f"no weights loaded for mode {mode!r}")
         h, w = images.shape[-2:]
         if w != 2 * h:
@@ -247,12 +255,12 @@ class DepthEstimator(nn.Module):
         hw = (self.working_height, 2 * self.working_height)
         small = F.interpolate(images, size=hw, mode="area") if (h, w) != hw else images
         net = self._networks(mode, small, c2w)
-        if mode != "mono" and self.sweep is not None and any(net.sources):
+        if mode != DepthMode.MONO and self.sweep is not None and any(net.sources):
             pixels = images if detail is None else detail
             net.depth = self._photometric(mode, pixels, net, record, blend_record)
         return self._finish(net, (h, w))
 
-    def _networks(self, mode: str, small: Tensor, c2w: Tensor) -> _NetworkDepth:
+    def _networks(self, mode: DepthMode, small: Tensor, c2w: Tensor) -> _NetworkDepth:
         """The monocular network, then (modes "full" and "mvs") the MVS passes over every view
         with sources: the unguided one (twice when it first fixes the world's scale, see
         ``canonical``), then the mode's own."""
@@ -261,7 +269,7 @@ class DepthEstimator(nn.Module):
             mono = self.mono(small)
             progress.advance()
         net = _NetworkDepth(mono, mono.depth.clone(), [[] for _ in range(v)], c2w)
-        if mode == "mono":
+        if mode == DepthMode.MONO:
             net.depth = self._clean(net.depth)
             return net
         if v == 1:
@@ -298,7 +306,7 @@ class DepthEstimator(nn.Module):
 
     def _photometric(
         self,
-        mode: str,
+        mode: DepthMode,
         pixels: Tensor,
         net: _NetworkDepth,
         record: list[dict[str, Any]] | None,
@@ -313,7 +321,7 @@ class DepthEstimator(nn.Module):
         if fused and (self.selector is not None or record is not None):
             assert net.confidence is not None  # `_networks` sets it in every multi-view mode
             chooser = self._chooser(pixels, net.mono.depth, net.confidence, record)
-        sweep = self.fusion_sweep if mode == "full" else self.sweep
+        sweep = self.fusion_sweep if mode == DepthMode.FULL else self.sweep
         assert sweep is not None  # `forward` runs the photometric stages with a sweep only
         depth = sweep_depth(
             pixels,

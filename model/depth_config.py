@@ -4,11 +4,24 @@ fixed at construction, with the sweeps it uses; the figures that chose each sett
 from __future__ import annotations
 
 from dataclasses import dataclass
+from enum import StrEnum
 
 import torch
 from torch import Tensor
 
 from panogrf.model.sweep import SweepConfig
+
+
+class DepthMode(StrEnum):
+    """What the depth chain runs (`panogrf.model.depth.DepthEstimator.forward`)."""
+
+    FULL = "full"
+    """The monocular network guiding the MVS network, fused with the unguided one (PanoGRF)."""
+    MVS = "mvs"
+    """The unguided MVS network alone (the no-mono ablation)."""
+    MONO = "mono"
+    """The monocular network alone (the no-MVS ablation)."""
+
 
 DEFAULT_SWEEP = SweepConfig()
 #: A short search (0.86x to 1.16x) for mode "full"'s sweep: measured, not the default (see

@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING, cast
 import torch
 from torch import Tensor
 
-from panogrf.model.depth import DepthEstimator
+from panogrf.model.depth import DepthEstimator, DepthMode
 from panogrf.model.refine import RefineConfig, nearest_sources, refine_depth
 from panogrf.model.render_net import RendererNet
 from panogrf.renderer.baselines import render_meshwarp, render_nearest
@@ -61,7 +61,7 @@ class MethodSpec:
     one description every caller passes down (no (preset, mode) strings on the way)."""
 
     name: str
-    depth_mode: str | None
+    depth_mode: DepthMode | None
     """`panogrf.model.depth.MODES` entry, or None for methods that read no depth."""
     renderer: str | None
     """`panogrf.model.render_net.PRESETS` entry, for the neural methods."""
@@ -79,10 +79,10 @@ class MethodSpec:
 METHODS: dict[str, MethodSpec] = {
     m.name: m
     for m in (
-        MethodSpec("panogrf", "full", "panogrf", Kind.NEURAL),
-        MethodSpec("no_mono", "mvs", "panogrf", Kind.NEURAL),
-        MethodSpec("no_mvs", "mono", "panogrf", Kind.NEURAL),
-        MethodSpec("meshwarp", "full", None, Kind.MESHWARP),
+        MethodSpec("panogrf", DepthMode.FULL, "panogrf", Kind.NEURAL),
+        MethodSpec("no_mono", DepthMode.MVS, "panogrf", Kind.NEURAL),
+        MethodSpec("no_mvs", DepthMode.MONO, "panogrf", Kind.NEURAL),
+        MethodSpec("meshwarp", DepthMode.FULL, None, Kind.MESHWARP),
         MethodSpec("nearest", None, None, Kind.NEAREST),
         MethodSpec("snerf", None, None, Kind.SNERF),
     )
@@ -167,7 +167,7 @@ class SourceViews:
             with torch.no_grad():
                 out = est(_resize(self.images, small), self.c2w, mode, detail=self.images)
             depth = self._floor_filled(out.depth)
-            if self.refine is not None and mode != "mono":
+            if self.refine is not None and mode != DepthMode.MONO:
                 refined = self.refined_depth(depth, mode, models)
                 assert refined is not None  # None only when told to stop, and nothing tells it
                 depth = self._floor_filled(refined)
