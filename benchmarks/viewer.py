@@ -185,12 +185,8 @@ def walk_and_refine(views, net, cache, threads: int, args):
     """The scripted session (walk, then still until refined, ``args.repeats`` times): the
     preview's median frame period while moving (ms), the seconds to the first and the last
     refined level of each cycle, the setup and the session's config."""
-    from panogrf.app.viewer.window import (
-        UPSAMPLED_MOVING_ROWS,
-        ViewerSetup,
-        parse_script,
-        run_viewer,
-    )
+    from panogrf.app.viewer.setup import UPSAMPLED_MOVING_ROWS, ViewerSetup
+    from panogrf.app.viewer.window import parse_script, run_viewer
     from panogrf.app.viewer.worker import LEVELS, RenderWorker
 
     worker = RenderWorker(net, cache, levels=LEVELS, threads=threads).start()

@@ -2,7 +2,8 @@
 
 Registered under `panogrf scene` by `panogrf.app.commands.scene`. The pose work lives in
 `panogrf.app.poses`; this module reads the panoramas, parses options, writes the scene folder
-(`panogrf.app.scene.folder.write_scene`) and prints the report.
+(`panogrf.app.scene.folder.write_scene`) and prints the report (its lines and its JSON:
+`panogrf.app.commands.scene_poses_report`).
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from panogrf.app.commands.scene_poses_report import ADVICE, REPORT, _deg, _report_json, pose_report
 from panogrf.app.errors import UserError
 from panogrf.app.files.images import read_rgb
 from panogrf.app.poses import scale as sc
@@ -242,69 +244,6 @@ def _add_faces(sub: argparse._SubParsersAction) -> None:
 
 
 # --- from-panoramas -----------------------------------------------------------------------
-
-
-#: What to do when panoramas cannot be posed (the failure's one line ends with it).
-ADVICE = (
-    "try a photo between the two (each pair should share most of the room: 1-3 m apart "
-    "indoors), fewer moving objects or people, or poses from another tool with "
-    "`panogrf scene import --format colmap|opensfm|tum`"
-)
-
-#: The report's file in the scene folder (JSON; the printed report is its "lines").
-REPORT = "poses_report.json"
-
-
-def _deg(value: float | None) -> str:
-    return "n/a" if value is None else f"{value:.3f} deg"
-
-
-def pose_report(files: list[Path], est) -> list[str]:
-    """The printed report of a `ColmapEstimate`: a line per pair and per view."""
-    lines = [f"posing (COLMAP {est.mapper or 'mappers'}, {est.seconds:.1f} s):", "pairs:"]
-    for p in est.pairs:
-        state = (
-            f"ok, {p.inliers} inliers, {p.shared_points} shared points, "
-            f"median residual {_deg(p.residual_deg)}"
-            if p.ok
-            else f"FAILED: {p.reason}"
-        )
-        lines.append(f"  {files[p.i].name} - {files[p.j].name}: {p.matches} matches; {state}")
-    lines.append("views:")
-    lines += [f"  {files[v.index].name}: {v.note}" for v in est.views]
-    return lines
-
-
-def _report_json(files: list[Path], est, lines: list[str]) -> dict:
-    return {
-        "method": f"SIFT on cube faces, pooled and guided matching; COLMAP {est.mapper}",
-        "seconds": round(est.seconds, 2),
-        "median_residual_deg": est.residual_deg,
-        "pairs": [
-            {
-                "a": files[p.i].name,
-                "b": files[p.j].name,
-                "matches": p.matches,
-                "inliers": p.inliers,
-                "shared_points": p.shared_points,
-                "median_residual_deg": p.residual_deg,
-                "ok": p.ok,
-                "reason": p.reason,
-            }
-            for p in est.pairs
-        ],
-        "views": [
-            {
-                "file": str(files[v.index]),
-                "registered": v.registered,
-                "points": v.points,
-                "median_residual_deg": v.residual_deg,
-                "note": v.note,
-            }
-            for v in est.views
-        ],
-        "lines": lines,
-    }
 
 
 def run_from_panoramas(args: argparse.Namespace) -> int:

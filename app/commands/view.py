@@ -143,13 +143,9 @@ def _session(args: argparse.Namespace, threads: int) -> int:
     import numpy as np
 
     from panogrf.app.viewer.screen import refine_summary
+    from panogrf.app.viewer.setup import UPSAMPLED_MOVING_ROWS, ViewerSetup
     from panogrf.app.viewer.torch_threads import off_main_thread
-    from panogrf.app.viewer.window import (
-        UPSAMPLED_MOVING_ROWS,
-        ViewerSetup,
-        parse_script,
-        run_viewer,
-    )
+    from panogrf.app.viewer.window import parse_script, run_viewer
     from panogrf.app.viewer.worker import RenderWorker
 
     try:

@@ -4,6 +4,8 @@
   ratio-tested and cross-checked matches, guided matching along epipolar planes.
 - `panogrf.app.poses.colmap`: the pipeline for V views: those features and matches, COLMAP's
   verification, global mapping and bundle adjustment (pycolmap), a report per pair and view.
+- `panogrf.app.poses.colmap_report`: the poses and that report made from COLMAP's reconstruction
+  (or from the best verified pair alone).
 - `panogrf.app.poses.geometry`: triangulation of a pair and
   bundle adjustment on angular residuals (the two-view case).
 - `panogrf.app.poses.scale`: upright (floor plane or level cameras), metric scale from a camera

@@ -18,109 +18,35 @@ V panorama/perspective, 1 refined, 2 preview, 3 distance, 4 source views (Tab: n
 J: jump to it), R reset the view, K add keyframe, G go to the next keyframe, Backspace delete
 the selected keyframe, , . its transition -/+ 0.5 s, C clear keyframes, P play/stop the path,
 O save it (camera_path.json), X screenshot (the window), F clean panorama (2:1, no overlay),
-H toggle the overlay, Esc quit.
+H toggle the overlay, Esc quit. The keys and the mouse are handled in
+`panogrf.app.viewer.controls`; what the window is given, `ViewerSetup`, is in
+`panogrf.app.viewer.setup`.
 """
 
 from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
-from pathlib import Path
 
 import moderngl
 import moderngl_window as mglw
 import numpy as np
 
-from panogrf.app.scene.types import shifted
 from panogrf.app.viewer import recording, screen
 from panogrf.app.viewer.camera import FlyCamera, walk_speed
+from panogrf.app.viewer.controls import ControlsMixin
 from panogrf.app.viewer.exports import ExportsMixin
 from panogrf.app.viewer.overlay import OverlayMixin
 from panogrf.app.viewer.refinement import Refinement
-from panogrf.app.viewer.script import KEY_NAMES, ScriptPlayer, parse_script
+from panogrf.app.viewer.script import ScriptPlayer, parse_script
+from panogrf.app.viewer.setup import UPSAMPLED_MOVING_ROWS as UPSAMPLED_MOVING_ROWS
+from panogrf.app.viewer.setup import ViewerSetup
 
 __all__ = ["PanoViewer", "ViewerSetup", "parse_script", "run_viewer"]
 from panogrf.shaders import load as load_shader
 
-MODES = ("refined", "preview", "distance", "sources")
-LOOK_SPEED = 1.5  # radians per second for the arrow keys
-DRAG_SPEED = 0.004  # radians per pixel of mouse drag
 
-
-#: Rows of the preview while moving when it is shown upsampled (``ViewerSetup.sharp`` off):
-#: 24.42 dB on the validation scenes, at 0.85 times the sharp preview's frame cost
-#: (`benchmarks/preview_quality.py`); fewer rows blur it further.
-UPSAMPLED_MOVING_ROWS = 256
-
-
-@dataclass
-class ViewerSetup:
-    """Everything the window needs, prepared before it opens (see `panogrf view`)."""
-
-    images: np.ndarray  # [V, H, W, 3] uint8 sources
-    depth: np.ndarray  # [V, h, w] metres (estimated)
-    c2w: np.ndarray  # [V, 4, 4]
-    worker: object | None  # RenderWorker (None: preview only)
-    start_pose: np.ndarray
-    preview_height: int = 512
-    # Rows of the preview's geometry while the camera moves (None: preview_height). With
-    # ``sharp`` (the sharp preview) its colours are read from the sources at preview_height
-    # rows all the same, and a still camera keeps the same geometry; without, the preview is
-    # drawn at these rows and shown upsampled, and the first still frame draws it at
-    # preview_height. The defaults here (sharp, 128 rows, 128-row meshes simplified to 10000
-    # triangles) come from `python benchmarks/preview_quality.py` on 12 validation scenes:
-    # see `lab/results.md`, the sharp GL preview.
-    moving_height: int | None = 128  # without sharp: UPSAMPLED_MOVING_ROWS
-    sharp: bool = True
-    path_out: Path = Path("camera_path.json")
-    screenshot_dir: Path = Path(".")
-    fixed_step: float | None = None  # seconds per frame (None: wall clock)
-    frames: int | None = None  # close after this many frames
-    script: list[tuple[str, int]] = field(default_factory=list)  # (key name, frames held)
-    fps: float = 30.0
-    log: object = print
-    mesh_height: int | None = 128  # rows of the preview's depth meshes (None: the depth's own)
-    mesh_triangles: int | None = 10000  # each mesh simplified to this many (None: all kept)
-    max_views: int | None = 2  # sources drawn per frame, the nearest (None: all)
-    # The per-scene depth refinement running in the background (`SceneRefiner`; None: none):
-    # its refined scene replaces the plain one at the first frame after it is ready.
-    scene_refiner: object | None = None
-    # Each source's rig at the nadir ([V, H, W] bool, `SourceViews.nadir_mask`; None: none):
-    # the preview draws none of a source's mesh there.
-    masks: np.ndarray | None = None
-    # The world point the poses above are relative to (`SceneImages.origin`): saved camera
-    # paths and printed positions are the world's.
-    origin: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    # Dragging turns the camera with the mouse (as in games) instead of moving the image.
-    drag_looks: bool = False
-    # Keyframes to start with (a saved camera path read back, `--camera-path`), in the
-    # viewer's frame, and where they came from (for the first message).
-    keyframes: list = field(default_factory=list)
-    keyframes_from: str = ""
-
-    def world(self, c2w: np.ndarray) -> np.ndarray:
-        """A pose [4, 4] of the viewer's frame -> the scene's world (float64)."""
-        return shifted(c2w, self.origin)
-
-    @classmethod
-    def from_views(cls, views, start_frame: int = 0, **kw) -> ViewerSetup:
-        """A setup from prepared `SourceViews` (full depth estimated), starting at a view."""
-        from panogrf.app.files.images import to_uint8
-
-        return cls(
-            images=to_uint8(views.images),
-            depth=views.depth["full"][:, 0].cpu().numpy(),
-            c2w=views.c2w.cpu().numpy(),
-            start_pose=views.c2w[start_frame].cpu().numpy().astype(np.float64),
-            masks=None
-            if (m := getattr(views, "nadir_mask", None)) is None
-            else m[:, 0].cpu().numpy(),
-            **kw,
-        )
-
-
-class PanoViewer(ExportsMixin, OverlayMixin, mglw.WindowConfig):
+class PanoViewer(ExportsMixin, OverlayMixin, ControlsMixin, mglw.WindowConfig):
     gl_version = (3, 3)
     title = "panogrf"
     window_size = (1024, 512)
@@ -226,19 +152,6 @@ class PanoViewer(ExportsMixin, OverlayMixin, mglw.WindowConfig):
         tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
         return tex
 
-    def _make_keymap(self) -> dict:
-        k = self.wnd.keys
-        out = {}
-        for name in KEY_NAMES:
-            code = getattr(k, name, None)
-            if code is not None:
-                out[code] = name
-        # moderngl-window's pyglet keys name the braces `{` `}` as the brackets: the keys
-        # `[` and `]` themselves (their ASCII codes in pyglet) did nothing in a real window.
-        if getattr(k, "LEFT_BRACKET", None) == ord("{"):
-            out[ord("[")], out[ord("]")] = "LEFT_BRACKET", "RIGHT_BRACKET"
-        return out
-
     def say(self, text: str) -> None:
         """A message on the overlay (wrapped, the last few lines) and in the terminal."""
         self.messages.add(text, time.perf_counter())
@@ -255,88 +168,6 @@ class PanoViewer(ExportsMixin, OverlayMixin, mglw.WindowConfig):
         self.camera = FlyCamera.from_c2w(c2w, speed=cam.speed, fov=cam.fov if fov is None else fov)
 
     # -- input ---------------------------------------------------------------------------------
-    def on_key_event(self, key, action, modifiers) -> None:
-        name = self._keymap.get(key)
-        if name is None:
-            return
-        if action == self.wnd.keys.ACTION_PRESS:
-            self.held.add(name)
-            self.press(name)
-        elif action == self.wnd.keys.ACTION_RELEASE:
-            self.held.discard(name)
-
-    def press(self, name: str) -> None:
-        """One-shot actions of a key (held keys act in `_apply_held`)."""
-        cam = self.camera
-        if name == "ESCAPE":
-            self.wnd.close()
-        elif name in ("LEFT_BRACKET", "RIGHT_BRACKET"):
-            cam.speed = float(
-                np.clip(cam.speed * (0.8 if name == "LEFT_BRACKET" else 1.25), 0.05, 20)
-            )
-        elif name in ("MINUS", "EQUAL"):
-            cam.fov = float(np.clip(cam.fov + (5 if name == "MINUS" else -5), 20, 140))
-        elif name == "V":
-            self.perspective = not self.perspective
-        elif name.startswith("NUMBER_"):
-            self.mode = MODES[int(name[-1]) - 1]
-        elif name == "TAB":
-            self.source_index = (self.source_index + 1) % len(self.sources)
-        elif name == "H":
-            self.show_overlay = not self.show_overlay
-        elif name == "J":
-            self._go_to(self.setup.c2w[self.source_index])
-            self.say(f"at source view {self.source_index} (Tab: next source)")
-        elif name == "R":
-            self.camera = FlyCamera.from_c2w(
-                self.setup.start_pose, speed=walk_speed(self.setup.c2w)
-            )
-            self.say("view reset to the start")
-        elif name in ("K", "C", "G", "BACKSPACE", "DELETE", "COMMA", "PERIOD"):
-            message, go_to = self.path.edit(name, self.view_pose(), cam.fov)
-            if go_to is not None:
-                self._go_to(go_to.c2w, go_to.fov)
-            self.say(message)
-        elif name == "P":
-            if self.path.play_pose is not None:  # stopped where it is
-                self._go_to(self.path.play_pose)
-            self.say(self.path.toggle_playback())
-        elif name == "O":
-            self.save_path()
-        elif name == "X":
-            self.request_screenshot = True
-        elif name == "F":
-            self.request_export = True
-
-    request_screenshot = False
-    request_export = False
-
-    def on_mouse_drag_event(self, x, y, dx, dy) -> None:
-        # The image follows the cursor, as in every 360° photo viewer: dragging right turns the
-        # camera left. Panorama mode shows every direction: only the heading turns it.
-        # ``--drag-looks`` inverts it: the camera turns with the mouse, as in games.
-        sign = -1.0 if self.setup.drag_looks else 1.0
-        self.camera.look(
-            sign * dx * DRAG_SPEED, sign * dy * DRAG_SPEED if self.perspective else 0.0
-        )
-
-    def on_mouse_scroll_event(self, x_offset: float, y_offset: float) -> None:
-        """The wheel zooms: up narrows the field of view, as `=` does."""
-        cam = self.camera
-        cam.fov = float(np.clip(cam.fov - 5 * y_offset, 20, 140))
-
-    def _apply_held(self, dt: float) -> None:
-        h, cam = self.held, self.camera
-        fwd = ("W" in h) - ("S" in h)
-        right = ("D" in h) - ("A" in h)
-        up = ("E" in h) - ("Q" in h)
-        if fwd or right or up:
-            cam.move(fwd, right, up, dt)
-        yaw = ("LEFT" in h) - ("RIGHT" in h)
-        pitch = (("UP" in h) - ("DOWN" in h)) if self.perspective else 0
-        if yaw or pitch:
-            cam.look(yaw * LOOK_SPEED * dt, pitch * LOOK_SPEED * dt)
-
     @property
     def refine_log(self) -> list[tuple[int, float]]:
         """(level, seconds from the camera stopping to that level on screen), in order."""

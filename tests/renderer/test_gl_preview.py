@@ -316,7 +316,7 @@ def test_simplified_meshes_keep_the_preview(gl, demo):
     assert _score(rgb, real) > _score(ref, real) - 0.5
     assert _score(drawn, real) > _score(ref, real) - 0.5  # the texture coordinates hold too
 
-    from panogrf.renderer.gl_preview import _uv_world_points, sphere_mesh
+    from panogrf.renderer.preview_mesh import _uv_world_points, sphere_mesh
 
     uv, grid = sphere_mesh(64)
     pts, _ = _uv_world_points(uv, depth[0], c2w[0])

@@ -1,0 +1,71 @@
+"""The report of `panogrf scene from-panoramas` (`panogrf.app.commands.scene_poses`): its
+printed lines, a line per pair and per view of a `panogrf.app.poses.colmap_report.ColmapEstimate`
+(`pose_report`), the same in JSON in the scene folder (`REPORT`), and the advice a failure ends
+with (`ADVICE`).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+#: What to do when panoramas cannot be posed (the failure's one line ends with it).
+ADVICE = (
+    "try a photo between the two (each pair should share most of the room: 1-3 m apart "
+    "indoors), fewer moving objects or people, or poses from another tool with "
+    "`panogrf scene import --format colmap|opensfm|tum`"
+)
+
+#: The report's file in the scene folder (JSON; the printed report is its "lines").
+REPORT = "poses_report.json"
+
+
+def _deg(value: float | None) -> str:
+    return "n/a" if value is None else f"{value:.3f} deg"
+
+
+def pose_report(files: list[Path], est) -> list[str]:
+    """The printed report of a `ColmapEstimate`: a line per pair and per view."""
+    lines = [f"posing (COLMAP {est.mapper or 'mappers'}, {est.seconds:.1f} s):", "pairs:"]
+    for p in est.pairs:
+        state = (
+            f"ok, {p.inliers} inliers, {p.shared_points} shared points, "
+            f"median residual {_deg(p.residual_deg)}"
+            if p.ok
+            else f"FAILED: {p.reason}"
+        )
+        lines.append(f"  {files[p.i].name} - {files[p.j].name}: {p.matches} matches; {state}")
+    lines.append("views:")
+    lines += [f"  {files[v.index].name}: {v.note}" for v in est.views]
+    return lines
+
+
+def _report_json(files: list[Path], est, lines: list[str]) -> dict:
+    return {
+        "method": f"SIFT on cube faces, pooled and guided matching; COLMAP {est.mapper}",
+        "seconds": round(est.seconds, 2),
+        "median_residual_deg": est.residual_deg,
+        "pairs": [
+            {
+                "a": files[p.i].name,
+                "b": files[p.j].name,
+                "matches": p.matches,
+                "inliers": p.inliers,
+                "shared_points": p.shared_points,
+                "median_residual_deg": p.residual_deg,
+                "ok": p.ok,
+                "reason": p.reason,
+            }
+            for p in est.pairs
+        ],
+        "views": [
+            {
+                "file": str(files[v.index]),
+                "registered": v.registered,
+                "points": v.points,
+                "median_residual_deg": v.residual_deg,
+                "note": v.note,
+            }
+            for v in est.views
+        ],
+        "lines": lines,
+    }
