@@ -13,7 +13,7 @@ import numpy as np
 
 from panogrf.app.errors import UserError
 from panogrf.app.options import add_options, from_args, option
-from panogrf.app.runtime import add_prepare_options
+from panogrf.app.runtime import prepare_options
 
 
 @dataclass(frozen=True)
@@ -38,8 +38,7 @@ def register(subparsers) -> None:
             "truth, and write a picture of the panoramas, true and estimated depth."
         ),
     )
-    add_options(parser, DemoConfig)
-    add_prepare_options(parser)
+    add_options(parser, DemoConfig, *prepare_options())
     parser.set_defaults(func=run)
 
 

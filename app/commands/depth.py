@@ -14,7 +14,7 @@ from pathlib import Path
 import torch
 
 from panogrf.app.options import add_options, from_args, option
-from panogrf.app.runtime import add_prepare_options
+from panogrf.app.runtime import prepare_options
 from panogrf.app.scene.estimate import (
     METRIC_COLUMNS,
     MODES,
@@ -64,8 +64,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         epilog="example: panogrf depth data/test_00000 --out depth_out --mode full",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    add_options(parser, DepthConfig)
-    add_prepare_options(parser, nadir=False)
+    add_options(parser, DepthConfig, *prepare_options(nadir=False))
     parser.set_defaults(func=run)
 
 

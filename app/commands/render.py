@@ -22,10 +22,10 @@ import numpy as np
 from panogrf.app.errors import UserError
 from panogrf.app.options import add_options, from_args, option
 from panogrf.app.runtime import (
+    RefineOptions,
     ThreadOptions,
-    add_prepare_options,
-    add_refine_depth,
     frame_indices,
+    prepare_options,
     refine_setting,
     refuse_scene_inputs,
     resolve_device,
@@ -154,9 +154,7 @@ def register(subparsers) -> None:
         ),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    add_options(parser, RenderConfig, ThreadOptions)
-    add_refine_depth(parser)
-    add_prepare_options(parser)
+    add_options(parser, RenderConfig, ThreadOptions, RefineOptions, *prepare_options())
     parser.set_defaults(func=run)
 
 

@@ -20,10 +20,10 @@ from pathlib import Path
 from panogrf.app.errors import UserError
 from panogrf.app.options import add_options, from_args, option
 from panogrf.app.runtime import (
+    RefineOptions,
     ThreadOptions,
-    add_prepare_options,
-    add_refine_depth,
     frame_indices,
+    prepare_options,
     refine_setting,
     resolve_device,
 )
@@ -57,9 +57,9 @@ def add_prepare(sub: argparse._SubParsersAction) -> None:
         ),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    add_options(parser, PrepareConfig, ThreadOptions)
-    add_refine_depth(parser)
-    add_prepare_options(parser, no_cache=False)
+    add_options(
+        parser, PrepareConfig, ThreadOptions, RefineOptions, *prepare_options(no_cache=False)
+    )
     parser.set_defaults(func=run_prepare)
 
 

@@ -15,10 +15,10 @@ from pathlib import Path
 from panogrf.app.errors import UserError
 from panogrf.app.options import add_options, from_args, option
 from panogrf.app.runtime import (
+    RefineOptions,
     ThreadOptions,
-    add_prepare_options,
-    add_refine_depth,
     number,
+    prepare_options,
     refine_setting,
     resolve_device,
 )
@@ -141,9 +141,7 @@ def register(subparsers) -> None:
         ),
         epilog="example: panogrf view assets/demo",
     )
-    add_options(parser, ViewConfig, ThreadOptions)
-    add_refine_depth(parser)
-    add_prepare_options(parser)
+    add_options(parser, ViewConfig, ThreadOptions, RefineOptions, *prepare_options())
     parser.set_defaults(func=run)
 
 

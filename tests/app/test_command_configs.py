@@ -46,3 +46,27 @@ def test_the_settings_check_themselves_when_built_directly():
     for tol in (0.0, -1.0, float("nan"), float("inf")):
         with pytest.raises(UserError, match="^--occlusion-tol must be a positive relative"):
             ReprojectConfig("d", occlusion_tol=tol)
+
+
+def test_the_preparation_options_are_composed_as_each_command_needs():
+    from panogrf.app import runtime
+    from panogrf.renderer.nadir import METADATA_KEY
+
+    assert runtime.prepare_options() == (
+        runtime.PrepareOptions,
+        runtime.NoCacheOptions,
+        runtime.NadirOptions,
+    )
+    assert runtime.prepare_options(no_cache=False, nadir=False) == (runtime.PrepareOptions,)
+    assert repr(METADATA_KEY) in runtime.NADIR_HELP
+    parser = argparse.ArgumentParser(prog="t")
+    add_options(parser, runtime.RefineOptions, *runtime.prepare_options())
+    args = parser.parse_args(["--no-refine-depth", "--nadir-cap", "off", "--no-cache"])
+    assert (args.refine_depth, args.nadir_cap, args.no_cache, args.device) == (
+        False,
+        "off",
+        True,
+        "auto",
+    )
+    assert runtime.refine_setting(args) is None
+    assert "(default auto)" in parser.format_help()

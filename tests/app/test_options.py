@@ -201,3 +201,16 @@ def test_a_missing_argument_is_named_in_the_order_of_the_fields(capsys):
     assert capsys.readouterr().err.splitlines()[-1] == (
         "toy: error: the following arguments are required: DATASET, sources, --out"
     )
+
+
+@dataclass(frozen=True)
+class Switch:
+    refine: bool = option(True, "refine", negatable=True)
+
+
+def test_a_negatable_switch_takes_both_flags():
+    parser = _parser(Switch)
+    assert flag_of(Switch, "refine") == "--refine"
+    assert from_args(Switch, parser.parse_args([])) == Switch(refine=True)
+    assert from_args(Switch, parser.parse_args(["--no-refine"])) == Switch(refine=False)
+    assert parser.parse_args(["--no-refine", "--refine"]).refine is True
