@@ -96,13 +96,11 @@ def _novel_view(
     device="cpu",
 ) -> None:
     """The middle view rendered from the outer two by PanoGRF and the baselines, scored
-    against the real middle panorama; then a short preview video along the three views."""
+    against the real middle panorama; then a short preview video along the three views
+    (`_walk_preview`)."""
     import time
 
     from panogrf.app.files.images import to_uint8, write_rgb
-    from panogrf.app.files.video import FrameSink
-    from panogrf.app.paths.frames import FrameRenderer
-    from panogrf.app.paths.trajectory import interpolate_keyframes
     from panogrf.app.scene import session
     from panogrf.app.scoring import image_scores
     from panogrf.app.visualize import stack_rows
@@ -143,6 +141,18 @@ def _novel_view(
     sheet = out / "novel_view.png"
     write_rgb(sheet, stack_rows(rows))
     print(f"wrote {sheet} (real middle view, then PanoGRF, meshwarp, nearest)")
+    _walk_preview(data, out, models, cache_dir, use_cache, nadir)
+
+
+def _walk_preview(data, out: Path, models, cache_dir: Path | None, use_cache: bool, nadir) -> None:
+    """A short video of the GL preview along the scene's views, to ``out/walk_preview.mp4``."""
+    from panogrf.app.files.video import FrameSink
+    from panogrf.app.paths.frames import FrameRenderer
+    from panogrf.app.paths.trajectory import interpolate_keyframes
+    from panogrf.app.scene import session
+    from panogrf.renderer.methods import SourceViews
+
+    height = data.images.shape[-2]
     poses = interpolate_keyframes(data.c2w.numpy().astype(np.float64), 48)
     walk = SourceViews(data.images, data.c2w, nadir=nadir, device=models.device)
     session.prepare_views(walk, models, "panogrf", "preview", cache_dir, use_cache)
