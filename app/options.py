@@ -7,11 +7,13 @@ is written once, with its default, its help and its checks (the dataclass's ``__
 The option of field ``field_name`` is ``--field-name`` unless the field names its own flag. Its
 value is parsed by the field's ``parse`` function, else by the field's type (``Path | None``
 parses a Path). A bool field is a flag that sets the opposite of its default (``--no-field-name``
-for a field true by default). A field without a default is a required option. A field made
+for a field true by default), or, made ``negatable``, both ``--field-name`` and
+``--no-field-name``. A field without a default is a required option. A field made
 without `option` is no option. A subclass gives an inherited option another default by
 declaring the field again with a plain default: the option keeps its flag, help and parse.
 A ``positional`` field is an argument named by its place (shown as its ``metavar``, else its
-name), with ``nargs`` as argparse's (``"+"``: one or more, a list).
+name), with ``nargs`` as argparse's (``"+"``: one or more, a list). Options that name the same
+``one_of`` group are alternatives: exactly one of them must be given.
 """
 
 from __future__ import annotations
@@ -44,6 +46,11 @@ class Option:
     """The name shown for the value, when not the one made from the flag (or field)."""
     nargs: str | None = None
     """argparse's ``nargs`` (``"+"``: one value or more, a list)."""
+    negatable: bool = False
+    """A bool option given as ``--flag`` or ``--no-flag`` (argparse's BooleanOptionalAction)."""
+    one_of: str | None = None
+    """The name of a group of alternative options, exactly one of which must be given (an
+    argparse required mutually exclusive group); None: no group."""
 
 
 def option(
@@ -56,9 +63,12 @@ def option(
     positional: bool = False,
     metavar: str | None = None,
     nargs: str | None = None,
+    negatable: bool = False,
+    one_of: str | None = None,
 ) -> Any:
-    """A dataclass field that is also a command-line option (no ``default``: a required one)."""
-    opt = Option(help, flag, parse, choices, positional, metavar, nargs)
+    """A dataclass field that is also a command-line option (no ``default``: a required one;
+    ``one_of``: one of a group of alternatives, see `Option`)."""
+    opt = Option(help, flag, parse, choices, positional, metavar, nargs, negatable, one_of)
     return dataclasses.field(default=default, metadata={_KEY: opt})
 
 
@@ -88,6 +98,7 @@ def flag_of(cls: type, name: str) -> str:
     if opt is not None and opt.flag:
         return opt.flag
     negated = field.type in ("bool", bool) and field.default is True
+    negated = negated and not (opt is not None and opt.negatable)
     return ("--no-" if negated else "--") + name.replace("_", "-")
 
 
@@ -113,7 +124,10 @@ def _argument(cls: type, field: dataclasses.Field, opt: Option) -> tuple[str, di
         "help": opt.help.replace("{default}", str(default)),
     }
     if _value_type(cls, field.name) is bool:
-        kwargs["action"] = "store_false" if default else "store_true"
+        if opt.negatable:
+            kwargs |= {"action": argparse.BooleanOptionalAction, "default": default}
+        else:
+            kwargs["action"] = "store_false" if default else "store_true"
         return flag, kwargs
     kwargs["type"] = opt.parse or _value_type(cls, field.name)
     if default is dataclasses.MISSING:
@@ -129,14 +143,31 @@ def _argument(cls: type, field: dataclasses.Field, opt: Option) -> tuple[str, di
     return flag, kwargs
 
 
+def _required(flag: str, kwargs: dict[str, Any]) -> bool:
+    """Whether an argument (`_argument`) must be given: a required option, or a positional
+    argument that takes at least one value."""
+    if flag.startswith("-"):
+        return kwargs.get("required", False)
+    return kwargs.get("nargs") not in ("?", "*")
+
+
 def add_options(parser: argparse.ArgumentParser, *classes: type) -> None:
-    """Add the options of each dataclass in ``classes`` to ``parser`` (`option`), the required
-    ones first, then in the order of the classes and of their fields; each parses into the
-    attribute named as its field."""
-    arguments = [_argument(cls, f, opt) for cls in classes for f, opt in options(cls)]
-    arguments.sort(key=lambda argument: not argument[1].get("required", False))
-    for flag, kwargs in arguments:
-        parser.add_argument(flag, **kwargs)
+    """Add the options of each dataclass in ``classes`` to ``parser`` (`option`), the positional
+    arguments and the required options first, then in the order of the classes and of their
+    fields; each parses into the attribute named as its field. The options of a ``one_of``
+    group go into one required mutually exclusive group."""
+    arguments = [
+        (opt.one_of, *_argument(cls, f, opt)) for cls in classes for f, opt in options(cls)
+    ]
+    arguments.sort(key=lambda argument: not _required(argument[1], argument[2]))
+    groups: dict[str, Any] = {}
+    for one_of, flag, kwargs in arguments:
+        if one_of is None:
+            parser.add_argument(flag, **kwargs)
+            continue
+        if one_of not in groups:
+            groups[one_of] = parser.add_mutually_exclusive_group(required=True)
+        groups[one_of].add_argument(flag, **kwargs)
 
 
 def from_args(cls: type, args: argparse.Namespace, **fields: Any) -> Any:

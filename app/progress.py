@@ -6,7 +6,7 @@ eta 3.4 s``, a stage's first and last and at most one a second between. A heartb
 refreshes the innermost open stage when its unit of work is taking long (a preparation is one
 outer stage around its inner ones, which covers the work between them), so nothing waits
 silently for more than about a second. Commands with ``--quiet``
-(`panogrf.app.runtime.add_prepare_options`) get it from `panogrf.app.cli` unless they pass it.
+(`panogrf.app.runtime.PrepareOptions`) get it from `panogrf.app.cli` unless they pass it.
 
 `StageWatch` keeps the latest stage of one thread for the viewer's overlay.
 """

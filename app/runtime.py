@@ -165,23 +165,20 @@ def metres_list(text: str) -> tuple[float, ...]:
     return values
 
 
-#: Help of ``--refine-depth`` / ``--no-refine-depth`` (view, render, eval).
-REFINE_DEPTH_HELP = (
-    "refine the sources' depth per scene at preparation by photometric consistency between "
-    "them (default: on; a few seconds per view on 2 cores, once per scene and cached with "
-    "it; the viewer opens on the unrefined scene and switches when the refinement is done). "
-    "--no-refine-depth: the networks' depth only"
-)
+@dataclass(frozen=True)
+class RefineOptions:
+    """``--refine-depth`` / ``--no-refine-depth``, of the commands that prepare a scene for
+    rendering (`panogrf.app.options`; see `refine_setting`)."""
 
-
-def add_refine_depth(parser) -> None:
-    """The ``--refine-depth`` / ``--no-refine-depth`` switch (see `refine_setting`)."""
-    parser.add_argument(
-        "--refine-depth",
-        action=argparse.BooleanOptionalAction,
-        default=True,
-        help=REFINE_DEPTH_HELP,
+    refine_depth: bool = option(
+        True,
+        "refine the sources' depth per scene at preparation by photometric consistency between "
+        "them (default: on; a few seconds per view on 2 cores, once per scene and cached with "
+        "it; the viewer opens on the unrefined scene and switches when the refinement is "
+        "done). --no-refine-depth: the networks' depth only",
+        negatable=True,
     )
+    """Refine the sources' depth per scene at preparation."""
 
 
 def refine_setting(args):
@@ -193,35 +190,63 @@ def refine_setting(args):
     return PREPARE_REFINE
 
 
-def add_prepare_options(parser, no_cache: bool = True, nadir: bool = True) -> None:
-    """``--cache-dir``, ``--no-cache`` (unless ``no_cache`` is False), ``--quiet`` and
-    ``--device`` (`resolve_device`): the
-    options of every command that prepares a scene (its depth and feature maps,
-    `panogrf.app.scene.session.prepare_views`). ``nadir``: also ``--nadir-cap`` (the tripod
-    or hand at the bottom of every source masked, `panogrf.renderer.nadir`)."""
-    parser.add_argument(
-        "--cache-dir",
-        type=Path,
-        default=None,
-        help="the prepared scenes' cache folder, shared by view, render, eval, bench, demo, "
+@dataclass(frozen=True)
+class PrepareOptions:
+    """``--cache-dir``, ``--quiet`` and ``--device`` (`resolve_device`): the options of every
+    command that prepares a scene (its depth and feature maps,
+    `panogrf.app.scene.session.prepare_views`); see `prepare_options` for the others."""
+
+    cache_dir: Path | None = option(
+        None,
+        "the prepared scenes' cache folder, shared by view, render, eval, bench, demo, "
         "depth and scene prepare (default: $XDG_CACHE_HOME/panogrf or ~/.cache/panogrf)",
     )
-    if no_cache:
-        parser.add_argument(
-            "--no-cache",
-            action="store_true",
-            help="prepare the scene afresh and write no cache",
-        )
-    parser.add_argument(
-        "--quiet",
-        action="store_true",
-        help="no progress of the preparation's stages on stderr",
+    """The cache folder (None: the user's cache folder)."""
+    quiet: bool = option(False, "no progress of the preparation's stages on stderr")
+    """No progress of the preparation's stages on stderr."""
+    device: str = option(
+        "auto",
+        "where the networks run: auto (a CUDA GPU when there is one, else the CPU), cpu, "
+        "cuda or cuda:N (default {default})",
     )
-    if nadir:  # the commands that render the scene's own sources
-        from panogrf.renderer.nadir import add_nadir_argument
+    """Where the networks and the whole depth chain run (`resolve_device`)."""
 
-        add_nadir_argument(parser)
-    add_device_option(parser)
+
+@dataclass(frozen=True)
+class NoCacheOptions:
+    """``--no-cache``, of the commands that prepare a scene to use it at once."""
+
+    no_cache: bool = option(False, "prepare the scene afresh and write no cache")
+    """Prepare the scene afresh and write no cache."""
+
+
+#: Help of ``--nadir-cap``; "nadir_mask_deg" is `panogrf.renderer.nadir.METADATA_KEY`, written
+#: out so that this module imports no torch (`keep_freed_memory` runs before it).
+NADIR_HELP = (
+    "mask the tripod / hand at the bottom of every source: a cap of DEG degrees "
+    "around the nadir, 'auto' (detected per source; the default, or the scene's "
+    "transforms.json 'nadir_mask_deg') or 'off'"
+)
+
+
+@dataclass(frozen=True)
+class NadirOptions:
+    """``--nadir-cap``, of the commands that render the scene's own sources (read with
+    `panogrf.renderer.nadir.nadir_setting`)."""
+
+    nadir_cap: str | None = option(None, NADIR_HELP, metavar="DEG|auto|off")
+    """The cap masked around the nadir: degrees, "auto" or "off" (None: the scene's)."""
+
+
+def prepare_options(no_cache: bool = True, nadir: bool = True) -> tuple[type, ...]:
+    """The option classes of a command that prepares a scene, for `add_options`:
+    `PrepareOptions`, `NoCacheOptions` (unless ``no_cache`` is False) and `NadirOptions`
+    (unless ``nadir`` is False)."""
+    return (
+        PrepareOptions,
+        *((NoCacheOptions,) if no_cache else ()),
+        *((NadirOptions,) if nadir else ()),
+    )
 
 
 def refuse_scene_inputs(out: Path, scene, option: str = "--out", folder: bool = False) -> None:
@@ -250,16 +275,6 @@ def refuse_scene_inputs(out: Path, scene, option: str = "--out", folder: bool = 
                 f"{option} {out}: holds the scene's own files; refusing to write over them, "
                 "choose another folder"
             )
-
-
-def add_device_option(parser, default: str = "auto") -> None:
-    """``--device``: where the networks and the whole depth chain run."""
-    parser.add_argument(
-        "--device",
-        default=default,
-        help=f"where the networks run: auto (a CUDA GPU when there is one, else the CPU), cpu, "
-        f"cuda or cuda:N (default {default})",
-    )
 
 
 def resolve_device(name: str):

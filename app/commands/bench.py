@@ -28,9 +28,9 @@ from panogrf.app.bench.settings import BY_NAME, Setting, select
 from panogrf.app.errors import UserError
 from panogrf.app.options import add_options, from_args, option
 from panogrf.app.runtime import (
+    RefineOptions,
     ThreadOptions,
-    add_prepare_options,
-    add_refine_depth,
+    prepare_options,
     refine_setting,
     resolve_device,
 )
@@ -79,9 +79,14 @@ def register(subparsers) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog="example: panogrf bench data/test --out out/bench --threads 1",
     )
-    add_options(parser, BenchConfig, BenchOptions, ThreadOptions)
-    add_refine_depth(parser)
-    add_prepare_options(parser, nadir=False)
+    add_options(
+        parser,
+        BenchConfig,
+        BenchOptions,
+        ThreadOptions,
+        RefineOptions,
+        *prepare_options(nadir=False),
+    )
     parser.set_defaults(func=run)
 
 

@@ -1,4 +1,7 @@
-"""`panogrf compare A.png B.png [--json]`: PSNR, WS-PSNR, SSIM and LPIPS of two images."""
+"""`panogrf compare A.png B.png [--json]`: PSNR, WS-PSNR, SSIM and LPIPS of two images.
+
+The options are declared once, on the fields of `CompareConfig` (`panogrf.app.options`).
+"""
 
 from __future__ import annotations
 
@@ -14,6 +17,7 @@ import torch
 
 from panogrf.app.errors import UserError
 from panogrf.app.files.images import ImageReadError, read_pixels
+from panogrf.app.options import add_options, from_args, option
 from panogrf.model.lpips import MIN_SIZE as LPIPS_MIN_SIZE
 from panogrf.model.metrics import psnr, ssim, ws_psnr
 
@@ -43,6 +47,29 @@ class LoadedImage:
     """The file it was read from."""
 
 
+@dataclass(frozen=True)
+class CompareConfig:
+    """What `panogrf compare` compares and how it reports. A field made with `option` is also
+    an option of the command; the device is checked as it is built (`UserError`, one line)."""
+
+    a: Path = option(help="first image (e.g. the rendering)", positional=True, metavar="A")
+    """The first image."""
+    b: Path = option(help="second image (e.g. the ground truth)", positional=True, metavar="B")
+    """The second image."""
+    json: bool = option(False, "print one JSON object instead")
+    """Print one JSON object instead of lines of text."""
+    device: str = option("cpu", "torch device for LPIPS, e.g. cuda (default: cpu)")
+    """The torch device LPIPS runs on."""
+
+    def __post_init__(self) -> None:
+        """Refuse a device torch does not know or cannot use here (`torch_device`)."""
+        self.torch_device()
+
+    def torch_device(self) -> str:
+        """The device LPIPS runs on, if torch can use it here; `UserError` otherwise."""
+        return _check_device(self.device)
+
+
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         "compare",
@@ -50,12 +77,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description=_DESCRIPTION,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    parser.add_argument("a", type=Path, metavar="A", help="first image (e.g. the rendering)")
-    parser.add_argument("b", type=Path, metavar="B", help="second image (e.g. the ground truth)")
-    parser.add_argument("--json", action="store_true", help="print one JSON object instead")
-    parser.add_argument(
-        "--device", default="cpu", help="torch device for LPIPS, e.g. cuda (default: cpu)"
-    )
+    add_options(parser, CompareConfig)
     parser.set_defaults(func=run)
 
 
@@ -172,16 +194,16 @@ def _check_device(name: str) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    device = _check_device(args.device)
-    a, b = load_image(args.a), load_image(args.b)
-    result = compare(a, b, device=device)
-    if args.json:
+    cfg = from_args(CompareConfig, args)
+    a, b = load_image(cfg.a), load_image(cfg.b)
+    result = compare(a, b, device=cfg.torch_device())
+    if cfg.json:
         # JSON has no inf: infinite PSNRs become null, and the notes say why.
         finite = {
             k: None if isinstance(v, float) and not math.isfinite(v) else v
             for k, v in result.items()
         }
-        print(json.dumps({"a": str(args.a), "b": str(args.b), **finite}, allow_nan=False))
+        print(json.dumps({"a": str(cfg.a), "b": str(cfg.b), **finite}, allow_nan=False))
     else:
-        print(_format_text(args.a, args.b, a, b, result))
+        print(_format_text(cfg.a, cfg.b, a, b, result))
     return 0

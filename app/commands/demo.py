@@ -1,14 +1,30 @@
-"""`panogrf demo`: a headless tour of the bundled scene (validation, geometry check, pictures)."""
+"""`panogrf demo`: a headless tour of the bundled scene (validation, geometry check, pictures).
+
+The options are declared once, on the fields of `DemoConfig` (`panogrf.app.options`).
+"""
 
 from __future__ import annotations
 
 import argparse
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from panogrf.app.errors import UserError
-from panogrf.app.runtime import add_prepare_options
+from panogrf.app.options import add_options, from_args, option
+from panogrf.app.runtime import prepare_options
+
+
+@dataclass(frozen=True)
+class DemoConfig:
+    """Which scene `panogrf demo` tours and where its pictures go. A field made with `option`
+    is also an option of the command."""
+
+    scene: Path | None = option(None, "scene folder (default: the bundled demo)")
+    """The scene folder (None: the bundled demo)."""
+    out: Path = option(Path("demo_out"), "output folder (default demo_out/)")
+    """The folder the pictures are written to."""
 
 
 def register(subparsers) -> None:
@@ -22,13 +38,7 @@ def register(subparsers) -> None:
             "truth, and write a picture of the panoramas, true and estimated depth."
         ),
     )
-    parser.add_argument(
-        "--scene", type=Path, default=None, help="scene folder (default: the bundled demo)"
-    )
-    parser.add_argument(
-        "--out", type=Path, default=Path("demo_out"), help="output folder (default demo_out/)"
-    )
-    add_prepare_options(parser)
+    add_options(parser, DemoConfig, *prepare_options())
     parser.set_defaults(func=run)
 
 
@@ -40,8 +50,9 @@ def run(args: argparse.Namespace) -> int:
     from panogrf.app.visualize import colorize_depth, stack_rows
     from panogrf.assets import path as asset_path
 
+    cfg = from_args(DemoConfig, args)
     device = resolve_device(args.device)
-    root = args.scene or asset_path("demo")
+    root = cfg.scene or asset_path("demo")
     scene = load_scene(root, load_images=True)
     data = scene.images
     print(f"scene: {root} ({scene.num_views} views, {scene.width}x{scene.height})")
@@ -63,16 +74,16 @@ def run(args: argparse.Namespace) -> int:
         rows += [rgb, colorize_depth(data.depths[i, 0].numpy(), max_depth)]
         rows.append(colorize_depth(estimates["full"][i, 0].cpu().numpy(), max_depth))
     try:
-        args.out.mkdir(parents=True, exist_ok=True)
-        sheet = args.out / "demo_views.png"
+        cfg.out.mkdir(parents=True, exist_ok=True)
+        sheet = cfg.out / "demo_views.png"
         write_rgb(sheet, stack_rows(rows))
     except OSError as exc:
-        raise UserError(f"cannot write to {args.out}: {exc.strerror or exc}") from None
+        raise UserError(f"cannot write to {cfg.out}: {exc.strerror or exc}") from None
     print(f"wrote {sheet} (each panorama above its true depth, then the estimated depth)")
     from panogrf.renderer.nadir import nadir_setting
 
     nadir = nadir_setting(scene.metadata, args.nadir_cap)
-    _novel_view(data, args.out, args.cache_dir, not args.no_cache, nadir, device)
+    _novel_view(data, cfg.out, args.cache_dir, not args.no_cache, nadir, device)
     return 0
 
 
@@ -85,13 +96,11 @@ def _novel_view(
     device="cpu",
 ) -> None:
     """The middle view rendered from the outer two by PanoGRF and the baselines, scored
-    against the real middle panorama; then a short preview video along the three views."""
+    against the real middle panorama; then a short preview video along the three views
+    (`_walk_preview`)."""
     import time
 
     from panogrf.app.files.images import to_uint8, write_rgb
-    from panogrf.app.files.video import FrameSink
-    from panogrf.app.paths.frames import FrameRenderer
-    from panogrf.app.paths.trajectory import interpolate_keyframes
     from panogrf.app.scene import session
     from panogrf.app.scoring import image_scores
     from panogrf.app.visualize import stack_rows
@@ -132,6 +141,18 @@ def _novel_view(
     sheet = out / "novel_view.png"
     write_rgb(sheet, stack_rows(rows))
     print(f"wrote {sheet} (real middle view, then PanoGRF, meshwarp, nearest)")
+    _walk_preview(data, out, models, cache_dir, use_cache, nadir)
+
+
+def _walk_preview(data, out: Path, models, cache_dir: Path | None, use_cache: bool, nadir) -> None:
+    """A short video of the GL preview along the scene's views, to ``out/walk_preview.mp4``."""
+    from panogrf.app.files.video import FrameSink
+    from panogrf.app.paths.frames import FrameRenderer
+    from panogrf.app.paths.trajectory import interpolate_keyframes
+    from panogrf.app.scene import session
+    from panogrf.renderer.methods import SourceViews
+
+    height = data.images.shape[-2]
     poses = interpolate_keyframes(data.c2w.numpy().astype(np.float64), 48)
     walk = SourceViews(data.images, data.c2w, nadir=nadir, device=models.device)
     session.prepare_views(walk, models, "panogrf", "preview", cache_dir, use_cache)

@@ -1,17 +1,20 @@
 """`panogrf depth SCENE --out DIR`: spherical depth for every view of a scene, written as a scene.
 
-The work is `panogrf.app.scene.estimate.estimate_scene`; this module parses and reports.
+The work is `panogrf.app.scene.estimate.estimate_scene`; this module parses and reports. The
+options are declared once, on the fields of `DepthConfig` (`panogrf.app.options`).
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
 
-from panogrf.app.runtime import add_prepare_options
+from panogrf.app.options import add_options, from_args, option
+from panogrf.app.runtime import prepare_options
 from panogrf.app.scene.estimate import (
     METRIC_COLUMNS,
     MODES,
@@ -40,6 +43,19 @@ The estimate is cached on disk, keyed by the panoramas, poses, weights, mode and
 cache `panogrf demo` shares): a second run on the same scene reads it (--no-cache: afresh)."""
 
 
+@dataclass(frozen=True)
+class DepthConfig:
+    """Which scene `panogrf depth` estimates, how, and where the new scene goes. A field made
+    with `option` is also an option of the command."""
+
+    scene: Path = option(help="scene folder (transforms.json)", positional=True, metavar="SCENE")
+    """The scene folder."""
+    out: Path = option(help="output folder (a new scene)", metavar="DIR")
+    """The output folder, a scene of its own."""
+    mode: str = option("full", "which estimator (default full)", choices=MODES)
+    """The estimator (`MODES`)."""
+
+
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         "depth",
@@ -48,14 +64,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         epilog="example: panogrf depth data/test_00000 --out depth_out --mode full",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    parser.add_argument("scene", type=Path, metavar="SCENE", help="scene folder (transforms.json)")
-    parser.add_argument(
-        "--out", type=Path, required=True, metavar="DIR", help="output folder (a new scene)"
-    )
-    parser.add_argument(
-        "--mode", choices=MODES, default="full", help="which estimator (default full)"
-    )
-    add_prepare_options(parser, nadir=False)
+    add_options(parser, DepthConfig, *prepare_options(nadir=False))
     parser.set_defaults(func=run)
 
 
@@ -64,25 +73,26 @@ def run(args: argparse.Namespace) -> int:
     from panogrf.app.scene.folder import load_scene
     from panogrf.app.weights import networks as depth_weights
 
+    cfg = from_args(DepthConfig, args)
     device = resolve_device(args.device)
     # Scene and output folder problems first: they need no networks.
-    prepare_out_dir(args.scene, args.out)
-    scene = load_scene(args.scene, load_images=True)
-    modes = depth_weights.NETWORKS[args.mode]
+    prepare_out_dir(cfg.scene, cfg.out)
+    scene = load_scene(cfg.scene, load_images=True)
+    modes = depth_weights.NETWORKS[cfg.mode]
     estimator = depth_weights.load_depth_estimator(modes, str(device))
-    weights = depth_weights.depth_weight_files(args.mode)
+    weights = depth_weights.depth_weight_files(cfg.mode)
     result = estimate_scene(
         scene,
-        args.out,
+        cfg.out,
         estimator,
-        args.mode,
+        cfg.mode,
         weights=weights,
         cache_dir=args.cache_dir,
         use_cache=not args.no_cache,
     )
     for warning in result.warnings:
         print(f"warning: {warning}", file=sys.stderr)
-    print("\n".join(_report_lines(args.scene, result, device)))
+    print("\n".join(_report_lines(cfg.scene, result, device)))
     return 0
 
 

@@ -33,9 +33,9 @@ import torch
 from panogrf.app.errors import UserError
 from panogrf.app.options import add_options, from_args, option
 from panogrf.app.runtime import (
+    RefineOptions,
     ThreadOptions,
-    add_prepare_options,
-    add_refine_depth,
+    prepare_options,
     refine_setting,
     refuse_scene_inputs,
     resolve_device,
@@ -151,9 +151,7 @@ def register(subparsers) -> None:
             "example: panogrf eval data/test --methods panogrf,meshwarp,nearest --out results.json"
         ),
     )
-    add_options(parser, EvalConfig, ThreadOptions)
-    add_refine_depth(parser)
-    add_prepare_options(parser)
+    add_options(parser, EvalConfig, ThreadOptions, RefineOptions, *prepare_options())
     parser.set_defaults(func=run)
 
 

@@ -4,6 +4,8 @@ The target is a frame of the scene (``--target-frame``; that frame is then never
 source, and where it has an image the render is scored against it), any pose (``--c2w``,
 16 numbers, camera-to-world row-major, OpenGL frame, metres), or a nerfstudio camera path
 (``--camera-path``), rendered headless to an H.264 MP4 or a folder of PNG frames.
+
+The options are declared once, on the fields of `RenderConfig` (`panogrf.app.options`).
 """
 
 from __future__ import annotations
@@ -12,20 +14,21 @@ import argparse
 import json
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from panogrf.app.errors import UserError
+from panogrf.app.options import add_options, from_args, option
 from panogrf.app.runtime import (
-    add_prepare_options,
-    add_refine_depth,
+    RefineOptions,
+    ThreadOptions,
     frame_indices,
+    prepare_options,
     refine_setting,
     refuse_scene_inputs,
     resolve_device,
-    thread_count,
 )
 from panogrf.app.scene import session
 from panogrf.app.scene.check import MAX_POSITION_M
@@ -59,6 +62,78 @@ def parse_c2w(text: str) -> np.ndarray:
     return m
 
 
+@dataclass(frozen=True)
+class RenderConfig:
+    """What `panogrf render` renders and where it goes. A field made with `option` is also an
+    option of the command; the settings are checked as they are built (`UserError`, one line
+    naming the option)."""
+
+    scene: Path = option(help="scene folder (transforms.json)", positional=True, metavar="SCENE")
+    """The scene folder."""
+    out: Path = option(
+        help="output image (.png, .jpg); with --camera-path a video (.mp4) or a folder"
+    )
+    """The panorama (.png, .jpg); with a camera path a video (.mp4) or a folder of frames."""
+    target_frame: int | None = option(None, "render the pose of this frame", one_of="target")
+    """The frame whose pose is rendered (held out of the sources)."""
+    c2w: str | None = option(
+        None, "render this pose: 16 numbers, row-major camera-to-world", one_of="target"
+    )
+    """The pose rendered: 16 numbers (`parse_c2w`)."""
+    camera_path: Path | None = option(
+        None,
+        "render every camera of a nerfstudio camera_path.json to --out (.mp4 or folder)",
+        one_of="target",
+    )
+    """A nerfstudio camera path rendered to ``out``."""
+    sources: list[int] | None = option(
+        None,
+        "comma-separated source frames (default: every frame but the target)",
+        parse=frame_indices,
+    )
+    """The source frames (None: every frame but the target)."""
+    height: int | None = option(None, "output height; width = 2x (default: scene's)")
+    """Rows of the panorama (None: the scene's)."""
+    method: str = option("panogrf", "default panogrf", choices=tuple(sorted(METHODS)))
+    """The method (`panogrf.renderer.methods.METHODS`)."""
+    quality: str = option(
+        "fast",
+        "preview (GL depth-mesh warp), fast (depth-guided neural, default) or paper "
+        "(neural, 64 + 64 samples)",
+        choices=("preview", *sorted(QUALITY)),
+    )
+    """The sampling, or ``preview`` (the GL depth-mesh warp)."""
+    json: bool = option(False, "print the summary as JSON")
+    """Print the summary as JSON."""
+
+    def __post_init__(self) -> None:
+        """Refuse anything but exactly one target, a camera path with a size or sources of
+        its own, an output that is no .png or .jpg (no camera path) or whose folder does not
+        exist, the preview with another method, a height outside 8 to `MAX_HEIGHT` rows and a
+        ``c2w`` that is no rigid pose (`parse_c2w`)."""
+        given = [x is not None for x in (self.target_frame, self.c2w, self.camera_path)]
+        if sum(given) != 1:
+            raise UserError("give one of --target-frame, --c2w and --camera-path")
+        if self.camera_path is not None:
+            if self.sources is not None or self.height is not None:
+                raise UserError(
+                    "--camera-path takes its size from the path; drop --height/--sources"
+                )
+        else:
+            if self.out.suffix.lower() not in (".png", ".jpg", ".jpeg"):
+                raise UserError(f"--out must be a .png or .jpg file, got {self.out}")
+            if self.out.parent and not self.out.parent.exists():
+                raise UserError(f"--out: folder {self.out.parent} does not exist")
+        if self.quality == "preview" and self.method != "panogrf":
+            raise UserError(
+                "--quality preview is the GL depth-mesh preview: use it without --method"
+            )
+        if self.height is not None and not 8 <= self.height <= MAX_HEIGHT:
+            raise UserError(f"--height must be between 8 and {MAX_HEIGHT}, got {self.height}")
+        if self.c2w is not None:
+            parse_c2w(self.c2w)
+
+
 def register(subparsers) -> None:
     parser = subparsers.add_parser(
         "render",
@@ -79,146 +154,128 @@ def register(subparsers) -> None:
         ),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    parser.add_argument("scene", type=Path, metavar="SCENE", help="scene folder (transforms.json)")
-    parser.add_argument(
-        "--out",
-        type=Path,
-        required=True,
-        help="output image (.png, .jpg); with --camera-path a video (.mp4) or a folder",
-    )
-    target = parser.add_mutually_exclusive_group(required=True)
-    target.add_argument("--target-frame", type=int, help="render the pose of this frame")
-    target.add_argument("--c2w", help="render this pose: 16 numbers, row-major camera-to-world")
-    target.add_argument(
-        "--camera-path",
-        type=Path,
-        help="render every camera of a nerfstudio camera_path.json to --out (.mp4 or folder)",
-    )
-    parser.add_argument(
-        "--sources",
-        type=frame_indices,
-        default=None,
-        help="comma-separated source frames (default: every frame but the target)",
-    )
-    parser.add_argument(
-        "--height", type=int, default=None, help="output height; width = 2x (default: scene's)"
-    )
-    parser.add_argument(
-        "--method", choices=sorted(METHODS), default="panogrf", help="default panogrf"
-    )
-    parser.add_argument(
-        "--quality",
-        choices=("preview", *sorted(QUALITY)),
-        default="fast",
-        help="preview (GL depth-mesh warp), fast (depth-guided neural, default) or paper "
-        "(neural, 64 + 64 samples)",
-    )
-    parser.add_argument(
-        "--threads", type=thread_count, default=0, help="torch threads (default: all)"
-    )
-    add_refine_depth(parser)
-    add_prepare_options(parser)
-    parser.add_argument("--json", action="store_true", help="print the summary as JSON")
+    add_options(parser, RenderConfig, ThreadOptions, RefineOptions, *prepare_options())
     parser.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    from panogrf.app.files.images import to_uint8, write_rgb
-    from panogrf.app.paths.frames import FrameRenderer
-    from panogrf.app.scene.folder import load_scene
-    from panogrf.app.scoring import image_scores
-    from panogrf.renderer.methods import SourceViews
+    cfg = from_args(RenderConfig, args)
+    from_args(ThreadOptions, args).apply()
+    if cfg.camera_path is not None:
+        return run_path(cfg, args)
+    return run_pose(cfg, args)
 
-    if args.camera_path is not None:
-        return run_path(args)
-    if args.out.suffix.lower() not in (".png", ".jpg", ".jpeg"):
-        raise UserError(f"--out must be a .png or .jpg file, got {args.out}")
-    if args.out.parent and not args.out.parent.exists():
-        raise UserError(f"--out: folder {args.out.parent} does not exist")
-    if args.quality == "preview" and args.method != "panogrf":
-        raise UserError("--quality preview is the GL depth-mesh preview: use it without --method")
-    if args.height is not None and not 8 <= args.height <= MAX_HEIGHT:
-        raise UserError(f"--height must be between 8 and {MAX_HEIGHT}, got {args.height}")
-    if args.threads:
-        torch.set_num_threads(args.threads)
-    scene = load_scene(args.scene, load_images=True)
-    refuse_scene_inputs(args.out, scene)
-    v = scene.num_views
-    if args.target_frame is not None and not 0 <= args.target_frame < v:
-        raise UserError(f"--target-frame {args.target_frame}: the scene has frames 0..{v - 1}")
-    sources = args.sources
+
+def _source_frames(cfg: RenderConfig, frames: int) -> list[int]:
+    """The source frames of a scene of ``frames`` views: ``cfg.sources``, else every frame
+    but the target; refused in one line where they are out of range, hold the target frame or
+    repeat one."""
+    v, target = frames, cfg.target_frame
+    if target is not None and not 0 <= target < v:
+        raise UserError(f"--target-frame {target}: the scene has frames 0..{v - 1}")
+    sources = cfg.sources
     if sources is None:
-        sources = [i for i in range(v) if i != args.target_frame]
+        sources = [i for i in range(v) if i != target]
     bad = [i for i in sources if not 0 <= i < v]
     if bad:
         raise UserError(f"--sources {bad}: the scene has frames 0..{v - 1}")
-    if args.target_frame is not None and args.target_frame in sources:
-        raise UserError(f"--sources must not contain the target frame {args.target_frame}")
+    if target is not None and target in sources:
+        raise UserError(f"--sources must not contain the target frame {target}")
     if len(set(sources)) != len(sources) or not sources:
         raise UserError(f"--sources must list distinct frames, got {sources}")
-    data = scene.images
-    # Poses of the scene's world, in double precision: the renderer takes them relative to the
-    # scene's origin (`SceneImages.origin`), so map-grid coordinates keep their millimetres.
-    tgt = scene.c2w[args.target_frame] if args.target_frame is not None else parse_c2w(args.c2w)
-    height = args.height or scene.height
+    return sources
+
+
+def _source_views(args: argparse.Namespace, scene, sources: list[int] | None = None):
+    """The `SourceViews` of frames ``sources`` of ``scene`` (None: all) as the preparation
+    options in ``args`` ask (device, depth refinement, nadir cap), and the networks
+    (`default_models`)."""
+    from panogrf.renderer.methods import SourceViews
+
+    images, c2w = scene.images.images, scene.images.c2w
     models = session.default_models(resolve_device(args.device))
     views = SourceViews(
-        data.images[sources],
-        data.c2w[sources],
+        images if sources is None else images[sources],
+        c2w if sources is None else c2w[sources],
         refine=refine_setting(args),
         nadir=nadir_setting(scene.metadata, args.nadir_cap),
         device=models.device,
     )
+    return views, models
+
+
+def run_pose(cfg: RenderConfig, args: argparse.Namespace) -> int:
+    """``--target-frame`` or ``--c2w``: one panorama, scored against the target frame's."""
+    from panogrf.app.files.images import to_uint8, write_rgb
+    from panogrf.app.paths.frames import FrameRenderer
+    from panogrf.app.scene.folder import load_scene
+    from panogrf.app.scoring import image_scores
+
+    scene = load_scene(cfg.scene, load_images=True)
+    refuse_scene_inputs(cfg.out, scene)
+    sources = _source_frames(cfg, scene.num_views)
+    data = scene.images
+    # Poses of the scene's world, in double precision: the renderer takes them relative to the
+    # scene's origin (`SceneImages.origin`), so map-grid coordinates keep their millimetres.
+    target = cfg.target_frame
+    tgt = scene.c2w[target] if target is not None else parse_c2w(cfg.c2w)
+    height = cfg.height or scene.height
+    views, models = _source_views(args, scene, sources)
     start = time.perf_counter()
-    frames = FrameRenderer(views, models, args.quality, args.method, data.origin)
+    frames = FrameRenderer(views, models, cfg.quality, cfg.method, data.origin)
     try:
         frames.check_height(height)
         cache = session.prepare_views(
-            views, models, args.method, args.quality, args.cache_dir, not args.no_cache
+            views, models, cfg.method, cfg.quality, args.cache_dir, not args.no_cache
         )
         frames.prepare()
         prep = time.perf_counter() - start
-        if args.target_frame is None:  # a pose of one's own: warned as a camera path's frame
+        if target is None:  # a pose of one's own: warned as a camera path's frame
             _warn_pose(tgt, scene.c2w[sources], views)
         start = time.perf_counter()
         rgb = frames.panorama(tgt, height)
         seconds = time.perf_counter() - start
     finally:
         frames.release()
-    pixels = to_uint8(rgb)
     try:
-        write_rgb(args.out, pixels)
+        write_rgb(cfg.out, to_uint8(rgb))
     except OSError as exc:
-        raise UserError(f"cannot write {args.out}: {exc.strerror or exc}") from None
+        raise UserError(f"cannot write {cfg.out}: {exc.strerror or exc}") from None
     summary = {
-        "out": str(args.out),
-        "method": args.method,
-        "quality": args.quality,
+        "out": str(cfg.out),
+        "method": cfg.method,
+        "quality": cfg.quality,
         "size": [2 * height, height],  # width x height
         "sources": sources,
         "prepare_s": round(prep, 3),
         "cache": {"status": cache.status, "path": str(cache.path)},
         "render_ms": round(1000 * seconds, 1),
     }
-    if args.target_frame is not None:
-        summary["target_frame"] = args.target_frame
-        gt = data.images[args.target_frame : args.target_frame + 1]
-        summary["metrics"] = image_scores(rgb, gt)
-    if args.json:
+    if target is not None:
+        summary["target_frame"] = target
+        summary["metrics"] = image_scores(rgb, data.images[target : target + 1])
+    _print_summary(cfg, summary, prep, seconds)
+    return 0
+
+
+def _print_summary(cfg: RenderConfig, summary: dict, prep: float, seconds: float) -> None:
+    """Print a render's ``summary`` (`run_pose`; ``prep`` and ``seconds``: the preparation's
+    and the render's time): as JSON with ``--json``, else in words."""
+    if cfg.json:
         print(json.dumps(_json_safe(summary), indent=2, allow_nan=False))
-        return 0
+        return
+    width, height = summary["size"]
     print(
-        f"wrote {args.out} ({2 * height}x{height}, {args.method}, {args.quality}): "
-        f"prepared in {prep:.2f} s (scene cache {cache.status}), rendered in "
+        f"wrote {cfg.out} ({width}x{height}, {cfg.method}, {cfg.quality}): "
+        f"prepared in {prep:.2f} s (scene cache {summary['cache']['status']}), rendered in "
         f"{1000 * seconds:.0f} ms"
     )
     if "metrics" in summary:
         m = summary["metrics"]
         print(
-            f"vs frame {args.target_frame}: PSNR {m['psnr']:.2f} dB, "
+            f"vs frame {cfg.target_frame}: PSNR {m['psnr']:.2f} dB, "
             f"WS-PSNR {m['ws_psnr']:.2f} dB, SSIM {m['ssim']:.4f}, LPIPS {m['lpips']:.4f}"
         )
-    return 0
 
 
 def _warn_pose(tgt: np.ndarray, sources: np.ndarray, views) -> None:
@@ -272,7 +329,7 @@ def _check_path_size(path, name: Path) -> None:
         )
 
 
-def run_path(args: argparse.Namespace) -> int:
+def run_path(cfg: RenderConfig, args: argparse.Namespace) -> int:
     """``--camera-path``: every camera of the path to a video or a folder of frames."""
     from panogrf.app.files.video import FrameSink
     from panogrf.app.paths.camera_path import duration_note, read_camera_path
@@ -280,44 +337,30 @@ def run_path(args: argparse.Namespace) -> int:
     from panogrf.app.scene.coverage import inside_warning, path_warning
     from panogrf.app.scene.folder import load_scene
     from panogrf.model.progress import stage
-    from panogrf.renderer.methods import SourceViews
 
-    if args.sources is not None or args.height is not None:
-        raise UserError("--camera-path takes its size from the path; drop --height/--sources")
-    if args.quality == "preview" and args.method != "panogrf":
-        raise UserError("--quality preview is the GL depth-mesh preview: use it without --method")
-    path = read_camera_path(args.camera_path)
+    path = read_camera_path(cfg.camera_path)
     if note := duration_note(path):
         print(note, flush=True)
-    _check_path_size(path, args.camera_path)
-    if args.threads:
-        torch.set_num_threads(args.threads)
+    _check_path_size(path, cfg.camera_path)
     spherical = path.camera_type == "equirectangular"
-    sink = FrameSink(args.out, path.fps, path.render_width, path.render_height, spherical)
-    scene = load_scene(args.scene, load_images=True)
-    refuse_scene_inputs(args.out, scene, folder=args.out.suffix.lower() != ".mp4")
+    sink = FrameSink(cfg.out, path.fps, path.render_width, path.render_height, spherical)
+    scene = load_scene(cfg.scene, load_images=True)
+    refuse_scene_inputs(cfg.out, scene, folder=cfg.out.suffix.lower() != ".mp4")
     data = scene.images
-    models = session.default_models(resolve_device(args.device))
-    views = SourceViews(
-        data.images,
-        data.c2w,
-        refine=refine_setting(args),
-        nadir=nadir_setting(scene.metadata, args.nadir_cap),
-        device=models.device,
-    )
+    views, models = _source_views(args, scene)
     warning = path_warning(np.asarray(path.poses, dtype=np.float64), scene.c2w)
     if warning:
         print(warning, flush=True)
-    frames = FrameRenderer(views, models, args.quality, args.method, data.origin)
+    frames = FrameRenderer(views, models, cfg.quality, cfg.method, data.origin)
     start = time.perf_counter()
     try:
         erp_rows = max(
             erp_height_for(path.camera_type, path.render_width, path.render_height, float(fov))
             for fov in path.fov
         )
-        frames.check_height(erp_rows, f"{args.camera_path}: panoramas of")
+        frames.check_height(erp_rows, f"{cfg.camera_path}: panoramas of")
         cache = session.prepare_views(
-            views, models, args.method, args.quality, args.cache_dir, not args.no_cache
+            views, models, cfg.method, cfg.quality, args.cache_dir, not args.no_cache
         )
         frames.prepare()
         prep = time.perf_counter() - start
@@ -330,14 +373,14 @@ def run_path(args: argparse.Namespace) -> int:
         with sink, stage("rendering frames", len(path)) as bar:
             render_camera_path(frames, path, sink, progress=lambda _: bar.advance())
     except OSError as exc:
-        raise UserError(f"cannot write {args.out}: {exc.strerror or exc}") from None
+        raise UserError(f"cannot write {cfg.out}: {exc.strerror or exc}") from None
     finally:
         frames.release()
     seconds = time.perf_counter() - start
     what = "video" if sink.is_video else "frames"
     print(
-        f"wrote {args.out} ({what}: {sink.count} frames, {path.render_width}x"
-        f"{path.render_height}, {path.camera_type}, {args.quality}): prepared in {prep:.2f} s "
+        f"wrote {cfg.out} ({what}: {sink.count} frames, {path.render_width}x"
+        f"{path.render_height}, {path.camera_type}, {cfg.quality}): prepared in {prep:.2f} s "
         f"(scene cache {cache.status}), "
         f"{1000 * seconds / max(sink.count, 1):.0f} ms per frame"
     )

@@ -1,7 +1,9 @@
 """`panogrf scene ...`: tools for scene folders (posed panoramas in a transforms.json).
 
 Each sub-subcommand is one ``_add_<name>(sub)`` function listed in `_SUBCOMMANDS`: it adds its
-parser and sets ``func`` to a function of the parsed arguments that returns the exit code.
+parser and sets ``func`` to a function of the parsed arguments that returns the exit code. The
+options of ``check`` and ``reproject`` are declared once, on the fields of `CheckConfig` and
+`ReprojectConfig` (`panogrf.app.options`).
 """
 
 from __future__ import annotations
@@ -10,11 +12,13 @@ import argparse
 import itertools
 import math
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
 from panogrf.app.commands import scene_poses, scene_prepare
 from panogrf.app.errors import UserError
+from panogrf.app.options import add_options, from_args, option
 from panogrf.app.scene.folder import TRANSFORMS, SceneReport, inspect_scene
 
 #: Up to this many views, every pairwise baseline is printed; beyond, a summary.
@@ -69,8 +73,18 @@ def _summary(report: SceneReport) -> list[str]:
     return lines
 
 
+@dataclass(frozen=True)
+class CheckConfig:
+    """The scene `panogrf scene check` validates (its field is also its argument)."""
+
+    dir: str = option(
+        help=f"scene folder (containing {TRANSFORMS})", positional=True, metavar="DIR"
+    )
+    """The scene folder."""
+
+
 def run_check(args: argparse.Namespace) -> int:
-    report = inspect_scene(args.dir)
+    report = inspect_scene(from_args(CheckConfig, args).dir)
     if report.ok:
         print("\n".join(_summary(report)))
         return 0
@@ -92,28 +106,62 @@ def _add_check(sub: argparse._SubParsersAction) -> None:
         ),
         epilog="example: panogrf scene check data/val_00000",
     )
-    parser.add_argument("dir", metavar="DIR", help=f"scene folder (containing {TRANSFORMS})")
+    add_options(parser, CheckConfig)
     parser.set_defaults(func=run_check)
+
+
+def _view_list(text: str) -> list[int]:
+    try:
+        return [int(x) for x in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated views, got {text!r}") from None
+
+
+@dataclass(frozen=True)
+class ReprojectConfig:
+    """The views `panogrf scene reproject` warps into each other. A field made with `option`
+    is also an option of the command; the settings are checked as they are built
+    (`UserError`, one line naming the option)."""
+
+    dir: str = option(
+        help=f"scene folder (containing {TRANSFORMS})", positional=True, metavar="DIR"
+    )
+    """The scene folder."""
+    target: int | None = option(None, "target view (default: middle)")
+    """The view warped into (None: the middle one)."""
+    sources: list[int] | None = option(
+        None, "comma-separated source views (default: all others)", parse=_view_list
+    )
+    """The views warped (None: all but the target)."""
+    occlusion_tol: float = option(
+        0.05,
+        "relative depth difference above which a point counts as occluded (default 0.05)",
+    )
+    """Relative depth difference above which a point counts as occluded."""
+
+    def __post_init__(self) -> None:
+        """Refuse an ``occlusion_tol`` that is not a positive finite number."""
+        if not (math.isfinite(self.occlusion_tol) and self.occlusion_tol > 0):
+            raise UserError(
+                f"--occlusion-tol must be a positive relative depth difference (e.g. 0.05), "
+                f"got {self.occlusion_tol}"
+            )
 
 
 def run_reproject(args: argparse.Namespace) -> int:
     from panogrf.app.scene.consistency import reprojection_check
     from panogrf.app.scene.folder import load_scene
 
-    if not (math.isfinite(args.occlusion_tol) and args.occlusion_tol > 0):
-        raise UserError(
-            f"--occlusion-tol must be a positive relative depth difference (e.g. 0.05), "
-            f"got {args.occlusion_tol}"
-        )
-    scene = load_scene(args.dir, load_images=True)
+    cfg = from_args(ReprojectConfig, args)
+    scene = load_scene(cfg.dir, load_images=True)
     data = scene.images
     if data.depths is None:
-        raise UserError(f"{args.dir}: the scene has no depth maps to warp with")
+        raise UserError(f"{cfg.dir}: the scene has no depth maps to warp with")
     n = scene.num_views
-    target = args.target if args.target is not None else n // 2
+    target = cfg.target if cfg.target is not None else n // 2
     if not 0 <= target < n:
         raise UserError(f"--target {target} is out of range: the scene has {n} views")
-    sources = [i for i in range(n) if i != target] if args.sources is None else args.sources
+    sources = [i for i in range(n) if i != target] if cfg.sources is None else cfg.sources
     for i in sources:
         if not 0 <= i < n or i == target:
             raise UserError(f"--sources: {i} is not another view of the {n}-view scene")
@@ -124,19 +172,12 @@ def run_reproject(args: argparse.Namespace) -> int:
         f"{'PSNR depth warp':>16} {'PSNR rotation only':>19}"
     )
     for i in sources:
-        r = reprojection_check(data.images, data.c2w, data.depths, i, target, args.occlusion_tol)
+        r = reprojection_check(data.images, data.c2w, data.depths, i, target, cfg.occlusion_tol)
         print(
             f"  {scene.frames[i].name:<12} {r.baseline_m:>10.3f} {r.covered:>8.1%} "
             f"{r.psnr_depth_warp:>13.2f} dB {r.psnr_rotation_only:>16.2f} dB"
         )
     return 0
-
-
-def _view_list(text: str) -> list[int]:
-    try:
-        return [int(x) for x in text.split(",")]
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated views, got {text!r}") from None
 
 
 def _add_reproject(sub: argparse._SubParsersAction) -> None:
@@ -151,20 +192,7 @@ def _add_reproject(sub: argparse._SubParsersAction) -> None:
         ),
         epilog="example: panogrf scene reproject data/test_00000 --target 1 --sources 0,2",
     )
-    parser.add_argument("dir", metavar="DIR", help=f"scene folder (containing {TRANSFORMS})")
-    parser.add_argument("--target", type=int, default=None, help="target view (default: middle)")
-    parser.add_argument(
-        "--sources",
-        type=_view_list,
-        default=None,
-        help="comma-separated source views (default: all others)",
-    )
-    parser.add_argument(
-        "--occlusion-tol",
-        type=float,
-        default=0.05,
-        help="relative depth difference above which a point counts as occluded (default 0.05)",
-    )
+    add_options(parser, ReprojectConfig)
     parser.set_defaults(func=run_reproject)
 
 

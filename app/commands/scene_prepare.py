@@ -6,25 +6,42 @@ cache they read (`panogrf.app.scene.session`), so that they start at once. Witho
 ``--sources`` every view of the scene is prepared: what `view`, `render --c2w` and
 `render --camera-path` use; ``--sources 0,2``: those views only, what
 `render --target-frame 1 --sources 0,2` (or `--target-frame 1` on a three-view scene) uses.
+
+The options are declared once, on the fields of `PrepareConfig` (`panogrf.app.options`).
 """
 
 from __future__ import annotations
 
 import argparse
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
-import torch
-
 from panogrf.app.errors import UserError
+from panogrf.app.options import add_options, from_args, option
 from panogrf.app.runtime import (
-    add_prepare_options,
-    add_refine_depth,
+    RefineOptions,
+    ThreadOptions,
     frame_indices,
+    prepare_options,
     refine_setting,
     resolve_device,
-    thread_count,
 )
+
+
+@dataclass(frozen=True)
+class PrepareConfig:
+    """The scene `panogrf scene prepare` prepares, and which of its views as the sources. A
+    field made with `option` is also an option of the command."""
+
+    dir: Path = option(help="scene folder", positional=True, metavar="SCENE_DIR")
+    """The scene folder."""
+    sources: list[int] | None = option(
+        None,
+        "comma-separated frames to prepare as the sources (default: every frame)",
+        parse=frame_indices,
+    )
+    """The frames prepared as the sources (None: every frame)."""
 
 
 def add_prepare(sub: argparse._SubParsersAction) -> None:
@@ -40,18 +57,9 @@ def add_prepare(sub: argparse._SubParsersAction) -> None:
         ),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    parser.add_argument("dir", type=Path, metavar="SCENE_DIR", help="scene folder")
-    parser.add_argument(
-        "--sources",
-        type=frame_indices,
-        default=None,
-        help="comma-separated frames to prepare as the sources (default: every frame)",
+    add_options(
+        parser, PrepareConfig, ThreadOptions, RefineOptions, *prepare_options(no_cache=False)
     )
-    parser.add_argument(
-        "--threads", type=thread_count, default=0, help="torch threads (default: all)"
-    )
-    add_refine_depth(parser)
-    add_prepare_options(parser, no_cache=False)
     parser.set_defaults(func=run_prepare)
 
 
@@ -61,40 +69,40 @@ def run_prepare(args: argparse.Namespace) -> int:
     from panogrf.renderer.methods import SourceViews
     from panogrf.renderer.nadir import nadir_setting
 
-    if args.threads:
-        torch.set_num_threads(args.threads)
+    cfg = from_args(PrepareConfig, args)
+    from_args(ThreadOptions, args).apply()
     refine = refine_setting(args)
     models = session.default_models(resolve_device(args.device))
     start = time.perf_counter()
-    if args.sources is None:
+    if cfg.sources is None:
         prepared = session.prepare_scene(
-            args.dir, args.cache_dir, models, refine=refine, log=_quiet, nadir_cap=args.nadir_cap
+            cfg.dir, args.cache_dir, models, refine=refine, log=_quiet, nadir_cap=args.nadir_cap
         )
         result, views = prepared.cache, prepared.scene.num_views
         what = f"all {views} views"
     else:
-        scene = load_scene(args.dir, load_images=True)
+        scene = load_scene(cfg.dir, load_images=True)
         v = scene.num_views
-        bad = [i for i in args.sources if not 0 <= i < v]
+        bad = [i for i in cfg.sources if not 0 <= i < v]
         if bad:
             raise UserError(f"--sources {bad}: the scene has frames 0..{v - 1}")
-        if len(set(args.sources)) != len(args.sources):
-            raise UserError(f"--sources must list distinct frames, got {args.sources}")
+        if len(set(cfg.sources)) != len(cfg.sources):
+            raise UserError(f"--sources must list distinct frames, got {cfg.sources}")
         data = scene.images
         views = SourceViews(
-            data.images[args.sources],
-            data.c2w[args.sources],
+            data.images[cfg.sources],
+            data.c2w[cfg.sources],
             refine=refine,
             nadir=nadir_setting(scene.metadata, args.nadir_cap),
             device=models.device,
         )
         result = session.prepare_views(views, models, cache_dir=args.cache_dir)
-        what = f"sources {','.join(map(str, args.sources))}"
+        what = f"sources {','.join(map(str, cfg.sources))}"
     if result.path == Path("-"):  # e.g. missing weights were reported before; belt and braces
         raise UserError(f"the scene was prepared but not cached: {result.status}")
     refined = "refined depth" if refine is not None else "unrefined depth"
     print(
-        f"prepared {args.dir} ({what}, {refined}): scene cache {result.status} in "
+        f"prepared {cfg.dir} ({what}, {refined}): scene cache {result.status} in "
         f"{time.perf_counter() - start:.2f} s ({result.path})"
     )
     if "not saved" in result.status:

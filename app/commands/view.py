@@ -1,4 +1,7 @@
-"""`panogrf view SCENE`: walk through a scene in a window (or headless on EGL)."""
+"""`panogrf view SCENE`: walk through a scene in a window (or headless on EGL).
+
+The options are declared once, on the fields of `ViewConfig` (`panogrf.app.options`).
+"""
 
 from __future__ import annotations
 
@@ -6,16 +9,18 @@ import argparse
 import dataclasses
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 from panogrf.app.errors import UserError
+from panogrf.app.options import add_options, from_args, option
 from panogrf.app.runtime import (
-    add_prepare_options,
-    add_refine_depth,
+    RefineOptions,
+    ThreadOptions,
     number,
+    prepare_options,
     refine_setting,
     resolve_device,
-    thread_count,
 )
 
 
@@ -38,6 +43,92 @@ KEYS = (
 )
 
 
+@dataclass(frozen=True)
+class ViewConfig:
+    """How `panogrf view` opens a scene. A field made with `option` is also an option of the
+    command; the settings are checked as they are built (`UserError`, one line naming the
+    option)."""
+
+    scene: Path = option(help="scene folder (transforms.json)", positional=True, metavar="SCENE")
+    """The scene folder."""
+    window: str = option(
+        "pyglet",
+        "pyglet (a window; needs a display) or headless (EGL, no display)",
+        choices=("pyglet", "headless"),
+    )
+    """``pyglet`` (a window) or ``headless`` (EGL)."""
+    size: tuple[int, int] = option((1024, 512), "window size WxH", parse=_size)
+    """The window's width and height in pixels."""
+    start_frame: int = option(0, "start at this view's pose")
+    """The frame whose pose the camera starts at."""
+    no_refine: bool = option(False, "preview only (no network)")
+    """The GL preview only: no neural refinement."""
+    path_out: Path = option(
+        Path("camera_path.json"), "where O saves the camera path (default camera_path.json)"
+    )
+    """Where O saves the camera path."""
+    drag_looks: bool = option(
+        False,
+        "dragging turns the camera with the mouse (as in games) instead of moving the "
+        "image with the cursor (as in 360-degree photo viewers)",
+    )
+    """Dragging turns the camera instead of moving the image with the cursor."""
+    camera_path: Path | None = option(
+        None,
+        "start with the keyframes of this camera path (one O saved, or any nerfstudio "
+        "camera_path.json; in the scene's world): P plays it, keys edit it, O saves it",
+    )
+    """A camera path whose keyframes the session starts with."""
+    screenshot_dir: Path = option(Path("."), "where X saves screenshots (default: here)")
+    """Where X saves screenshots."""
+    frames: int | None = option(None, "close after this many frames (headless runs)")
+    """Close after this many frames (None: when the user does)."""
+    script: str = option("", 'scripted keys, e.g. "w*30,x,wait*10": hold w 30 frames, press x')
+    """Scripted keys (`script_keys`)."""
+    fixed_step: float | None = option(
+        None,
+        "seconds of camera motion per frame (default: the wall clock)",
+        parse=number(float, 0.0, 10.0, low_open=True),
+    )
+    """Seconds of camera motion per frame (None: the wall clock)."""
+    moving_rows: int | None = option(
+        None,
+        "rows the GL preview's geometry is drawn at while the camera moves (default: the "
+        "viewer's, ViewerSetup.moving_height; 512: full resolution); its colours are read at "
+        "512 rows (see --no-sharp)",
+    )
+    """Rows the preview's geometry is drawn at while moving (None: the viewer's)."""
+    no_sharp: bool = option(
+        False,
+        "show the GL preview upsampled from the rows it is drawn at while moving, and draw "
+        "a still camera's at 512 rows, instead of reading the colours at 512 rows (softer while "
+        "moving, cheaper per frame on a CPU rasteriser)",
+    )
+    """Upsample the moving preview instead of reading its colours at 512 rows."""
+
+    def __post_init__(self) -> None:
+        """Refuse a window without a display, ``frames`` under 1, ``moving_rows`` outside 16
+        to 512 and a script that does not parse (`script_keys`)."""
+        if self.window == "pyglet" and not _has_display():
+            raise UserError(
+                "no display for a window: set DISPLAY (e.g. under Xvfb) or use --window headless"
+            )
+        if self.frames is not None and self.frames < 1:
+            raise UserError("--frames must be at least 1")
+        if self.moving_rows is not None and not 16 <= self.moving_rows <= 512:
+            raise UserError("--moving-rows must be between 16 and 512")
+        self.script_keys()
+
+    def script_keys(self) -> list[tuple[str, int]]:
+        """The keys ``script`` presses (`panogrf.app.viewer.script.parse_script`)."""
+        from panogrf.app.viewer.script import parse_script
+
+        try:
+            return parse_script(self.script)
+        except ValueError as exc:
+            raise UserError(f"--script: {exc}") from None
+
+
 def register(subparsers) -> None:
     parser = subparsers.add_parser(
         "view",
@@ -50,130 +141,52 @@ def register(subparsers) -> None:
         ),
         epilog="example: panogrf view assets/demo",
     )
-    parser.add_argument("scene", type=Path, metavar="SCENE", help="scene folder (transforms.json)")
-    parser.add_argument(
-        "--window",
-        choices=("pyglet", "headless"),
-        default="pyglet",
-        help="pyglet (a window; needs a display) or headless (EGL, no display)",
-    )
-    parser.add_argument("--size", type=_size, default=(1024, 512), help="window size WxH")
-    parser.add_argument("--start-frame", type=int, default=0, help="start at this view's pose")
-    parser.add_argument("--no-refine", action="store_true", help="preview only (no network)")
-    parser.add_argument(
-        "--path-out",
-        type=Path,
-        default=Path("camera_path.json"),
-        help="where O saves the camera path (default camera_path.json)",
-    )
-    parser.add_argument(
-        "--drag-looks",
-        action="store_true",
-        help="dragging turns the camera with the mouse (as in games) instead of moving the "
-        "image with the cursor (as in 360-degree photo viewers)",
-    )
-    parser.add_argument(
-        "--camera-path",
-        type=Path,
-        default=None,
-        help="start with the keyframes of this camera path (one O saved, or any nerfstudio "
-        "camera_path.json; in the scene's world): P plays it, keys edit it, O saves it",
-    )
-    parser.add_argument(
-        "--screenshot-dir",
-        type=Path,
-        default=Path("."),
-        help="where X saves screenshots (default: here)",
-    )
-    parser.add_argument(
-        "--frames", type=int, default=None, help="close after this many frames (headless runs)"
-    )
-    parser.add_argument(
-        "--script",
-        default="",
-        help='scripted keys, e.g. "w*30,x,wait*10": hold w 30 frames, press x',
-    )
-    parser.add_argument(
-        "--fixed-step",
-        type=number(float, 0.0, 10.0, low_open=True),
-        default=None,
-        help="seconds of camera motion per frame (default: the wall clock)",
-    )
-    parser.add_argument(
-        "--moving-rows",
-        type=int,
-        default=None,
-        help="rows the GL preview's geometry is drawn at while the camera moves (default: the "
-        "viewer's, ViewerSetup.moving_height; 512: full resolution); its colours are read at "
-        "512 rows (see --no-sharp)",
-    )
-    parser.add_argument(
-        "--no-sharp",
-        action="store_true",
-        help="show the GL preview upsampled from the rows it is drawn at while moving, and draw "
-        "a still camera's at 512 rows, instead of reading the colours at 512 rows (softer while "
-        "moving, cheaper per frame on a CPU rasteriser)",
-    )
-    parser.add_argument(
-        "--threads", type=thread_count, default=0, help="torch threads (default: all)"
-    )
-    add_refine_depth(parser)
-    add_prepare_options(parser)
+    add_options(parser, ViewConfig, ThreadOptions, RefineOptions, *prepare_options())
     parser.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     from panogrf.app.viewer.torch_threads import serial_main_thread
 
-    if args.window == "pyglet" and not _has_display():
-        raise UserError(
-            "no display for a window: set DISPLAY (e.g. under Xvfb) or use --window headless"
-        )
-    if args.frames is not None and args.frames < 1:
-        raise UserError("--frames must be at least 1")
-    if args.moving_rows is not None and not 16 <= args.moving_rows <= 512:
-        raise UserError("--moving-rows must be between 16 and 512")
+    cfg = from_args(ViewConfig, args)
     # The main thread only draws; the torch work runs in other threads (torch_threads).
     with serial_main_thread() as threads:
-        return _session(args, args.threads or threads)
+        return _session(cfg, args, from_args(ThreadOptions, args).threads or threads)
 
 
-def _session(args: argparse.Namespace, threads: int) -> int:
-    """`run` once the main thread is serial: ``threads`` torch threads for the others."""
-    import numpy as np
-
-    from panogrf.app.viewer.screen import refine_summary
-    from panogrf.app.viewer.setup import UPSAMPLED_MOVING_ROWS, ViewerSetup
-    from panogrf.app.viewer.torch_threads import off_main_thread
-    from panogrf.app.viewer.window import parse_script, run_viewer
-    from panogrf.app.viewer.worker import RenderWorker
+def _keyframes(cfg: ViewConfig) -> list:
+    """The keyframes of ``cfg.camera_path`` (none without one), read before minutes of work;
+    a bad file refused in one line."""
+    if cfg.camera_path is None:
+        return []
+    from panogrf.app.paths.camera_path import read_camera_path
+    from panogrf.app.viewer.recording import keyframes_from_path
 
     try:
-        script = parse_script(args.script)
+        return keyframes_from_path(read_camera_path(cfg.camera_path))
     except ValueError as exc:
-        raise UserError(f"--script: {exc}") from None
-    keyframes = []
-    if args.camera_path is not None:  # read first: a bad file fails before minutes of work
-        from panogrf.app.paths.camera_path import read_camera_path
-        from panogrf.app.viewer.recording import keyframes_from_path
+        raise UserError(f"{cfg.camera_path}: {exc}") from None
 
-        try:
-            keyframes = keyframes_from_path(read_camera_path(args.camera_path))
-        except ValueError as exc:
-            raise UserError(f"{args.camera_path}: {exc}") from None
+
+def _session(cfg: ViewConfig, args: argparse.Namespace, threads: int) -> int:
+    """`run` once the main thread is serial: ``threads`` torch threads for the others."""
     from panogrf.app.runtime import refuse_scene_inputs
-    from panogrf.app.scene.folder import load_scene
-
-    # O must never write over what the scene is made of (checked before minutes of work).
-    refuse_scene_inputs(args.path_out, load_scene(args.scene), "--path-out")
     from panogrf.app.scene import session
+    from panogrf.app.scene.folder import load_scene
+    from panogrf.app.viewer.setup import UPSAMPLED_MOVING_ROWS, ViewerSetup
+    from panogrf.app.viewer.torch_threads import off_main_thread
+    from panogrf.app.viewer.window import run_viewer
 
+    script = cfg.script_keys()
+    keyframes = _keyframes(cfg)
+    # O must never write over what the scene is made of (checked before minutes of work).
+    refuse_scene_inputs(cfg.path_out, load_scene(cfg.scene), "--path-out")
     # The refined scene when it is cached; else the plain one now and the refinement in the
     # background, swapped in when done (SceneRefiner).
     prepared = off_main_thread(
         threads,
         session.prepare_scene,
-        args.scene,
+        cfg.scene,
         args.cache_dir,
         session.default_models(resolve_device(args.device)),
         refine=refine_setting(args),
@@ -181,9 +194,46 @@ def _session(args: argparse.Namespace, threads: int) -> int:
         use_cache=not args.no_cache,
         nadir_cap=args.nadir_cap,
     )
-    scene, views, models = prepared.scene, prepared.views, prepared.models
-    if not 0 <= args.start_frame < scene.num_views:
+    scene, views = prepared.scene, prepared.views
+    if not 0 <= cfg.start_frame < scene.num_views:
         raise UserError(f"--start-frame: the scene has frames 0..{scene.num_views - 1}")
+    refiner, worker = _background(cfg, prepared, threads)
+    moving = cfg.moving_rows or (UPSAMPLED_MOVING_ROWS if cfg.no_sharp else None)
+    setup = ViewerSetup.from_views(
+        views,
+        cfg.start_frame,
+        worker=worker,
+        path_out=cfg.path_out,
+        screenshot_dir=cfg.screenshot_dir,
+        fixed_step=cfg.fixed_step,
+        frames=cfg.frames,
+        script=script,
+        sharp=not cfg.no_sharp,
+        scene_refiner=refiner,
+        origin=scene.images.origin,
+        drag_looks=cfg.drag_looks,
+        keyframes=[dataclasses.replace(k, c2w=scene.images.local(k.c2w)) for k in keyframes],
+        keyframes_from=str(cfg.camera_path),
+        **({"moving_height": moving} if moving else {}),
+    )
+    start = time.perf_counter()
+    try:
+        config = run_viewer(setup, cfg.window, cfg.size)
+    finally:
+        if worker is not None:
+            worker.stop()
+        if refiner is not None:
+            refiner.stop()
+    return _closed(config, worker, start)
+
+
+def _background(cfg: ViewConfig, prepared, threads: int) -> tuple:
+    """The threads that work behind the window, started: the depth refinement of the
+    ``prepared`` scene, where one is pending, and the render worker (none with
+    ``--no-refine``), each None where not started."""
+    from panogrf.app.viewer.torch_threads import off_main_thread
+    from panogrf.app.viewer.worker import RenderWorker
+
     refiner = None
     if prepared.pending_refine is not None:
         from panogrf.app.viewer.scene_refiner import SceneRefiner
@@ -191,35 +241,20 @@ def _session(args: argparse.Namespace, threads: int) -> int:
         print("refining the depth in the background; the view switches to it when done")
         refiner = SceneRefiner(prepared).start()
     worker = None
-    if not args.no_refine:
+    if not cfg.no_refine:
+        views, models = prepared.views, prepared.models
         cache = off_main_thread(threads, views.cache_for, "panogrf", models)
         worker = RenderWorker(models.renderer("panogrf"), cache, threads=threads).start()
-    moving = args.moving_rows or (UPSAMPLED_MOVING_ROWS if args.no_sharp else None)
-    setup = ViewerSetup.from_views(
-        views,
-        args.start_frame,
-        worker=worker,
-        path_out=args.path_out,
-        screenshot_dir=args.screenshot_dir,
-        fixed_step=args.fixed_step,
-        frames=args.frames,
-        script=script,
-        sharp=not args.no_sharp,
-        scene_refiner=refiner,
-        origin=scene.images.origin,
-        drag_looks=args.drag_looks,
-        keyframes=[dataclasses.replace(k, c2w=scene.images.local(k.c2w)) for k in keyframes],
-        keyframes_from=str(args.camera_path),
-        **({"moving_height": moving} if moving else {}),
-    )
-    start = time.perf_counter()
-    try:
-        config = run_viewer(setup, args.window, args.size)
-    finally:
-        if worker is not None:
-            worker.stop()
-        if refiner is not None:
-            refiner.stop()
+    return refiner, worker
+
+
+def _closed(config, worker, start: float) -> int:
+    """Print how a viewer session that began at ``start`` (`time.perf_counter`) went: its
+    frame times and, with a render ``worker``, its refinements; 1 where the worker failed."""
+    import numpy as np
+
+    from panogrf.app.viewer.screen import refine_summary
+
     times = config.frame_times
     if times:
         moving = config.moving_frame_times

@@ -176,3 +176,41 @@ def test_a_positional_field_is_an_argument_named_by_its_place():
     built = from_args(Positional, args)
     assert built == Positional(data=Path("d"), sources=[Path("a"), Path("b")], out=Path("o"))
     assert "DATASET sources [sources ...]" in parser.format_usage()
+
+
+@dataclass(frozen=True)
+class Alternatives:
+    near: int | None = option(None, "near", one_of="where")
+    far: str | None = option(None, "far", one_of="where")
+
+
+def test_options_of_one_group_are_alternatives_exactly_one_of_which_is_given(capsys):
+    parser = _parser(Alternatives)
+    assert from_args(Alternatives, parser.parse_args(["--near", "3"])) == Alternatives(near=3)
+    for argv in ([], ["--near", "3", "--far", "x"]):
+        with pytest.raises(SystemExit):
+            parser.parse_args(argv)
+    err = capsys.readouterr().err.splitlines()
+    assert err[1] == "toy: error: one of the arguments --near --far is required"
+    assert err[-1] == "toy: error: argument --far: not allowed with argument --near"
+
+
+def test_a_missing_argument_is_named_in_the_order_of_the_fields(capsys):
+    with pytest.raises(SystemExit):
+        _parser(Positional).parse_args([])
+    assert capsys.readouterr().err.splitlines()[-1] == (
+        "toy: error: the following arguments are required: DATASET, sources, --out"
+    )
+
+
+@dataclass(frozen=True)
+class Switch:
+    refine: bool = option(True, "refine", negatable=True)
+
+
+def test_a_negatable_switch_takes_both_flags():
+    parser = _parser(Switch)
+    assert flag_of(Switch, "refine") == "--refine"
+    assert from_args(Switch, parser.parse_args([])) == Switch(refine=True)
+    assert from_args(Switch, parser.parse_args(["--no-refine"])) == Switch(refine=False)
+    assert parser.parse_args(["--no-refine", "--refine"]).refine is True
