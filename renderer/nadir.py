@@ -30,7 +30,6 @@ overrides it (`nadir_setting`).
 
 from __future__ import annotations
 
-import argparse
 import math
 from collections.abc import Mapping
 from typing import Any
@@ -104,18 +103,6 @@ def nadir_setting(metadata: Mapping[str, Any] | None, cli: Any = None) -> NadirS
         except ValueError as exc:
             raise UserError(f"transforms.json {METADATA_KEY!r}: {exc}") from None
     return "auto"
-
-
-def add_nadir_argument(parser: argparse.ArgumentParser) -> None:
-    """``--nadir-cap`` on an argparse parser (dest ``nadir_cap``, default None)."""
-    parser.add_argument(
-        "--nadir-cap",
-        default=None,
-        metavar="DEG|auto|off",
-        help="mask the tripod / hand at the bottom of every source: a cap of DEG degrees "
-        "around the nadir, 'auto' (detected per source; the default, or the scene's "
-        f"transforms.json {METADATA_KEY!r}) or 'off'",
-    )
 
 
 # --- the nadir-centred view ----------------------------------------------------------------
