@@ -13,7 +13,8 @@ without `option` is no option. A subclass gives an inherited option another defa
 declaring the field again with a plain default: the option keeps its flag, help and parse.
 A ``positional`` field is an argument named by its place (shown as its ``metavar``, else its
 name), with ``nargs`` as argparse's (``"+"``: one or more, a list). Options that name the same
-``one_of`` group are alternatives: exactly one of them must be given.
+``one_of`` group are alternatives: exactly one of them must be given; of those that name the
+same ``at_most_one`` group, at most one.
 """
 
 from __future__ import annotations
@@ -51,6 +52,9 @@ class Option:
     one_of: str | None = None
     """The name of a group of alternative options, exactly one of which must be given (an
     argparse required mutually exclusive group); None: no group."""
+    at_most_one: str | None = None
+    """The name of a group of alternative options, at most one of which may be given (an
+    argparse mutually exclusive group); None: no group."""
 
 
 def option(
@@ -65,10 +69,13 @@ def option(
     nargs: str | None = None,
     negatable: bool = False,
     one_of: str | None = None,
+    at_most_one: str | None = None,
 ) -> Any:
     """A dataclass field that is also a command-line option (no ``default``: a required one;
-    ``one_of``: one of a group of alternatives, see `Option`)."""
-    opt = Option(help, flag, parse, choices, positional, metavar, nargs, negatable, one_of)
+    ``one_of`` / ``at_most_one``: one of a group of alternatives, see `Option`)."""
+    opt = Option(
+        help, flag, parse, choices, positional, metavar, nargs, negatable, one_of, at_most_one
+    )
     return dataclasses.field(default=default, metadata={_KEY: opt})
 
 
@@ -155,19 +162,22 @@ def add_options(parser: argparse.ArgumentParser, *classes: type) -> None:
     """Add the options of each dataclass in ``classes`` to ``parser`` (`option`), the positional
     arguments and the required options first, then in the order of the classes and of their
     fields; each parses into the attribute named as its field. The options of a ``one_of``
-    group go into one required mutually exclusive group."""
+    group go into one required mutually exclusive group, those of an ``at_most_one`` group into
+    one that is not required."""
     arguments = [
-        (opt.one_of, *_argument(cls, f, opt)) for cls in classes for f, opt in options(cls)
+        (opt.one_of or opt.at_most_one, opt.one_of is not None, *_argument(cls, f, opt))
+        for cls in classes
+        for f, opt in options(cls)
     ]
-    arguments.sort(key=lambda argument: not _required(argument[1], argument[2]))
+    arguments.sort(key=lambda argument: not _required(argument[2], argument[3]))
     groups: dict[str, Any] = {}
-    for one_of, flag, kwargs in arguments:
-        if one_of is None:
+    for group, required, flag, kwargs in arguments:
+        if group is None:
             parser.add_argument(flag, **kwargs)
             continue
-        if one_of not in groups:
-            groups[one_of] = parser.add_mutually_exclusive_group(required=True)
-        groups[one_of].add_argument(flag, **kwargs)
+        if group not in groups:
+            groups[group] = parser.add_mutually_exclusive_group(required=required)
+        groups[group].add_argument(flag, **kwargs)
 
 
 def from_args(cls: type, args: argparse.Namespace, **fields: Any) -> Any:

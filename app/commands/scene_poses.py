@@ -9,6 +9,7 @@ Registered under `panogrf scene` by `panogrf.app.commands.scene`. The pose work 
 from __future__ import annotations
 
 import argparse
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +17,7 @@ import numpy as np
 from panogrf.app.commands.scene_poses_report import ADVICE, REPORT, _deg, _report_json, pose_report
 from panogrf.app.errors import UserError
 from panogrf.app.files.images import read_rgb
+from panogrf.app.options import add_options, from_args, option
 from panogrf.app.poses import scale as sc
 from panogrf.app.runtime import number
 
@@ -83,10 +85,11 @@ def _match_images(fmt: str, pose_file: Path, names: list[str] | None, given: lis
     return given, order
 
 
-def run_import(args: argparse.Namespace) -> int:
+def run_import(parsed: argparse.Namespace) -> int:
     from panogrf.app.poses.importers import read_poses
     from panogrf.app.scene.folder import write_scene
 
+    args = from_args(ImportOptions, parsed)
     _check_out(args.out)
     poses = read_poses(args.format, args.pose_file)
     files, order = _match_images(args.format, args.pose_file, poses.names, args.images)
@@ -140,6 +143,32 @@ def run_import(args: argparse.Namespace) -> int:
     return 0
 
 
+@dataclass(frozen=True, kw_only=True)
+class ImportOptions:
+    """`panogrf scene import`'s options."""
+
+    pose_file: Path = option(help="", positional=True, metavar="POSE_FILE")
+    format: str = option(help="", choices=("tum", "opensfm", "colmap"))
+    images: list[Path] | None = option(
+        None,
+        help="the panoramas: TUM in line order; OpenSfM by file name (default: images/ beside "
+        "the JSON); COLMAP by stem (the <panorama> of <panorama>/<face>.png)",
+        parse=Path,
+        nargs="+",
+    )
+    out: Path = option(help="scene folder to write")
+    distance: str | None = option(
+        None, help="I,J=METRES: views I and J are this far apart", at_most_one="scale"
+    )
+    scale: float | None = option(
+        None,
+        help="multiply the tool's units by this (a positive number)",
+        parse=number(float, 0.0, low_open=True),
+        at_most_one="scale",
+    )
+    keep_world: bool = option(False, help="keep the tool's world frame (no levelling)")
+
+
 def _add_import(sub: argparse._SubParsersAction) -> None:
     parser = sub.add_parser(
         "import",
@@ -160,39 +189,20 @@ def _add_import(sub: argparse._SubParsersAction) -> None:
             "--out myroom"
         ),
     )
-    parser.add_argument("pose_file", type=Path, metavar="POSE_FILE")
-    parser.add_argument("--format", required=True, choices=("tum", "opensfm", "colmap"))
-    parser.add_argument(
-        "--images",
-        type=Path,
-        nargs="+",
-        default=None,
-        help="the panoramas: TUM in line order; OpenSfM by file name (default: images/ beside "
-        "the JSON); COLMAP by stem (the <panorama> of <panorama>/<face>.png)",
-    )
-    parser.add_argument("--out", type=Path, required=True, help="scene folder to write")
-    group = parser.add_mutually_exclusive_group()
-    group.add_argument("--distance", help="I,J=METRES: views I and J are this far apart")
-    group.add_argument(
-        "--scale",
-        type=number(float, 0.0, low_open=True),
-        help="multiply the tool's units by this (a positive number)",
-    )
-    parser.add_argument(
-        "--keep-world", action="store_true", help="keep the tool's world frame (no levelling)"
-    )
+    add_options(parser, ImportOptions)
     parser.set_defaults(func=run_import)
 
 
 # --- faces --------------------------------------------------------------------------------
 
 
-def run_faces(args: argparse.Namespace) -> int:
+def run_faces(parsed: argparse.Namespace) -> int:
     import torch
 
     from panogrf.app.files.images import write_rgb
     from panogrf.model.cubemap import FACE_NAMES, erp_to_cubemap
 
+    args = from_args(FacesOptions, parsed)
     seen: dict[str, Path] = {}
     for path in args.panoramas:  # OUT/<stem>/: two panoramas of one stem would share it
         if path.stem in seen:
@@ -224,6 +234,17 @@ def run_faces(args: argparse.Namespace) -> int:
     return 0
 
 
+@dataclass(frozen=True, kw_only=True)
+class FacesOptions:
+    """`panogrf scene faces`' options."""
+
+    panoramas: list[Path] = option(
+        help="", positional=True, metavar="PANORAMA", nargs="+", parse=Path
+    )
+    out: Path = option(help="output folder")
+    size: int = option(0, help="face size in px (default W / 4)", parse=number(int, 0, 8192))
+
+
 def _add_faces(sub: argparse._SubParsersAction) -> None:
     parser = sub.add_parser(
         "faces",
@@ -235,22 +256,19 @@ def _add_faces(sub: argparse._SubParsersAction) -> None:
             "`panogrf scene import --format colmap`."
         ),
     )
-    parser.add_argument("panoramas", type=Path, nargs="+", metavar="PANORAMA")
-    parser.add_argument("--out", type=Path, required=True, help="output folder")
-    parser.add_argument(
-        "--size", type=number(int, 0, 8192), default=0, help="face size in px (default W / 4)"
-    )
+    add_options(parser, FacesOptions)
     parser.set_defaults(func=run_faces)
 
 
 # --- from-panoramas -----------------------------------------------------------------------
 
 
-def run_from_panoramas(args: argparse.Namespace) -> int:
+def run_from_panoramas(parsed: argparse.Namespace) -> int:
     from panogrf.app.files.images import write_json_atomic
     from panogrf.app.poses.colmap import estimate_poses_colmap
     from panogrf.app.scene.folder import write_scene
 
+    args = from_args(FromPanoramasOptions, parsed)
     files = list(args.panoramas)
     if len(files) < 2:
         raise UserError(f"{files[0]}: one panorama; poses need at least two of the same place")
@@ -321,6 +339,26 @@ def run_from_panoramas(args: argparse.Namespace) -> int:
     return 0
 
 
+@dataclass(frozen=True, kw_only=True)
+class FromPanoramasOptions:
+    """`panogrf scene from-panoramas`' options."""
+
+    panoramas: list[Path] = option(
+        help="", positional=True, metavar="PANORAMA", nargs="+", parse=Path
+    )
+    out: Path = option(help="scene folder to write")
+    camera_height: str | None = option(
+        None,
+        help="camera height above the floor: one value for all, or one per panorama (a,b,c)",
+        metavar="METRES",
+        at_most_one="scale",
+    )
+    distance: str | None = option(
+        None, help="views I and J are this far apart", metavar="I,J=METRES", at_most_one="scale"
+    )
+    quiet: bool = option(False, help="no progress of the stages on stderr")
+
+
 def _add_from_panoramas(sub: argparse._SubParsersAction) -> None:
     parser = sub.add_parser(
         "from-panoramas",
@@ -342,14 +380,5 @@ def _add_from_panoramas(sub: argparse._SubParsersAction) -> None:
             "--camera-height 1.6"
         ),
     )
-    parser.add_argument("panoramas", type=Path, nargs="+", metavar="PANORAMA")
-    parser.add_argument("--out", type=Path, required=True, help="scene folder to write")
-    group = parser.add_mutually_exclusive_group()
-    group.add_argument(
-        "--camera-height",
-        metavar="METRES",
-        help="camera height above the floor: one value for all, or one per panorama (a,b,c)",
-    )
-    group.add_argument("--distance", metavar="I,J=METRES", help="views I and J are this far apart")
-    parser.add_argument("--quiet", action="store_true", help="no progress of the stages on stderr")
+    add_options(parser, FromPanoramasOptions)
     parser.set_defaults(func=run_from_panoramas)

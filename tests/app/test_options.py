@@ -195,6 +195,23 @@ def test_options_of_one_group_are_alternatives_exactly_one_of_which_is_given(cap
     assert err[-1] == "toy: error: argument --far: not allowed with argument --near"
 
 
+@dataclass(frozen=True)
+class Optional_:
+    near: int | None = option(None, "near", at_most_one="where")
+    far: str | None = option(None, "far", at_most_one="where")
+
+
+def test_options_of_an_at_most_one_group_exclude_each_other_and_may_all_be_left_out(capsys):
+    parser = _parser(Optional_)
+    assert from_args(Optional_, parser.parse_args([])) == Optional_()
+    assert from_args(Optional_, parser.parse_args(["--far", "x"])) == Optional_(far="x")
+    with pytest.raises(SystemExit):
+        parser.parse_args(["--near", "3", "--far", "x"])
+    assert capsys.readouterr().err.splitlines()[-1] == (
+        "toy: error: argument --far: not allowed with argument --near"
+    )
+
+
 def test_a_missing_argument_is_named_in_the_order_of_the_fields(capsys):
     with pytest.raises(SystemExit):
         _parser(Positional).parse_args([])
