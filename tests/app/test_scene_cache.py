@@ -6,34 +6,20 @@ import subprocess
 
 import torch
 from helpers.disk import fill, tiny_tmpfs
+from helpers.nets import tiny_cache_models, tiny_views
 from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 
 from panogrf.app.scene.cache import content_key, prepare_cached
-from panogrf.model.depth import DepthEstimator
-from panogrf.model.mono import MonoDepthConfig, MonoDepthNet
-from panogrf.model.mvs import PRESETS as MVS_PRESETS
-from panogrf.model.mvs import MVSNet
-from panogrf.model.render_net import RendererNet
 from panogrf.renderer.methods import METHODS, Models, SourceViews
 
 
 def _models() -> Models:
-    torch.manual_seed(0)
-    est = DepthEstimator(
-        MonoDepthNet(MonoDepthConfig()),
-        {"full": MVSNet(MVS_PRESETS["full"]).eval()},
-        working_height=32,
-    ).eval()
-    net = RendererNet().eval()
-    return Models(estimator=lambda mode: est, renderer=lambda preset: net)
+    return tiny_cache_models()
 
 
 def _views(seed: int = 0) -> SourceViews:
-    gen = torch.Generator().manual_seed(seed)
-    c2w = torch.eye(4).repeat(2, 1, 1)
-    c2w[1, 0, 3] = 1.0
-    return SourceViews(torch.rand(2, 3, 32, 64, generator=gen), c2w)
+    return tiny_views(seed)
 
 
 def test_built_then_loaded_with_the_same_tensors(tmp_path):

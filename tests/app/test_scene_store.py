@@ -7,6 +7,7 @@ import dataclasses
 
 import pytest
 import torch
+from helpers.nets import tiny_cache_models, tiny_views
 
 from panogrf.app.scene import session
 from panogrf.app.scene.cache import prepare_cached, scene_provenance
@@ -19,31 +20,16 @@ from panogrf.app.scene.store import (
     read_valid,
 )
 from panogrf.assets import path as asset_path
-from panogrf.model.depth import DepthEstimator
-from panogrf.model.mono import MonoDepthConfig, MonoDepthNet
-from panogrf.model.mvs import PRESETS as MVS_PRESETS
-from panogrf.model.mvs import MVSNet
 from panogrf.model.refine import RefineConfig
-from panogrf.model.render_net import RendererNet
 from panogrf.renderer.methods import METHODS, Models, SourceViews
 
 
 def _models(kind: type[Models] = Models) -> Models:
-    torch.manual_seed(0)
-    est = DepthEstimator(
-        MonoDepthNet(MonoDepthConfig()),
-        {"full": MVSNet(MVS_PRESETS["full"]).eval()},
-        working_height=32,
-    ).eval()
-    net = RendererNet().eval()
-    return kind(estimator=lambda mode: est, renderer=lambda preset: net)
+    return tiny_cache_models(kind)
 
 
 def _views(seed: int = 0) -> SourceViews:
-    gen = torch.Generator().manual_seed(seed)
-    c2w = torch.eye(4).repeat(2, 1, 1)
-    c2w[1, 0, 3] = 1.0
-    return SourceViews(torch.rand(2, 3, 32, 64, generator=gen), c2w)
+    return tiny_views(seed)
 
 
 def _entry(value: float) -> Entry:

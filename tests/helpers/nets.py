@@ -41,3 +41,27 @@ def random_cache(views: int = 2) -> tuple[RendererNet, SceneCache]:
             net, torch.rand(views, 3, 32, 64), c2w, torch.full((views, 1, 16, 32), 2.0)
         )
     return net, cache
+
+
+def tiny_cache_models(kind: type[Models] = Models) -> Models:
+    """Random networks for the scene cache's tests: the estimator at 32 rows (mode full, no
+    unguided network), the default renderer; ``kind``: `Models` or a subclass
+    (`panogrf.app.scene.session.ShippedModels`)."""
+    torch.manual_seed(0)
+    est = DepthEstimator(
+        MonoDepthNet(MonoDepthConfig()),
+        {"full": MVSNet(MVS_PRESETS["full"]).eval()},
+        working_height=32,
+    ).eval()
+    net = RendererNet().eval()
+    return kind(estimator=lambda mode: est, renderer=lambda preset: net)
+
+
+def tiny_views(seed: int = 0):
+    """Two random 32x64 panoramas 1 m apart (`SourceViews`)."""
+    from panogrf.renderer.methods import SourceViews
+
+    gen = torch.Generator().manual_seed(seed)
+    c2w = torch.eye(4).repeat(2, 1, 1)
+    c2w[1, 0, 3] = 1.0
+    return SourceViews(torch.rand(2, 3, 32, 64, generator=gen), c2w)
