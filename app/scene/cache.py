@@ -22,7 +22,6 @@ from panogrf.app.scene.store import (
     Entry,
     Provenance,
     Store,
-    default_cache_dir,
     get_or_compute,
     read_valid,
 )
@@ -30,7 +29,7 @@ from panogrf.model.depth import DepthEstimate
 from panogrf.renderer.cache import SceneCache
 from panogrf.renderer.methods import METHODS, Models, SourceViews
 
-__all__ = ["CacheResult", "build_maps", "default_cache_dir", "load_cached", "prepare_cached"]
+__all__ = ["CacheResult", "build_maps", "load_cached", "prepare_cached"]
 
 #: The method whose depth and renderer maps the cache holds.
 METHOD = METHODS["panogrf"]
