@@ -17,6 +17,12 @@ For each scene folder of three 512x1024 panoramas (the middle one is the target)
 - **the same pixels**: on the CPU-measured scenes, the depth's L1 between the devices (metres)
   and the WS-PSNR of each device's render against the true middle view.
 
+``--chunks A,B,..``: the renders of the first scene again with each GPU chunk (sample points
+per view in one pass of the network, `renderer.render.GPU_CHUNK`), their times and the peak
+memory above the prepared scene's. ``--graphs``: the first scene's per-scene refinement with and
+without CUDA graphs (`model.refine.CUDA_GRAPHS`) from the same estimate, median of 3 each, the
+depth L1 between them, and on the CPU from that estimate too.
+
 ``--profile DIR``: torch's profiler over one warm preparation and one `fast` render, the top
 operators by device time written to DIR. Prints a table last and writes JSON.
 """
@@ -24,6 +30,7 @@ operators by device time written to DIR. Prints a table last and writes JSON.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import platform
 import statistics
@@ -102,6 +109,89 @@ def render_times(
     return out
 
 
+def chunk_sweep(views, target, models, device, chunks, rows_list) -> list[dict]:
+    """The renders with each GPU chunk: median seconds and peak memory above the scene's."""
+    from panogrf.renderer import render
+
+    saved, out = render.GPU_CHUNK, []
+    for chunk in chunks:
+        render.GPU_CHUNK = chunk
+        _sync(device)
+        base = torch.cuda.memory_allocated(device) if device.type == "cuda" else 0
+        if device.type == "cuda":
+            torch.cuda.reset_peak_memory_stats(device)
+        times = render_times(views, target, models, device, 3, 1, ("paper_1024",), rows_list)
+        peak = torch.cuda.max_memory_allocated(device) - base if device.type == "cuda" else 0
+        out.append({"chunk": chunk, "renders_s": times, "peak_extra_mib": peak / 2**20})
+        print(
+            f"chunk {chunk}: "
+            + " ".join(f"{k} {1000 * v:.1f} ms" for k, v in times.items())
+            + f"; peak +{peak / 2**20:.0f} MiB",
+            flush=True,
+        )
+    render.GPU_CHUNK = saved
+    return out
+
+
+def refine_graphs(views, models, device, settles=(0.0,), repeats=3) -> dict:
+    """The refinement of the same estimate with and without CUDA graphs, and on the CPU."""
+    from panogrf.model import refine
+    from panogrf.model.refine import nearest_sources, refine_depth
+
+    out, depths = {}, {}
+    for graphs in (False, True):
+        refine.CUDA_GRAPHS = graphs
+        secs = []
+        for _ in range(repeats):
+            _sync(device)
+            t = time.perf_counter()
+            depths[graphs] = views.refined_depth(views.plain, "full", models)
+            _sync(device)
+            secs.append(time.perf_counter() - t)
+        out["graphs" if graphs else "launches"] = {"median_s": statistics.median(secs), "s": secs}
+    refine.CUDA_GRAPHS = True
+    again = views.refined_depth(views.plain, "full", models)
+    out["l1_graphs_vs_launches_m"] = float((depths[True] - depths[False]).abs().mean())
+    out["l1_graphs_repeat_m"] = float((depths[True] - again).abs().mean())
+    # The same estimate refined on the CPU, and there moved by one part in a million (the
+    # refinement's own sensitivity), for each ``settle`` of the learning rate.
+    est = default_models_cpu().estimator("full")
+    c2w = views.c2w.cpu()
+    sources = nearest_sources(c2w, est.view_sources(c2w)[0], est.sweep_sources)
+    plain = views.plain.cpu()
+    out["parity"] = []
+    for settle in settles:
+        config = dataclasses.replace(views.refine, settle=settle)
+        args = (c2w.to(plain.dtype), plain, sources, config, (0.05, est.d_max))
+        with torch.enable_grad():
+            gpu = refine_depth(
+                views.images,
+                views.c2w.to(views.plain.dtype),
+                views.plain,
+                sources,
+                config,
+                (0.05, est.d_max),
+            )
+            cpu = refine_depth(views.images.cpu(), *args)
+            moved = refine_depth(views.images.cpu(), args[0], plain * (1 + 1e-6), *args[2:])
+        out["parity"].append(
+            {
+                "settle": settle,
+                "l1_device_vs_cpu_m": float((gpu.cpu() - cpu).abs().mean()),
+                "l1_cpu_vs_cpu_moved_1e-6_m": float((moved - cpu).abs().mean()),
+                "l1_cpu_vs_plain_m": float((cpu - plain).abs().mean()),
+            }
+        )
+    print(f"refinement: {json.dumps(out)}", flush=True)
+    return out
+
+
+def default_models_cpu():
+    from panogrf.app.scene.session import default_models
+
+    return default_models("cpu")
+
+
 def profile(views, data, models, device, out_dir: Path) -> None:
     from torch.profiler import ProfilerActivity
     from torch.profiler import profile as torch_profile
@@ -171,6 +261,19 @@ def main() -> int:
         default=(512, 1024),
         help="rows of the timed renders (default 512,1024)",
     )
+    parser.add_argument(
+        "--chunks",
+        type=lambda s: tuple(int(x) for x in s.split(",")),
+        default=(),
+        help="GPU chunks to time the renders with (default: none)",
+    )
+    parser.add_argument("--graphs", action="store_true", help="refinement with/without graphs")
+    parser.add_argument(
+        "--settles",
+        type=lambda s: tuple(float(x) for x in s.split(",")),
+        default=(0.0,),
+        help="with --graphs: the refinement's settle values compared with the CPU",
+    )
     parser.add_argument("--out", type=Path, default=Path("lab/results/gpu.json"))
     args = parser.parse_args()
 
@@ -225,6 +328,12 @@ def main() -> int:
                     if "cpu" in row
                     else {}
                 )
+            if args.chunks:
+                row["chunks"] = chunk_sweep(
+                    r["views"], r["data"].c2w[1], models, device, args.chunks, args.render_rows
+                )
+            if args.graphs:
+                row["refine_graphs"] = refine_graphs(r["views"], models, device, args.settles)
             if args.profile is not None:
                 profile(r["views"], r["data"], models, device, args.profile)
         runs.append(row)

@@ -22,6 +22,7 @@ resolution, h w the depth's resolution.
 from __future__ import annotations
 
 import itertools
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -38,6 +39,7 @@ from panogrf.model.erp import (
     world_to_erp,
 )
 from panogrf.model.progress import open_stage
+from panogrf.model.steps import OptimisationSteps
 
 
 @dataclass(frozen=True)
@@ -71,6 +73,11 @@ class RefineConfig:
     free_space_shrink: int = 1
     """The free-space term is computed at the stage's rows divided by this (its cost grows with
     the pixels; the corrections it makes are large and smooth)."""
+    settle: float = 0.0
+    """The fraction of all the steps, at the end, over which the learning rate falls from
+    ``lr`` to 0 (a half cosine); 0: constant. At a constant rate Adam ends hovering about a
+    minimum by up to ``lr`` per pixel, where rounding decides the side: a depth moved by one
+    part in a million came out 7 mm away (mean; 19 % of the pixels more than 1 cm)."""
 
 
 #: The refinement of a scene's cached depth at preparation (`SourceViews.refine`; on by
@@ -178,13 +185,10 @@ def warp_batch(
     return sample_erp(sources, uv).reshape(p, -1, h, w)
 
 
-def warp_pairs(
-    images: Tensor, depth: Tensor, c2w: Tensor, pairs: list[tuple[int, int]], dirs: Tensor
-) -> Tensor:
+def warp_pairs(images: Tensor, depth: Tensor, c2w: Tensor, pairs: _Pairs, dirs: Tensor) -> Tensor:
     """Every (reference, source) pair's source panorama of ``images`` [V, 3, H, W] seen from the
     reference with the reference's depth ``depth`` [V, H, W] -> [P, 3, H, W] (`warp_batch`)."""
-    ref = torch.tensor([r for r, _ in pairs], device=depth.device)
-    src = torch.tensor([s for _, s in pairs], device=depth.device)
+    ref, src = pairs.ref, pairs.src
     return warp_batch(images[src], depth[ref], c2w[ref], c2w[src], dirs)
 
 
@@ -207,19 +211,43 @@ def free_space_violation(
     so the penalty is one-sided and holds at occlusions too. Per pair (r, s): the
     latitude-weighted mean of max(0, log d_s - log |p_r - o_s| - ``tolerance``), with d_s read
     at the nearest pixel; the mean over the pairs. Differentiable in both depths."""
-    v, _, h, w = log_depth.shape
-    points = erp_to_world(torch.exp(log_depth[:, 0]), c2w.to(log_depth.dtype))  # [V, hw, 3]
-    wlat = latitude_weights(h, w, device=log_depth.device, dtype=log_depth.dtype).reshape(-1)
-    pairs = [(r, s) for r in range(v) for s in sources[r]]
-    if not pairs:
+    pairs = _Pairs.of([(r, s) for r in range(len(sources)) for s in sources[r]], log_depth.device)
+    if pairs.count == 0:
         return log_depth.new_zeros(())
-    ref = torch.tensor([r for r, _ in pairs], device=log_depth.device)
-    src = torch.tensor([s for _, s in pairs], device=log_depth.device)
+    return _violation(log_depth, c2w.to(log_depth.dtype), pairs, tolerance)
+
+
+@dataclass(frozen=True)
+class _Pairs:
+    """(reference, source) pairs as index tensors on the depth's device, made once: none is
+    built inside an optimisation step (a CUDA graph cannot copy from the host)."""
+
+    ref: Tensor  # [P] reference view of each pair
+    src: Tensor  # [P] its source
+    count: int
+
+    @staticmethod
+    def of(pairs: list[tuple[int, int]], device: torch.device) -> _Pairs:
+        ref = torch.tensor([r for r, _ in pairs], dtype=torch.long, device=device)
+        src = torch.tensor([s for _, s in pairs], dtype=torch.long, device=device)
+        return _Pairs(ref, src, len(pairs))
+
+
+def _violation(log_depth: Tensor, c2w: Tensor, pairs: _Pairs, tolerance: float) -> Tensor:
+    """`free_space_violation` of the ``pairs`` (at least one)."""
+    _, _, h, w = log_depth.shape
+    points = erp_to_world(torch.exp(log_depth[:, 0]), c2w)  # [V, hw, 3]
+    wlat = latitude_weights(h, w, device=log_depth.device, dtype=log_depth.dtype).reshape(-1)
     # Every pair at once: view r's points projected into its source s.
-    uv, dist = world_to_erp(points[ref], c2w[src].to(log_depth.dtype), h, w)  # [P, hw, 2]
-    seen = sample_erp(log_depth[src], uv, "nearest")[:, 0]  # [P, hw]
+    uv, dist = world_to_erp(points[pairs.ref], c2w[pairs.src], h, w)  # [P, hw, 2]
+    seen = sample_erp(log_depth[pairs.src], uv, "nearest")[:, 0]  # [P, hw]
     gap = (seen - torch.log(dist.clamp(min=0.05)) - tolerance).clamp(min=0)
     return ((gap * wlat).sum(1) / wlat.sum()).mean()
+
+
+#: On a GPU, replay each stage's steps from a CUDA graph (`OptimisationSteps`); False launches
+#: every operation from Python, the baseline of `benchmarks/gpu.py`.
+CUDA_GRAPHS = True
 
 
 def refine_depth(
@@ -232,11 +260,18 @@ def refine_depth(
     should_stop: Callable[[], bool] | None = None,
 ) -> Tensor | None:
     """Refined depth [V, 1, h, w]; views without sources are returned unchanged. None when
-    ``should_stop`` (asked before every step) says so: a viewer closed before the end."""
+    ``should_stop`` (asked before every step) says so: a viewer closed before the end.
+
+    On a GPU each stage's steps replay one CUDA graph (`OptimisationSteps`): a step is a few hundred
+    small operations whose launches, not their arithmetic, would otherwise take the time."""
     v, _, h, w = depth.shape
     log_d0 = torch.log(depth.clamp(*d_range)).detach()
     delta = torch.zeros_like(log_d0, requires_grad=True)
-    opt = torch.optim.Adam([delta], lr=config.lr)
+    graphs = CUDA_GRAPHS and depth.device.type == "cuda"
+    # On a GPU the rate is a tensor the graphs read, and the launches do the same arithmetic.
+    cuda = depth.device.type == "cuda"
+    lr = torch.tensor(config.lr, device=depth.device) if cuda else config.lr
+    opt = torch.optim.Adam([delta], lr=lr, capturable=cuda)
     refs = [r for r in range(v) if sources[r]]
     # Only views with sources move: the free-space term would otherwise also reach a view that
     # is only another's source.
@@ -247,11 +282,13 @@ def refine_depth(
     wx, wy = _edge_weights(images, (h, w))
     rows = (config.height // 2, config.height, min(2 * config.height, images.shape[-2]))
     stages = tuple(zip(rows, (config.coarse, config.iterations, config.fine), strict=True))
-    pairs = [(r, s) for r in refs for s in sources[r]]
-    pair_ref = torch.tensor([r for r, _ in pairs], device=depth.device)
+    pairs = _Pairs.of([(r, s) for r in refs for s in sources[r]], depth.device)
+    all_pairs = _Pairs.of([(r, s) for r in range(v) for s in sources[r]], depth.device)
     spans = _spans([len(sources[r]) for r in refs])
+    c2w = c2w.to(depth.dtype)
     # Progress: a unit per step (each a warp of every view's sources).
-    progress = open_stage("depth refinement", sum(max(steps, 0) for _, steps in stages))
+    total = sum(max(steps, 0) for _, steps in stages)
+    progress, done = open_stage("depth refinement", total), 0
     for hh, steps in stages:
         if steps <= 0:
             continue
@@ -259,29 +296,54 @@ def refine_depth(
         img = F.interpolate(images, size=(hh, 2 * hh), mode=mode).detach()
         dirs = erp_directions(hh, 2 * hh, device=depth.device, dtype=depth.dtype)
         wlat = latitude_weights(hh, 2 * hh, device=depth.device, dtype=depth.dtype)
-        for _ in range(steps):
-            if should_stop is not None and should_stop():
-                progress.close()
-                return None
+        target = img[pairs.ref]
+
+        def step(
+            hh: int = hh,
+            img: Tensor = img,
+            dirs: Tensor = dirs,
+            wlat: Tensor = wlat,
+            target: Tensor = target,
+        ) -> None:
             log_d = log_d0 + delta * moves
             log_full = F.interpolate(log_d, size=(hh, 2 * hh), mode="bilinear", align_corners=False)
             warped = warp_pairs(img, torch.exp(log_full)[:, 0], c2w, pairs, dirs)  # all at once
-            loss = _photometric_sum(photometric_error(warped, img[pair_ref]), spans, wlat, config)
+            loss = _photometric_sum(photometric_error(warped, target), spans, wlat, config)
             dx = (delta - torch.roll(delta, 1, -1)).abs() * wx
             dy = (delta[..., 1:, :] - delta[..., :-1, :]).abs() * wy
             loss = loss / len(refs) + config.smooth * (dx.mean() + dy.mean())
             loss = loss + config.prior * delta.abs().mean()
             if config.free_space > 0:
                 loss = loss + config.free_space * _free_space_at(
-                    log_d, log_full, hh, c2w, sources, config
+                    log_d, log_full, hh, c2w, all_pairs, config
                 )
-            opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
-            progress.advance()
+
+        rate = _rate(config, done, total)
+        if not OptimisationSteps(step, opt, graphs, rate).run(steps, should_stop, progress.advance):
+            progress.close()
+            return None
+        done += steps
     progress.close()
     with torch.no_grad():
         return torch.exp(log_d0 + delta * moves).clamp(*d_range)
+
+
+def _rate(config: RefineConfig, done: int, total: int) -> Callable[[int], float] | None:
+    """The learning rate of a stage's i-th step when ``done`` of ``total`` steps came before
+    (``config.settle``); None: constant."""
+    if not 0.0 <= config.settle <= 1.0:
+        raise ValueError(f"settle must be in [0, 1], got {config.settle}")
+    if config.settle == 0.0:
+        return None
+    start = (1.0 - config.settle) * total
+
+    def rate(i: int) -> float:
+        t = max(0.0, done + i - start) / (total - start)
+        return config.lr * 0.5 * (1.0 + math.cos(math.pi * t))
+
+    return rate
 
 
 def _photometric_sum(
@@ -302,7 +364,7 @@ def _free_space_at(
     log_full: Tensor,
     hh: int,
     c2w: Tensor,
-    sources: list[list[int]],
+    pairs: _Pairs,
     config: RefineConfig,
 ) -> Tensor:
     """`free_space_violation` of the stage at ``hh`` rows, at ``config.free_space_shrink``
@@ -312,7 +374,9 @@ def _free_space_at(
     if k > 1:
         size = (max(hh // k, 4), 2 * max(hh // k, 4))
         log_fs = F.interpolate(log_d, size=size, mode="bilinear", align_corners=False)
-    return free_space_violation(log_fs, c2w, sources)
+    if pairs.count == 0:
+        return log_fs.new_zeros(())
+    return _violation(log_fs, c2w, pairs, FREE_SPACE_TOLERANCE)
 
 
 def _edge_weights(images: Tensor, size: tuple[int, int]) -> tuple[Tensor, Tensor]:

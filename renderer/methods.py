@@ -40,7 +40,7 @@ from panogrf.renderer.nadir import (
     inpaint_masked,
     nadir_masks,
 )
-from panogrf.renderer.render import render_perspective
+from panogrf.renderer.perspective import render_perspective
 
 if TYPE_CHECKING:
     from panogrf.renderer.snerf import SNeRF

@@ -30,7 +30,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from panogrf.model.erp import direction_to_pixel, erp_directions, pad_seam, sample_padded
+from panogrf.model.erp import direction_to_pixel, erp_directions, sample_padded
 from panogrf.model.render_net import PointFeatures, RendererNet, visibility
 from panogrf.model.sampling import (
     Composite,
@@ -286,69 +286,44 @@ def render_panorama(
     c2w: Tensor,  # [4, 4] target pose
     height: int,
     quality: str | Sampling = "fast",
-    chunk: int = 16384,
+    chunk: int | None = None,
     progress: Callable[[float], None] | None = None,
     should_stop: Callable[[], bool] | None = None,
 ) -> RenderOutput | None:
     """Render the H x 2H panorama seen from ``c2w``; None if ``should_stop`` said so midway.
 
-    ``quality``: "paper", "fast" or a `Sampling`. Rays go through the network ``chunk`` at a
-    time (``chunk`` sample points per view), so memory stays bounded at any resolution;
-    ``progress`` gets the fraction done.
+    ``quality``: "paper", "fast" or a `Sampling`. Rays go through the network ``chunk`` sample
+    points per view at a time (None: `default_chunk` of the cache's device), so memory stays
+    bounded at any resolution; ``progress`` gets the fraction done.
     """
     width = 2 * height
     c2w = c2w.to(cache.images.dtype)
     origins, dirs = target_rays(c2w, height, width)
-    sampling = _sampling(quality, cache, c2w)
+    sampling = sampling_for(quality, cache, c2w)
     proxy = None
     if sampling.n_guided:
         p = proxy_for(cache, c2w, height, width)
         proxy = (p.near.reshape(-1), p.far.reshape(-1))
-    out = _render_chunks(net, cache, origins, dirs, sampling, proxy, chunk, progress, should_stop)
+    out = render_chunks(net, cache, origins, dirs, sampling, proxy, chunk, progress, should_stop)
     return None if out is None else out.reshaped(height, width)
 
 
-#: Rows of the proxy panorama a perspective frame's rays look their near and far up in.
-PERSPECTIVE_PROXY_ROWS = 512
+#: Sample points per view in one pass of the network on a CPU: a few tens of megabytes at a
+#: time, which the CPU's caches and allocator handle best.
+CPU_CHUNK = 16384
+#: The same on a GPU: about half a gigabyte at a time (in ``fast``, the rays of a whole
+#: panorama at the network's rows in one pass). Small chunks leave a GPU waiting for Python to
+#: launch each chunk's few hundred operations (`benchmarks/gpu.py`: the chunk's times and
+#: peak memory).
+GPU_CHUNK = 1 << 21
 
 
-@torch.no_grad()
-def render_perspective(
-    net: RendererNet,
-    cache: SceneCache,
-    c2w: Tensor,  # [4, 4] camera pose (OpenGL: looking down -z)
-    width: int,
-    height: int,
-    fov_deg: float,
-    quality: str | Sampling = "fast",
-    chunk: int = 16384,
-    progress: Callable[[float], None] | None = None,
-    should_stop: Callable[[], bool] | None = None,
-) -> RenderOutput | None:
-    """Render exactly the rays of a pinhole camera (vertical field of view ``fov_deg``):
-    [3, height, width], with no panorama in between. The guided samplings read their near and
-    far proxies from the target's proxy panorama (`PERSPECTIVE_PROXY_ROWS` rows) along each
-    ray's direction."""
-    from panogrf.model.perspective import perspective_directions
-
-    c2w = c2w.to(cache.images.dtype)
-    cam = perspective_directions(width, height, fov_deg, device=c2w.device, dtype=c2w.dtype)
-    cam = cam.reshape(-1, 3)
-    dirs = cam @ c2w[:3, :3].T
-    origins = c2w[:3, 3].expand_as(dirs)
-    sampling = _sampling(quality, cache, c2w)
-    proxy = None
-    if sampling.n_guided:
-        rows = PERSPECTIVE_PROXY_ROWS
-        p = proxy_for(cache, c2w, rows, 2 * rows)
-        uv = direction_to_pixel(cam, rows, 2 * rows)[None]
-        near_far = sample_padded(pad_seam(torch.stack((p.near, p.far))[None]), uv, "nearest")
-        proxy = (near_far[0, 0], near_far[0, 1])
-    out = _render_chunks(net, cache, origins, dirs, sampling, proxy, chunk, progress, should_stop)
-    return None if out is None else out.reshaped(height, width)
+def default_chunk(device: torch.device) -> int:
+    """Sample points per view in one pass of the network on ``device``."""
+    return CPU_CHUNK if device.type == "cpu" else GPU_CHUNK
 
 
-def _sampling(quality: str | Sampling, cache: SceneCache, c2w: Tensor) -> Sampling:
+def sampling_for(quality: str | Sampling, cache: SceneCache, c2w: Tensor) -> Sampling:
     sampling = QUALITY[quality] if isinstance(quality, str) else quality
     if sampling.n_coarse:  # once per frame, not per chunk
         sampling = with_range(sampling, cache, c2w[:3, 3])
@@ -369,21 +344,21 @@ class _Rays:
         )
 
 
-def _render_chunks(
+def render_chunks(
     net: RendererNet,
     cache: SceneCache,
     origins: Tensor,
     dirs: Tensor,
     sampling: Sampling,
     proxy: tuple[Tensor, Tensor] | None,
-    chunk: int,
+    chunk: int | None,
     progress: Callable[[float], None] | None,
     should_stop: Callable[[], bool] | None,
 ) -> _Rays | None:
     """`render_rays` over N rays, ``chunk`` sample points per view at a time."""
     n = origins.shape[0]
     per_ray = max(sampling.n_guided, sampling.n_coarse, sampling.n_fine)
-    chunk = max(64, chunk // per_ray)
+    chunk = max(64, (chunk or default_chunk(origins.device)) // per_ray)
     kw: dict[str, Any] = {"dtype": origins.dtype, "device": origins.device}
     rgb, depth, opacity = torch.empty(n, 3, **kw), torch.empty(n, **kw), torch.empty(n, **kw)
     for start in range(0, n, chunk):

@@ -3,6 +3,7 @@ inside a textured sphere, whose depth is known exactly."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import pytest
@@ -318,3 +319,63 @@ def test_photometric_choice_keeps_the_first_on_ties_and_within_the_gain():
     cost[1, 2, 0, 2] = -0.01  # better, but within a gain of 0.02
     assert photometric_choice(cost, offsets).tolist() == [[0, 1, 1]]
     assert photometric_choice(cost, offsets, switch_gain=0.02).tolist() == [[0, 1, 0]]
+
+
+def test_the_steps_run_each_once_and_stop_when_told():
+    from panogrf.model.steps import OptimisationSteps
+
+    x = torch.zeros(3, requires_grad=True)
+    opt = torch.optim.SGD([x], lr=0.25)
+    calls, advanced = [], []
+
+    def step():
+        calls.append(1)
+        (x - 1).square().sum().backward()  # gradients start from None every step
+        opt.step()
+
+    assert OptimisationSteps(step, opt, graph=False).run(4, None, lambda: advanced.append(1))
+    assert len(calls) == len(advanced) == 4
+    # Each step halves the distance to 1 (a gradient accumulated over steps would overshoot).
+    torch.testing.assert_close(x.detach(), torch.full((3,), 1 - 0.5**4))
+    stop_after = iter([False, False, True])
+    assert not OptimisationSteps(step, opt, graph=False).run(5, lambda: next(stop_after), list)
+    assert len(calls) == 6
+
+
+PREP = RefineConfig(smooth=1.0, coarse=10, iterations=10, free_space=1.0, free_space_shrink=2)
+
+
+def test_the_rate_settles_to_zero_over_the_last_steps():
+    from panogrf.model.refine import _rate
+
+    assert _rate(RefineConfig(settle=0.0), 0, 60) is None
+    rate = _rate(RefineConfig(lr=0.02, settle=0.5), 30, 60)  # the second stage of 30 + 30
+    assert rate is not None
+    assert rate(0) == pytest.approx(0.02) and rate(15) == pytest.approx(0.01)
+    assert rate(29) < 0.0002 and all(rate(i) >= rate(i + 1) for i in range(29))
+    with pytest.raises(ValueError, match="settle"):
+        _rate(RefineConfig(settle=1.5), 0, 60)
+
+
+@pytest.mark.gpu
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
+@pytest.mark.parametrize("settle", [0.0, 0.5])
+def test_cuda_graphs_give_the_launches_refinement(scene, monkeypatch, settle):
+    """The steps replayed from CUDA graphs do the arithmetic of the steps launched one
+    operation at a time; a stop is heard between replays."""
+    from panogrf.model import refine
+
+    images, c2w, depth = (t.cuda() for t in scene)
+    wrong = torch.nn.functional.interpolate(depth, size=(32, 64), mode="area") * 1.1
+    config = dataclasses.replace(PREP, settle=settle)
+    graphs = refine_depth(images, c2w, wrong, [[1], [0]], config)
+    monkeypatch.setattr(refine, "CUDA_GRAPHS", False)
+    launches = refine_depth(images, c2w, wrong, [[1], [0]], config)
+    assert graphs is not None and launches is not None and graphs.is_cuda
+    assert float((graphs - launches).abs().max()) < 1e-5
+    assert float((graphs - wrong).abs().mean()) > 1e-3  # it moved
+    monkeypatch.setattr(refine, "CUDA_GRAPHS", True)
+    asked = []
+    stop = lambda: asked.append(1) or len(asked) > 8  # noqa: E731  (inside the first graph)
+    assert refine_depth(images, c2w, wrong, [[1], [0]], PREP, should_stop=stop) is None
+    assert len(asked) == 9
