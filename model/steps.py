@@ -21,7 +21,7 @@ class OptimisationSteps:
     captured into a CUDA graph, and the graph is replayed for it and the rest: the same
     arithmetic, one launch per step."""
 
-    WARM_UP = 3
+    WARM_UP = 1
 
     def __init__(
         self,

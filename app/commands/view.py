@@ -63,6 +63,14 @@ class ViewConfig:
     """The frame whose pose the camera starts at."""
     no_refine: bool = option(False, "preview only (no network)")
     """The GL preview only: no neural refinement."""
+    live: str = option(
+        "auto",
+        "the neural view on every frame, also while the camera moves (one render behind it): "
+        "on, off (the GL preview while moving, the neural view when still), or auto (on where "
+        "the device is a GPU)",
+        choices=("auto", "on", "off"),
+    )
+    """The neural view on every frame (`RenderWorker.live`): on, off or auto (a GPU)."""
     path_out: Path = option(
         Path("camera_path.json"), "where O saves the camera path (default camera_path.json)"
     )
@@ -113,6 +121,8 @@ class ViewConfig:
             raise UserError(
                 "no display for a window: set DISPLAY (e.g. under Xvfb) or use --window headless"
             )
+        if self.live == "on" and self.no_refine:
+            raise UserError("--live on shows the neural view: it cannot go with --no-refine")
         if self.frames is not None and self.frames < 1:
             raise UserError("--frames must be at least 1")
         if self.moving_rows is not None and not 16 <= self.moving_rows <= 512:
@@ -232,7 +242,7 @@ def _background(cfg: ViewConfig, prepared, threads: int) -> tuple:
     ``prepared`` scene, where one is pending, and the render worker (none with
     ``--no-refine``), each None where not started."""
     from panogrf.app.viewer.torch_threads import off_main_thread
-    from panogrf.app.viewer.worker import RenderWorker
+    from panogrf.app.viewer.worker import LEVELS, LIVE_LEVELS, RenderWorker
 
     refiner = None
     if prepared.pending_refine is not None:
@@ -244,7 +254,10 @@ def _background(cfg: ViewConfig, prepared, threads: int) -> tuple:
     if not cfg.no_refine:
         views, models = prepared.views, prepared.models
         cache = off_main_thread(threads, views.cache_for, "panogrf", models)
-        worker = RenderWorker(models.renderer("panogrf"), cache, threads=threads).start()
+        live = cfg.live == "on" or (cfg.live == "auto" and models.device.type == "cuda")
+        levels = LIVE_LEVELS if live else LEVELS
+        net = models.renderer("panogrf")
+        worker = RenderWorker(net, cache, levels, threads=threads, live=live).start()
     return refiner, worker
 
 
@@ -261,6 +274,8 @@ def _closed(config, worker, start: float) -> int:
         stats = [f"median frame {1000 * float(np.median(times)):.1f} ms"]
         if moving:
             stats.append(f"while moving {1000 * float(np.median(moving)):.1f} ms")
+        if worker is not None and worker.live and moving:
+            stats.append(f"the neural view on {config.neural_moving_frames} of them")
         if worker is not None:
             stats += refine_summary(config.refine_log, len(worker.levels))
         print(

@@ -11,6 +11,10 @@ its ``RenderStateMachine``; our worker keeps its cancellation per chunk of rays)
   level of *this* request to the window (a level of an older pose never reaches the screen);
 - ``refined``: every level is done.
 
+Live (`RenderWorker.live`, on a GPU): every moved pose is requested at once, nothing is
+cancelled, and `frame` hands out the newest finished frame of any request, one render behind
+the camera while it moves.
+
 The window calls `observe` once per frame with the pose it shows, draws `frame` when there is
 one, and sleeps with `idle`. Nothing here touches GL.
 """
@@ -59,6 +63,10 @@ class Refinement:
     def levels(self) -> int:
         return len(self.worker.levels) if self.worker is not None else 0
 
+    @property
+    def live(self) -> bool:
+        return self.worker is not None and self.worker.live
+
     def observe(self, pose: np.ndarray) -> bool:
         """The pose shown this frame; returns whether it moved. Moving cancels the refinement;
         still for `still_delay` seconds requests it (once per still pose)."""
@@ -68,7 +76,10 @@ class Refinement:
             self.pose = np.array(pose, np.float64)
             self.still_since = now
             self.requested = False
-            if self.worker is not None:
+            if self.live:
+                self.generation = self.worker.request(self.pose)
+                self.requested = True
+            elif self.worker is not None:
                 self.worker.cancel()
         elif (
             self.worker is not None
@@ -106,13 +117,16 @@ class Refinement:
         if self.worker is None or not self.requested:
             return None, False
         latest = self.worker.latest()
-        if latest is None or latest.generation != self.generation:
+        if latest is None or (latest.generation != self.generation and not self.live):
             return None, False
         key = (latest.generation, latest.level)
         new = key != self.shown  # levels may share a size: compare the level, not the image
+        if self.live and key < self.shown:  # never back to an older frame
+            return None, False
         if new:
             self.shown = key
-            self.log.append((latest.level, self.clock() - self.still_since))
+            if latest.generation == self.generation:  # a frame of the pose on screen
+                self.log.append((latest.level, self.clock() - self.still_since))
         return latest, new
 
     def status_text(self) -> str:

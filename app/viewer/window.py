@@ -91,6 +91,7 @@ class PanoViewer(ExportsMixin, OverlayMixin, ControlsMixin, mglw.WindowConfig):
         self.frame_count = 0
         self.frame_times: list[float] = []  # seconds between consecutive frame starts
         self.moving_frame_times: list[float] = []  # the same, of frames where the camera moved
+        self.neural_moving_frames = 0  # frames that moved and showed the neural view (live)
         # Moving frames while the scene's depth was still refined in the background.
         self.refining_frame_times: list[float] = []
         self.scene_swapped = False
@@ -198,13 +199,15 @@ class PanoViewer(ExportsMixin, OverlayMixin, ControlsMixin, mglw.WindowConfig):
         moved = self.refinement.observe(pose)
 
         # What to show; the GL preview is drawn only when it is shown (or shown through).
-        refined, self.shown_level = None, None
+        refined, self.shown_level, frame_rot = None, None, None
         if self.mode == "refined":
             done, new = self.refinement.frame()
             if done is not None:
                 if new:
                     self._upload_refined(done.rgb)
                 refined, self.shown_level = self.refined_tex, done.level
+                if not np.allclose(done.c2w[:3, :3], pose[:3, :3], atol=1e-9):
+                    frame_rot = done.c2w[:3, :3]  # live: a frame of an earlier pose, turned
         coarse, is_depth, fill, sharp_inputs = None, False, False, None
         if self.mode == "sources":
             pano = self.sources[self.source_index]
@@ -240,7 +243,11 @@ class PanoViewer(ExportsMixin, OverlayMixin, ControlsMixin, mglw.WindowConfig):
         # The panorama keeps 2:1 (black bars); a perspective view fills the window.
         box = (0, 0, w, hh) if self.perspective else screen.letterbox(w, hh)
         self.ctx.viewport = box
-        rotate = self.mode == "sources"
+        if refined is not None and moved:
+            self.neural_moving_frames += 1
+        if self.mode == "sources":
+            frame_rot = self.setup.c2w[self.source_index][:3, :3]
+        rotate = frame_rot is not None
         d, quad = self._display(
             int(self.perspective),
             int(is_depth),
@@ -259,7 +266,7 @@ class PanoViewer(ExportsMixin, OverlayMixin, ControlsMixin, mglw.WindowConfig):
         if self.perspective:
             d["u_fov"].value = math.radians(self.camera.fov)
         if rotate:  # view directions into the source's frame; GL reads matrices column-major
-            rot = self.setup.c2w[self.source_index][:3, :3].T @ pose[:3, :3]
+            rot = frame_rot.T @ pose[:3, :3]
             d["u_rot"].write(np.ascontiguousarray(rot.T, np.float32).tobytes())
         d["u_origin"].value = (float(box[0]), float(box[1]))
         d["u_size"].value = (float(box[2]), float(box[3]))

@@ -39,6 +39,8 @@ from panogrf.renderer.render import render_panorama
 #: projection; detail_projection_val.json): draft 25.61 / 0.143 / 0.15 -> 26.43 / 0.109 / 0.17,
 #: fast at 128 26.66 / 0.103 / 0.31 -> 26.87 / 0.094 / 0.32.
 LEVELS = ((512, "draft", 2, 128, "bilinear"), (512, "fast", None, 128, "bicubic"))
+#: The live view's one level (`RenderWorker` ``live``): the last level of `LEVELS`, every frame.
+LIVE_LEVELS = LEVELS[-1:]
 
 
 @dataclass
@@ -53,7 +55,11 @@ class Refined:
 
 
 class RenderWorker:
-    """Progressive refinement in a background thread (start/stop explicitly)."""
+    """Progressive refinement in a background thread (start/stop explicitly).
+
+    ``live`` (a GPU renders a frame in milliseconds): a render in progress is finished and
+    published even when a newer pose was requested meanwhile, so a camera that moves every
+    frame sees the newest finished frame, one render behind, instead of none."""
 
     def __init__(
         self,
@@ -61,8 +67,9 @@ class RenderWorker:
         cache: SceneCache,
         levels: tuple[tuple, ...] = LEVELS,
         threads: int | None = None,
+        live: bool = False,
     ) -> None:
-        self.net, self.cache = net, cache
+        self.net, self.cache, self.live = net, cache, live
         self.levels = [
             (
                 lv[0],
@@ -144,6 +151,14 @@ class RenderWorker:
         with self._lock:
             return self._level + 1, self._progress
 
+    def _superseded(self, gen: int) -> bool:
+        """Whether the render of request ``gen`` is dropped: any other request came (live: a
+        cancel, a new scene or the end; a newer pose waits for it). Call under the lock or
+        where a stale answer costs only one chunk more."""
+        if self._generation == gen:
+            return False
+        return not self.live or self._stop or self._pose is None
+
     def _nearest(self, pose: np.ndarray, count: int | None) -> SceneCache:
         """The cache of the ``count`` sources nearest to ``pose`` (all: None), memoised."""
         with self._lock:  # `replace_cache` may swap both at any time
@@ -202,7 +217,7 @@ class RenderWorker:
                 self._pose = None
 
             def stale(gen=gen) -> bool:
-                return self._generation != gen
+                return self._superseded(gen)
 
             def progress(f: float, gen=gen) -> None:
                 with self._lock:
@@ -228,8 +243,9 @@ class RenderWorker:
                 rgb = to_uint8(out.rgb)
                 done = Refined(rgb, pose, level, gen, time.perf_counter() - t0)
                 with self._lock:
-                    if self._generation != gen:
+                    if self._superseded(gen):
                         break
                     self._latest = done
-                    self._level, self._progress = level, 0.0
+                    if self._generation == gen:
+                        self._level, self._progress = level, 0.0
                     self._published.notify_all()

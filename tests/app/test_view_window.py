@@ -290,6 +290,59 @@ def test_every_refinement_level_reaches_the_screen(tmp_path, capsys):
     assert "refined level 1/2" in out and "refined level 2/2" in out, out
 
 
+def test_live_the_neural_view_follows_the_moving_camera(tmp_path):
+    """A live worker (the default on a GPU): frames that move show the neural view of a pose
+    at most one render behind (turned to the camera's direction), and the still camera's own
+    frame at the end. Small renders, so that a CPU keeps up with a moving camera."""
+    from panogrf.app.scene.session import default_models, prepare_scene
+    from panogrf.app.viewer.window import ViewerSetup, parse_script, run_viewer
+    from panogrf.app.viewer.worker import RenderWorker
+
+    prepared = prepare_scene(DEMO, tmp_path / "c", log=lambda *a: None)
+    views, models = prepared.views, default_models()
+    cache = views.cache_for("panogrf", models)
+    net = models.renderer("panogrf")
+    worker = RenderWorker(net, cache, levels=((32, "fast", None, 32),), live=True).start()
+    setup = ViewerSetup.from_views(
+        views,
+        worker=worker,
+        script=parse_script("w*200,d*100,refined,escape"),
+        frames=5000,
+        fixed_step=0.01,
+        log=lambda *a: None,
+    )
+    try:
+        config = run_viewer(setup, "headless", (128, 64))
+    finally:
+        worker.stop()
+    assert worker.error is None
+    assert config.neural_moving_frames >= 1
+    assert config.refinement.state == "refined"
+    assert np.allclose(config.refinement.frame()[0].c2w, config.refinement.pose)
+
+
+def test_live_is_wired_to_the_command(tmp_path, capsys):
+    from panogrf.app import cli
+
+    code = cli.main(
+        ["view", str(DEMO), "--window", "headless", "--size", "128x64", "--frames", "3000",
+         "--fixed-step", "0.05", "--cache-dir", str(tmp_path / "c"), "--live", "on",
+         "--no-refine-depth", "--script", "w*3,refined,escape"]
+    )  # fmt: skip
+    out = capsys.readouterr().out
+    assert code == 0
+    assert re.search(r"while moving [\d.]+ ms, the neural view on \d+ of them", out), out
+    assert "refined level 1/1" in out, out
+
+
+def test_live_on_needs_the_refinement(tmp_path, capsys):
+    from panogrf.app import cli
+
+    code = cli.main(["view", str(DEMO), "--window", "headless", "--live", "on", "--no-refine"])
+    err = capsys.readouterr().err
+    assert code != 0 and "--live on" in err and "Traceback" not in err
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize(
     ("script", "frames", "sharp", "rows"),

@@ -85,3 +85,53 @@ def test_without_a_worker_the_preview_is_all_there_is():
     assert machine.status_text() == "refinement off"
     machine.idle(time.perf_counter() - 1.0, 30.0)  # a frame already late: returns at once
     machine.stop()
+
+
+def test_live_every_move_is_requested_and_the_newest_finished_frame_shown():
+    """Live (a GPU): moving requests the pose at once and cancels nothing; a render finishes
+    although the camera moved on, and the window gets the newest finished frame, never an
+    older one after it."""
+    net, cache = random_cache()
+    worker = RenderWorker(net, cache, levels=((8, "fast", None, 8),), live=True).start()
+    machine = Refinement(worker, clock=Clock())
+    try:
+        poses = [np.eye(4) for _ in range(40)]
+        for i, pose in enumerate(poses):
+            pose[0, 3] = 0.01 * i
+        shown = []
+        end = time.time() + 60
+        i = 0
+        while time.time() < end and (len(shown) < 3 or i < len(poses)):
+            assert machine.observe(poses[min(i, len(poses) - 1)]) == (i < len(poses))
+            assert machine.requested  # at once, no debounce
+            done, new = machine.frame()
+            if new:
+                shown.append(done.generation)
+            worker.wait_for_result(0.01)
+            i += 1
+        assert len(shown) >= 3 and shown == sorted(shown)
+        assert len(set(shown)) == len(shown)
+        # A frame of a pose the camera has left reached the window (it was not dropped).
+        assert any(g < machine.generation for g in shown)
+        while machine.state != "refined" and time.time() < end:  # still at the last pose
+            worker.wait_for_result(0.01)
+            assert not machine.observe(poses[-1])
+        assert machine.state == "refined"
+        assert np.allclose(machine.frame()[0].c2w, poses[-1])
+    finally:
+        machine.stop()
+
+
+def test_live_a_new_pose_does_not_drop_the_render_in_flight_but_a_cancel_does():
+    net, cache = random_cache()
+    worker = RenderWorker(net, cache, levels=((8, "fast", None, 8),), live=True)
+    assert not worker._superseded(worker._generation)
+    gen = worker.request(np.eye(4))
+    worker.request(np.eye(4))  # a newer pose waits for the render of ``gen``
+    assert not worker._superseded(gen)
+    worker.cancel()
+    assert worker._superseded(gen)
+    plain = RenderWorker(net, cache, levels=((8, "fast", None, 8),))
+    gen = plain.request(np.eye(4))
+    plain.request(np.eye(4))
+    assert plain._superseded(gen)
