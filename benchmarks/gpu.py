@@ -186,6 +186,74 @@ def refine_graphs(views, models, device, settles=(0.0,), repeats=3) -> dict:
     return out
 
 
+def live_rate(views, target, models, seconds: float = 3.0) -> dict:
+    """The viewer's live worker (`RenderWorker` ``live``, its `LIVE_LEVELS`: 512 x 1024) while
+    the camera moves: a new pose every 4 ms (a window at 250 fps), for ``seconds``; frames
+    published per second and the median request-to-frame seconds of those it finished."""
+    import numpy as np
+
+    from panogrf.app.viewer.worker import LIVE_LEVELS, RenderWorker
+
+    cache = views.cache_for("panogrf", models)
+    worker = RenderWorker(models.renderer("panogrf"), cache, LIVE_LEVELS, live=True).start()
+    pose = target.double().cpu().numpy()
+    seen, latencies = set(), []
+    try:
+        worker.request(pose)  # after its warm-up, the first frame
+        end = time.perf_counter() + 30
+        while worker.latest() is None and time.perf_counter() < end:
+            time.sleep(0.001)
+        start = time.perf_counter()
+        step = 0
+        while time.perf_counter() - start < seconds:
+            step += 1
+            moved = pose.copy()
+            moved[0, 3] += 0.0005 * step  # 0.5 mm per request: 12.5 cm/s at 250 requests/s
+            worker.request(moved)
+            time.sleep(0.004)
+            latest = worker.latest()
+            if latest is not None and latest.generation not in seen:
+                seen.add(latest.generation)
+                latencies.append(latest.seconds)
+        elapsed = time.perf_counter() - start
+    finally:
+        worker.stop()
+    out = {
+        "frames_per_s": len(seen) / elapsed,
+        "median_request_to_frame_s": float(np.median(latencies)) if latencies else None,
+        "requests": step,
+        "levels": [list(lv) for lv in LIVE_LEVELS],
+        "error": worker.error,
+    }
+    print(f"live: {json.dumps(out)}", flush=True)
+    return out
+
+
+def sweep_compare(data, models, device, repeats=3) -> dict:
+    """Mode full's depth of the two outer views with the sweep's candidates scored one at a
+    time and all at once (`model.sweep.GPU_BATCH`): median seconds and the L1 between them."""
+    from panogrf.model import sweep
+    from panogrf.renderer.methods import SourceViews
+
+    out, depth = {}, {}
+    for batch in (False, True):
+        sweep.GPU_BATCH = batch
+        secs = []
+        for _ in range(repeats):
+            views = SourceViews(data.images[[0, 2]], data.c2w[[0, 2]], refine=None, device=device)
+            _sync(device)
+            t = time.perf_counter()
+            with torch.no_grad():
+                depth[batch] = views.depth_for("full", models)
+            _sync(device)
+            secs.append(time.perf_counter() - t)
+        out["batched" if batch else "one_at_a_time"] = {"median_s": statistics.median(secs)}
+    sweep.GPU_BATCH = True
+    out["l1_between_m"] = float((depth[True] - depth[False]).abs().mean())
+    print(f"sweep: {json.dumps(out)}", flush=True)
+    return out
+
+
 def default_models_cpu():
     from panogrf.app.scene.session import default_models
 
@@ -268,6 +336,8 @@ def main() -> int:
         help="GPU chunks to time the renders with (default: none)",
     )
     parser.add_argument("--graphs", action="store_true", help="refinement with/without graphs")
+    parser.add_argument("--live", action="store_true", help="the viewer's live worker's rate")
+    parser.add_argument("--sweep", action="store_true", help="the sweep batched and not")
     parser.add_argument(
         "--settles",
         type=lambda s: tuple(float(x) for x in s.split(",")),
@@ -332,10 +402,18 @@ def main() -> int:
                 row["chunks"] = chunk_sweep(
                     r["views"], r["data"].c2w[1], models, device, args.chunks, args.render_rows
                 )
-            if args.graphs:
-                row["refine_graphs"] = refine_graphs(r["views"], models, device, args.settles)
             if args.profile is not None:
                 profile(r["views"], r["data"], models, device, args.profile)
+            if args.live:
+                row["live"] = live_rate(r["views"], r["data"].c2w[1], models)
+            if args.sweep:
+                row["sweep_batch"] = sweep_compare(r["data"], models, device)
+            if args.graphs:
+                try:
+                    row["refine_graphs"] = refine_graphs(r["views"], models, device, args.settles)
+                except Exception as exc:  # the rest of the run still reports
+                    row["refine_graphs"] = {"error": f"{type(exc).__name__}: {exc}"}
+                    print(f"refinement comparison failed: {row['refine_graphs']}", flush=True)
         runs.append(row)
         print(
             f"{folder.name}: new scene {r['times']['total']:.3f} s on {device} "

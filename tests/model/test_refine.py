@@ -383,3 +383,18 @@ def test_cuda_graphs_give_the_launches_refinement(scene, monkeypatch, settle):
     stop = lambda: asked.append(1) or len(asked) > 8  # noqa: E731  (inside the first graph)
     assert refine_depth(images, c2w, wrong, [[1], [0]], PREP, should_stop=stop) is None
     assert len(asked) == 9
+
+
+def test_the_sweep_scores_its_candidates_alike_one_at_a_time_and_all_at_once(scene):
+    """The GPU's batched sweep (`GPU_BATCH`) does the CPU's arithmetic, candidate by candidate,
+    here run on the CPU."""
+    from panogrf.model import sweep
+
+    images, c2w, depth = scene
+    offsets = torch.linspace(-0.3, 0.3, 24)
+    dirs = erp_directions(64, 128)
+    args = (images, c2w, 0, [1], torch.log(depth[0, 0] * 1.05), offsets, dirs, SweepConfig())
+    one = sweep._sweep_costs(*args, (0.1, 10.0))
+    batched = sweep._batched_costs(*args, (0.1, 10.0))
+    assert one.shape == batched.shape == (24, 64, 128)
+    torch.testing.assert_close(batched, one, rtol=0, atol=1e-6)
