@@ -268,16 +268,13 @@ class PreviewRenderer(PreviewPasses):
             ordinary, crossing = split_seam(self.points[k], self.corners[k], self.triangles[k], w2c)
             main_ibo, seam_ibo, vaos = self.buffers[k]
             main_vao, seam_vao = vaos[sharp]
-            main_ibo.write(ordinary.tobytes())
+            main_ibo.write(ordinary)
             _uniform(prog, "u_unwrap").value = 0
-            _uniform(prog, "u_shift").value = 0.0
             main_vao.render(moderngl.TRIANGLES, vertices=ordinary.size)
-            if crossing.size:
-                seam_ibo.write(crossing.tobytes())
+            if crossing.size:  # as they are, then a full turn to the left: two instances
+                seam_ibo.write(crossing)
                 _uniform(prog, "u_unwrap").value = 1
-                for shift in (0.0, -2.0):
-                    _uniform(prog, "u_shift").value = shift
-                    seam_vao.render(moderngl.TRIANGLES, vertices=crossing.size)
+                seam_vao.render(moderngl.TRIANGLES, vertices=crossing.size, instances=2)
         ctx.disable(moderngl.DEPTH_TEST)
         bp = self.blend_progs[distance, sharp]
         weights = (1.0 / (dists[chosen] + 1e-2)).astype(np.float32)
