@@ -158,13 +158,14 @@ class PreviewPasses:
 
     def _fill(self, t: dict[str, Any], last: int) -> None:
         """Push-pull: mipmap the blended preview, then fill each level's holes from the filled
-        next coarser one, coarsest first, down to level ``last`` (in ``t["filled"][last]``)."""
-        t["blend"].build_mipmaps()
+        next coarser one, coarsest first, down to level ``last`` (in ``t["filled"][last]``).
+        Only the mip levels the fill reads are made (not those below its coarsest)."""
+        levels = t["filled"]
+        t["blend"].build_mipmaps(max_level=len(levels) - 1)
         t["blend"].use(location=2)
         fp = self.fill_prog
         _uniform(fp, "u_level").value = 2
         _uniform(fp, "u_coarser").value = 3
-        levels = t["filled"]
         for lod in range(len(levels) - 1, last - 1, -1):
             tex, fbo = levels[lod]
             _uniform(fp, "u_lod").value = lod
