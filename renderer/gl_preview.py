@@ -295,8 +295,9 @@ class PreviewRenderer(PreviewPasses):
             _uniform(bp, "u_source").write(sources.tobytes())
         t["geo" if sharp else "layers"].use(location=1)
         t["depth"].use(location=4)
-        t["blend_fbo"].use()
-        t["blend_fbo"].viewport = (0, 0, width, height)
+        blend_fbo = t["blend_fbo" if distance else "colour_fbo"]
+        blend_fbo.use()
+        blend_fbo.viewport = (0, 0, width, height)
         self.blend_vaos[distance, sharp].render(moderngl.TRIANGLES, vertices=3)
         levels = t["filled"]
         fill_top = fill_top or sharp or len(levels) < 2

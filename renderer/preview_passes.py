@@ -87,6 +87,8 @@ class PreviewPasses:
             t["blend"].repeat_x, t["blend"].repeat_y = True, False
             t["dist"] = ctx.texture((width, height), 1, dtype="f4")
             t["blend_fbo"] = ctx.framebuffer(color_attachments=[t["blend"], t["dist"]])
+            # The blend without exact distances writes no distance: the colour alone.
+            t["colour_fbo"] = ctx.framebuffer(color_attachments=[t["blend"]])
             # Push-pull: one filled texture per mip level, down to a few pixels.
             t["filled"] = []
             level = 0
