@@ -268,16 +268,13 @@ class PreviewRenderer(PreviewPasses):
             ordinary, crossing = split_seam(self.points[k], self.corners[k], self.triangles[k], w2c)
             main_ibo, seam_ibo, vaos = self.buffers[k]
             main_vao, seam_vao = vaos[sharp]
-            main_ibo.write(ordinary.tobytes())
+            main_ibo.write(ordinary)
             _uniform(prog, "u_unwrap").value = 0
-            _uniform(prog, "u_shift").value = 0.0
             main_vao.render(moderngl.TRIANGLES, vertices=ordinary.size)
-            if crossing.size:
-                seam_ibo.write(crossing.tobytes())
+            if crossing.size:  # as they are, then a full turn to the left: two instances
+                seam_ibo.write(crossing)
                 _uniform(prog, "u_unwrap").value = 1
-                for shift in (0.0, -2.0):
-                    _uniform(prog, "u_shift").value = shift
-                    seam_vao.render(moderngl.TRIANGLES, vertices=crossing.size)
+                seam_vao.render(moderngl.TRIANGLES, vertices=crossing.size, instances=2)
         ctx.disable(moderngl.DEPTH_TEST)
         bp = self.blend_progs[distance, sharp]
         weights = (1.0 / (dists[chosen] + 1e-2)).astype(np.float32)
@@ -298,8 +295,9 @@ class PreviewRenderer(PreviewPasses):
             _uniform(bp, "u_source").write(sources.tobytes())
         t["geo" if sharp else "layers"].use(location=1)
         t["depth"].use(location=4)
-        t["blend_fbo"].use()
-        t["blend_fbo"].viewport = (0, 0, width, height)
+        blend_fbo = t["blend_fbo" if distance else "colour_fbo"]
+        blend_fbo.use()
+        blend_fbo.viewport = (0, 0, width, height)
         self.blend_vaos[distance, sharp].render(moderngl.TRIANGLES, vertices=3)
         levels = t["filled"]
         fill_top = fill_top or sharp or len(levels) < 2

@@ -130,22 +130,24 @@ def split_seam(
     seam (behind the target) or surround a pole (its vertices' longitudes then spread all
     round); longitude spans are computed for those alone. Any other triangle spans less
     than half a turn and is drawn as it is."""
-    east = points @ w2c[0, :3].astype(np.float32) >= -np.float32(w2c[0, 3])
-    east = east.view(np.uint8)
-    a, b, c = corners
-    e = east[a]
-    suspect = ((e ^ east[b]) | (e ^ east[c])).view(bool)
+    east = (points @ w2c[0, :3].astype(np.float32) >= -np.float32(w2c[0, 3])).view(np.uint8)
+    e = np.take(east, corners)  # [3, T]: each corner's side
+    suspect = ((e[0] ^ e[1]) | (e[0] ^ e[2])).view(bool)
     tris = triangles
     if not suspect.any():
         return tris, tris[:0]
     cand = tris[suspect]
-    cam = points[cand] @ w2c[:3, :3].T.astype(np.float32) + w2c[:3, 3].astype(
-        np.float32
-    )  # [S, 3, 3]
-    t = np.arctan2(cam[..., 0], -cam[..., 2]) * np.float32(1 / np.pi)  # longitude, [-1, 1]
+    # The candidates' corners in the target's frame, x and z only: [3 S, 2].
+    xz = points[cand.ravel()] @ w2c[(0, 2), :3].T.astype(np.float32)
+    xz += w2c[(0, 2), 3].astype(np.float32)
+    t = np.arctan2(xz[:, 0], -xz[:, 1]).reshape(-1, 3)
+    t *= np.float32(1 / np.pi)  # longitude, [-1, 1]
     span = t.max(1) - t.min(1)
     u = np.where(t < 0, t + 2.0, t)
     wrapped = (span > 1.0) & ((u.max(1) - u.min(1)) <= MAX_LON_SPAN)
     ordinary = ~suspect
     ordinary[suspect] = span <= MAX_LON_SPAN
-    return tris[ordinary], cand[wrapped]
+    # Whole triangles as one 12-byte item each: a boolean selection of rows, ten times faster.
+    rows = np.ascontiguousarray(tris).view(np.dtype((np.void, tris.itemsize * 3))).ravel()
+    kept = rows[ordinary].view(tris.dtype).reshape(-1, 3)
+    return kept, cand[wrapped]

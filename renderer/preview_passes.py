@@ -87,6 +87,8 @@ class PreviewPasses:
             t["blend"].repeat_x, t["blend"].repeat_y = True, False
             t["dist"] = ctx.texture((width, height), 1, dtype="f4")
             t["blend_fbo"] = ctx.framebuffer(color_attachments=[t["blend"], t["dist"]])
+            # The blend without exact distances writes no distance: the colour alone.
+            t["colour_fbo"] = ctx.framebuffer(color_attachments=[t["blend"]])
             # Push-pull: one filled texture per mip level, down to a few pixels.
             t["filled"] = []
             level = 0
@@ -158,13 +160,14 @@ class PreviewPasses:
 
     def _fill(self, t: dict[str, Any], last: int) -> None:
         """Push-pull: mipmap the blended preview, then fill each level's holes from the filled
-        next coarser one, coarsest first, down to level ``last`` (in ``t["filled"][last]``)."""
-        t["blend"].build_mipmaps()
+        next coarser one, coarsest first, down to level ``last`` (in ``t["filled"][last]``).
+        Only the mip levels the fill reads are made (not those below its coarsest)."""
+        levels = t["filled"]
+        t["blend"].build_mipmaps(max_level=len(levels) - 1)
         t["blend"].use(location=2)
         fp = self.fill_prog
         _uniform(fp, "u_level").value = 2
         _uniform(fp, "u_coarser").value = 3
-        levels = t["filled"]
         for lod in range(len(levels) - 1, last - 1, -1):
             tex, fbo = levels[lod]
             _uniform(fp, "u_lod").value = lod

@@ -2,15 +2,15 @@
 // A source view's depth mesh projected straight into the target's equirectangular image.
 // Row 0 of the framebuffer is the top row (latitude +90 deg), like the other ERP passes, so
 // read-back needs no flip. Triangles that cross the target's seam are drawn separately (the
-// CPU picks them per frame) with u_unwrap = 1, twice: once as they are (u_shift = 0) and once a
-// full turn to the left (u_shift = -2), so each side of the image gets its part.
+// CPU picks them per frame) with u_unwrap = 1, twice, as two instances of one draw: once as
+// they are (instance 0) and once a full turn to the left (instance 1), so each side of the
+// image gets its part.
 in vec3 in_pos;       // world position (metres)
 in vec2 in_uv;        // source texture coordinate; u > 1 on the column that closes the seam
 in vec3 in_dir;       // the unit direction in which the source sees this point (its own frame)
 uniform mat4 u_w2c;   // target world -> camera
 uniform float u_far;  // metres mapped to the far end of the depth buffer (depth = r / u_far)
 uniform int u_unwrap;
-uniform float u_shift;
 out vec2 v_uv;
 out vec3 v_dir;
 // Log distance, 0 at LOG_NEAR metres (defined at compile time), 1 at u_far; per vertex: cheaper.
@@ -27,5 +27,6 @@ void main() {
     v_uv = in_uv;
     v_dir = in_dir;
     v_log_dist = log(max(r, LOG_NEAR) / LOG_NEAR) / log(u_far / LOG_NEAR);
-    gl_Position = vec4(lon + u_shift, -lat, 2.0 * clamp(r / u_far, 0.0, 1.0) - 1.0, 1.0);
+    float shift = -2.0 * float(gl_InstanceID);  // 0, or a full turn to the left
+    gl_Position = vec4(lon + shift, -lat, 2.0 * clamp(r / u_far, 0.0, 1.0) - 1.0, 1.0);
 }

@@ -53,7 +53,9 @@ class PanoViewer(ExportsMixin, OverlayMixin, ControlsMixin, mglw.WindowConfig):
     aspect_ratio = None
     resizable = True
     vsync = False
-    clear_color = (0.0, 0.0, 0.0, 1.0)
+    # No clear before every frame: the display pass covers the whole window unless the
+    # letterbox leaves bars, and only then is the window cleared (`on_render`).
+    clear_color = None
     setup: ViewerSetup | None = None  # set by `run_viewer` before the window is made
 
     def __init__(self, **kwargs) -> None:
@@ -242,6 +244,8 @@ class PanoViewer(ExportsMixin, OverlayMixin, ControlsMixin, mglw.WindowConfig):
         w, hh = self.wnd.buffer_size
         # The panorama keeps 2:1 (black bars); a perspective view fills the window.
         box = (0, 0, w, hh) if self.perspective else screen.letterbox(w, hh)
+        if box != (0, 0, w, hh):  # black bars; else every pixel is drawn below
+            self.wnd.clear(0.0, 0.0, 0.0, 1.0)
         self.ctx.viewport = box
         if refined is not None and moved:
             self.neural_moving_frames += 1
