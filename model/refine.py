@@ -82,38 +82,15 @@ class RefineConfig:
 
 #: The refinement of a scene's cached depth at preparation (`SourceViews.refine`; on by
 #: default in view, render and eval, ``--no-refine-depth`` to skip it), after the networks, the
-#: sweep and the median. The smoothness was chosen on 12 validation scenes at 512 rows
-#: (PanoGRF fast, middle view from the outer two; WS-PSNR / LPIPS / full-depth L1 m): without
-#: 27.21 / 0.095 / 0.126; smoothness 0.2 27.47 / 0.089 / 0.111; 0.5 27.53 / 0.088 / 0.109; 1.0
-#: 27.58 / 0.088 / 0.110; 2.0 27.52; 4.0 27.47. The schedule was chosen on 12 new
-#: validation scenes (`python benchmarks/refine_depth.py --data data/val_refine_classic
-#: data/val_refine_home`, refine_depth_val.json; median refinement s per scene of two views
-#: on 2 cores): none 27.41 / 0.0918 / 0.116; 60 steps at 256 rows 27.83 / 0.0847 / 0.104, 3.50
-#: s; **30 at 128 rows then 30 at 256 27.84 / 0.0847 / 0.105, 2.47 s**; 45 + 15 27.82 / 0.0848
-#: / 0.107, 2.03 s; 60 at 128 27.65 / 0.0876 / 0.115, 1.37 s; 30 at 256 27.80 / 0.0847 /
-#: 0.104, 1.71 s (the cheapest within 0.03 dB, 0.002 LPIPS and 0.003 m of 60 steps wins:
-#: 30 at 256 missed by 0.003 dB). Steps at 512 rows were measured after them (``fine``; the
-#: same scenes, refine_fine_val.json; it needed +0.10 dB to ship): 5 27.87 / 0.0841 / 0.103,
-#: 1.43x the time; 10 27.87 / 0.0837 / 0.102, 1.95x; 20 27.90 / 0.0833 / 0.101, 2.86x; 30 + 15
-#: + 10 27.83 / 0.0839 / 0.103, 1.56x: +0.03 to +0.06 dB for 1.4 to 2.9 times the time, so
-#: ``fine`` stays 0. The free-space term was added (``free_space``), chosen on the same
-#: scenes, once as they are and once with the monocular network out of its domain (``python
-#: benchmarks/refine_depth.py ... [--mono-shift]``, refine_free_space*_val*.json; the rule,
-#: set before the runs: the lowest mean depth L1 of the two, at least 0.002 m below the shipped
-#: setting's, WS-PSNR not 0.02 dB lower and LPIPS not 0.001 higher in either, at most 1.3x
-#: its time). Clean / shifted, WS-PSNR / LPIPS / depth L1 m / time: without 27.83 / 0.0846 /
-#: 0.1022 and 27.42 / 0.0869 / 0.1188; weight 0.3 27.94 / 0.0835 / 0.0988 and 27.48 / 0.0852 /
-#: 0.1140, 1.58x; weight 1.0 27.99 / 0.0823 / 0.0986 and 27.53 / 0.0843 / 0.1136, 1.56x (too
-#: slow); weight 1.0 at half the rows **28.00 / 0.0823 / 0.0989 and 27.53 / 0.0846 / 0.1138,
-#: 1.26x**; at a quarter 27.91 / 0.0834 / 0.0999 and 27.43 / 0.0858 / 0.1150, 1.13x.
-#: ``settle`` (the rule, set before the runs: the largest of 1, 0.5, 0.25 whose WS-PSNR is not
-#: 0.02 dB lower, LPIPS not 0.001 higher and depth L1 not 0.001 m higher than constant's on the
-#: 18 scenes of data/loo_classic, loo_home, loo_lit; refine_settle_val*): 1.0 raised LPIPS by
-#: 0.0015 on the classic rooms; **0.5**: -0.008 dB, +0.0007 LPIPS, +0.0003 m, and the depth of
-#: an estimate moved by one part in a million moves 1.8 mm instead of 5.5 (a GPU's 1.8 mm from
-#: the CPU's instead of 5.5; lab/results/gpu_h200_round40_live.json).
+#: sweep and the median. Each setting was chosen on validation scenes by a rule set before the
+#: runs (`benchmarks/refine_depth.py`; every figure in `lab/results.md`, "How the per-scene
+#: refinement's settings were chosen"): smoothness 1.0, a coarse stage at half the rows, no
+#: stage at twice the rows, the free-space term at weight 1.0 and half the rows, the rate
+#: settling over the last half (the depth 3x less sensitive to rounding: a GPU's 1.8 mm from
+#: the CPU's instead of 5.5), then 20 + 20 steps instead of 30 + 30 (18 scenes, WS-PSNR /
+#: LPIPS / depth L1: 26.46 / 0.1058 / 0.0793 against 26.45 / 0.1049 / 0.0791, 0.58x the time).
 PREPARE_REFINE = RefineConfig(
-    smooth=1.0, coarse=30, iterations=30, free_space=1.0, free_space_shrink=2, settle=0.5
+    smooth=1.0, coarse=20, iterations=20, free_space=1.0, free_space_shrink=2, settle=0.5
 )
 
 
