@@ -79,6 +79,10 @@ class RefineConfig:
     minimum by up to ``lr`` per pixel, where rounding decides the side: a depth moved by one
     part in a million came out 7 mm away (mean; 19 % of the pixels more than 1 cm)."""
 
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.settle <= 1.0:
+            raise ValueError(f"settle must be in [0, 1], got {self.settle}")
+
 
 #: The refinement of a scene's cached depth at preparation (`SourceViews.refine`; on by
 #: default in view, render and eval, ``--no-refine-depth`` to skip it), after the networks, the
@@ -250,9 +254,9 @@ def refine_depth(
     v, _, h, w = depth.shape
     log_d0 = torch.log(depth.clamp(*d_range)).detach()
     delta = torch.zeros_like(log_d0, requires_grad=True)
-    graphs = CUDA_GRAPHS and depth.device.type == "cuda"
     # On a GPU the rate is a tensor the graphs read, and the launches do the same arithmetic.
     cuda = depth.device.type == "cuda"
+    graphs = CUDA_GRAPHS and cuda
     lr = torch.tensor(config.lr, device=depth.device) if cuda else config.lr
     opt = torch.optim.Adam([delta], lr=lr, capturable=cuda)
     refs = [r for r in range(v) if sources[r]]
@@ -316,8 +320,6 @@ def refine_depth(
 def _rate(config: RefineConfig, done: int, total: int) -> Callable[[int], float] | None:
     """The learning rate of a stage's i-th step when ``done`` of ``total`` steps came before
     (``config.settle``); None: constant."""
-    if not 0.0 <= config.settle <= 1.0:
-        raise ValueError(f"settle must be in [0, 1], got {config.settle}")
     if config.settle == 0.0:
         return None
     start = (1.0 - config.settle) * total
@@ -357,8 +359,6 @@ def _free_space_at(
     if k > 1:
         size = (max(hh // k, 4), 2 * max(hh // k, 4))
         log_fs = F.interpolate(log_d, size=size, mode="bilinear", align_corners=False)
-    if pairs.count == 0:
-        return log_fs.new_zeros(())
     return _violation(log_fs, c2w, pairs, FREE_SPACE_TOLERANCE)
 
 

@@ -58,11 +58,10 @@ class OptimisationSteps:
                 self.opt.zero_grad(set_to_none=True)
                 self.step()
                 advance()
+        if stream is not None:
+            torch.cuda.current_stream().wait_stream(stream)
         if stream is None or warm == steps:
-            if stream is not None:
-                torch.cuda.current_stream().wait_stream(stream)
             return True
-        torch.cuda.current_stream().wait_stream(stream)
         graph = torch.cuda.CUDAGraph()
         self.opt.zero_grad(set_to_none=True)
         with torch.cuda.graph(graph):
