@@ -15,6 +15,7 @@ Shapes: ``...`` any batch shape; ``H W`` image size; ``C`` channels; ``N`` point
 
 from __future__ import annotations
 
+import functools
 import math
 
 import torch
@@ -76,7 +77,24 @@ def erp_directions(
     device: torch.device | str | None = None,
     dtype: torch.dtype = torch.float32,
 ) -> Tensor:
-    """Unit ray directions of every pixel centre of an H x W panorama, camera frame: [H, W, 3]."""
+    """Unit ray directions of every pixel centre of an H x W panorama, camera frame: [H, W, 3].
+
+    Made once per size, device and type and shared (every render asks for the same few): do
+    not modify the result in place."""
+    device = torch.get_default_device() if device is None else torch.device(device)
+    if device.type == "meta":
+        return _directions(height, width, device, dtype)
+    return _shared_directions(height, width, device, dtype)
+
+
+@functools.lru_cache(maxsize=32)
+def _shared_directions(height: int, width: int, device: torch.device, dtype: torch.dtype) -> Tensor:
+    # A plain tensor even when first asked for under no_grad or inference mode.
+    with torch.inference_mode(False), torch.no_grad():
+        return _directions(height, width, device, dtype)
+
+
+def _directions(height: int, width: int, device: torch.device, dtype: torch.dtype) -> Tensor:
     v, u = torch.meshgrid(
         torch.arange(height, device=device, dtype=dtype),
         torch.arange(width, device=device, dtype=dtype),

@@ -4,14 +4,15 @@ from __future__ import annotations
 
 from typing import Any
 
+import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
 
 def circular_pad(x: Tensor, pad_w: int, pad_h: int) -> Tensor:
     """Pad [B, C, H, W] by ``pad_w`` columns wrapping around and ``pad_h`` zero rows."""
-    if pad_w:
-        x = F.pad(x, (pad_w, pad_w, 0, 0), mode="circular")
+    if pad_w:  # one concatenation: F.pad's circular mode is several copies
+        x = torch.cat((x[..., -pad_w:], x, x[..., :pad_w]), -1)
     if pad_h:
         x = F.pad(x, (0, 0, pad_h, pad_h), mode="constant", value=0.0)
     return x

@@ -52,28 +52,25 @@ def splat_zbuffer(
     width: int,
 ) -> Tensor:
     """Nearest splatted distance from the target centre per target pixel: [H, W], 0 = empty."""
-    v = depth.shape[0]
-    keep = depth > 0
-    points = erp_to_world(depth[:, 0], c2w)  # [V, h*w, 3]
-    points = points[keep.reshape(v, -1)]  # [N, 3]
+    points = erp_to_world(depth[:, 0], c2w).reshape(-1, 3)  # [V*h*w, 3]
     uv, dist = world_to_erp(points, tgt_c2w, height, width)
+    # Unknown source depth lands nowhere: an infinite distance never wins the minimum. (No
+    # boolean selection: on a GPU that would wait for the device.)
+    dist = torch.where(depth.reshape(-1) > 0, dist, float("inf"))
     n = height * width
-
-    def zbuffer(u: Tensor, v: Tensor, out: Tensor) -> None:
-        idx = v.clamp(0, height - 1) * width + torch.remainder(u, width)
-        out.scatter_reduce_(0, idx, dist, reduce="amin")
-
-    inf = float("inf")
-    nearest = torch.full((n,), inf, dtype=depth.dtype, device=depth.device)
-    zbuffer(torch.round(uv[:, 0]).long(), torch.round(uv[:, 1]).long(), nearest)
-    # Magnified surfaces leave gaps between the nearest pixels: fill them from a 2x2 footprint.
-    wide = torch.full((n,), inf, dtype=depth.dtype, device=depth.device)
-    u0, v0 = torch.floor(uv[:, 0]).long(), torch.floor(uv[:, 1]).long()
-    for du in (0, 1):
-        for dv in (0, 1):
-            zbuffer(u0 + du, v0 + dv, wide)
-    zbuf = torch.where(torch.isfinite(nearest), nearest, wide).reshape(height, width)
-    return torch.where(torch.isfinite(zbuf), zbuf, torch.zeros_like(zbuf))
+    # Each point on its nearest pixel; magnified surfaces leave gaps between those, filled
+    # from the 2x2 footprint of each projection. Both in one scatter: [5, N] indices.
+    u, w = uv[:, 0], uv[:, 1]
+    u0, w0 = torch.floor(u), torch.floor(w)
+    u = torch.stack((torch.round(u), u0, u0, u0 + 1, u0 + 1))
+    w = torch.stack((torch.round(w), w0, w0 + 1, w0, w0 + 1))
+    idx = w.long().clamp(0, height - 1) * width + torch.remainder(u.long(), width)
+    idx[1:] += n  # the footprint's z-buffer after the nearest one's
+    zbuf = torch.full((2 * n,), float("inf"), dtype=depth.dtype, device=depth.device)
+    zbuf.scatter_reduce_(0, idx.reshape(-1), dist.expand(5, -1).reshape(-1), reduce="amin")
+    nearest, wide = zbuf[:n], zbuf[n:]
+    out = torch.where(torch.isfinite(nearest), nearest, wide).reshape(height, width)
+    return torch.where(torch.isfinite(out), out, torch.zeros_like(out))
 
 
 def fill_holes(depth: Tensor, iterations: int = 16) -> Tensor:
@@ -84,9 +81,8 @@ def fill_holes(depth: Tensor, iterations: int = 16) -> Tensor:
     for _ in range(iterations):
         empty = out <= 0
         if not bool(empty.any()):
-            break
-        grown = _filter(out, "max")
-        out = torch.where(empty, grown, out)
+            return out
+        out = torch.where(empty, _filter(out, "max"), out)
     empty = out <= 0
     if bool(empty.any()):
         fallback = out[~empty].median() if bool((~empty).any()) else out.new_tensor(2.0)

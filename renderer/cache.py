@@ -14,7 +14,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from panogrf.model.erp import invert_rigid, pad_seam, sample_padded
+from panogrf.model.erp import erp_directions, invert_rigid, pad_seam, sample_padded
 from panogrf.model.render_net import RendererNet
 
 
@@ -36,6 +36,19 @@ class SceneCache:
         self.maps_padded = pad_seam(self.maps)
         self._images_padded = {1: pad_seam(self.images)}
         self.mask_padded = None if self.mask is None else pad_seam(self.mask.to(self.maps.dtype))
+        self._surface: tuple[Tensor, Tensor] | None = None
+
+    def surface_points(self) -> tuple[Tensor, Tensor]:
+        """The sources' depth lifted to the world, [V*h*w, 3], and where it is known (> 0)
+        [V*h*w]; made once per cache (every render's sample range reads them), detached."""
+        if self._surface is None:
+            depth = self.depth.detach()
+            v, _, h, w = depth.shape
+            dirs = erp_directions(h, w, device=depth.device, dtype=depth.dtype)
+            world = dirs.reshape(1, -1, 3) @ self.c2w[:, :3, :3].transpose(1, 2)  # [V, h*w, 3]
+            points = self.centres[:, None] + world * depth.reshape(v, -1, 1)
+            self._surface = points.reshape(-1, 3), depth.reshape(-1) > 0
+        return self._surface
 
     def masked_at(self, uv: Tensor, height: int, width: int) -> Tensor | None:
         """Masked fraction [V, N] of each source at its pixel coordinates uv [V, N, 2] on an

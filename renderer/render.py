@@ -23,6 +23,7 @@ Shapes: R rays, S samples, V views.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any
@@ -103,19 +104,18 @@ def sample_range(cache: SceneCache, centre: Tensor) -> tuple[float, float]:
     """Near and far (metres) of the uniform samples of rays from ``centre`` [3] (world): the
     cached source depths [V, 1, h, w] lifted to world points, the 2nd and 98th percentile of
     their distances from the centre, widened by `NEAR_MARGIN` and `FAR_MARGIN`."""
-    v, _, h, w = cache.depth.shape
-    dirs = erp_directions(h, w, device=cache.depth.device, dtype=cache.depth.dtype)
-    world = dirs.reshape(1, -1, 3) @ cache.c2w[:, :3, :3].transpose(1, 2)  # [V, h*w, 3]
-    depth = cache.depth.reshape(v, -1, 1)
-    points = cache.centres[:, None] + world * depth
+    points, known = cache.surface_points()
     dist = torch.linalg.vector_norm(points - centre.to(points.dtype), dim=-1)
-    dist = dist[(depth[..., 0] > 0) & torch.isfinite(dist)]
-    if dist.numel() == 0:  # no usable depth: the range the renderer was trained with
+    dist = torch.where(known & torch.isfinite(dist), dist, torch.nan)
+    # torch.quantile takes < 2^24 values; NaN (no depth) is left out, without a boolean
+    # selection that would wait for a GPU.
+    dist = dist[:: max(1, dist.numel() >> 20)].float()
+    q = torch.tensor([NEAR_QUANTILE, FAR_QUANTILE], device=dist.device)
+    lo, hi = torch.nanquantile(dist, q).tolist()
+    if math.isnan(lo):  # no usable depth: the range the renderer was trained with
         return 0.5, 15.0
-    dist = dist[:: max(1, dist.numel() >> 20)].float()  # torch.quantile takes < 2^24 values
-    lo, hi = torch.quantile(dist, torch.tensor([NEAR_QUANTILE, FAR_QUANTILE], device=dist.device))
-    near = max(MIN_NEAR, NEAR_MARGIN * float(lo))
-    return near, max(2.0 * near, FAR_MARGIN * float(hi))
+    near = max(MIN_NEAR, NEAR_MARGIN * lo)
+    return near, max(2.0 * near, FAR_MARGIN * hi)
 
 
 def with_range(sampling: Sampling, cache: SceneCache, centre: Tensor) -> Sampling:

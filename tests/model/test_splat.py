@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import torch
 from helpers.room import pose, render
+from torch.utils._python_dispatch import TorchDispatchMode
 
 from panogrf.model.erp import rotation_about
 from panogrf.model.splat import fill_holes, proxy_depth, splat_zbuffer
@@ -57,3 +58,58 @@ def test_fill_holes_takes_the_background_and_never_leaves_a_hole():
     assert filled[3, 8] == 5.0 and filled[3, 9] == 5.0
     empty = fill_holes(torch.zeros(4, 8))
     assert torch.isfinite(empty).all() and (empty > 0).all()
+
+
+class _Ops(TorchDispatchMode):
+    """Records the operators a call dispatches (what a GPU would be asked to run)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.names: list[str] = []
+
+    def __torch_dispatch__(self, func, types, args=(), kwargs=None):
+        name = str(func)
+        indices = args[1] if name.startswith("aten.index.Tensor") else ()
+        if any(getattr(i, "dtype", None) == torch.bool for i in indices):
+            name = "boolean selection"
+        self.names.append(name)
+        return func(*args, **(kwargs or {}))
+
+
+WAITS = ("aten._local_scalar_dense", "aten.nonzero", "aten.masked_select", "boolean selection")
+
+
+def test_splatting_never_waits_for_the_device_and_matches_the_point_by_point_zbuffer():
+    depth, c2w = _sources(32)
+    depth[0, 0, 10:14] = 0.0  # unknown depth lands nowhere
+    with _Ops() as ops:
+        zbuf = splat_zbuffer(depth, c2w, TGT.float(), 32, 64)
+    assert not [n for n in ops.names if n.startswith(WAITS)], ops.names
+    # The reference: every known point on its nearest pixel, else the 2x2 footprint's minimum.
+    from panogrf.model.erp import erp_to_world, world_to_erp
+
+    keep = depth[:, 0].reshape(-1) > 0
+    uv, dist = world_to_erp(erp_to_world(depth[:, 0], c2w).reshape(-1, 3)[keep], TGT.float(), 32, 64)
+    nearest = torch.full((32, 64), float("inf"))
+    wide = torch.full((32, 64), float("inf"))
+    for (u, v), d in zip(uv.tolist(), dist.tolist()):
+        import math
+
+        ru, rv = round(u), round(v)  # torch.round: half to even, as Python's round
+        r = nearest[min(max(rv, 0), 31), ru % 64]
+        nearest[min(max(rv, 0), 31), ru % 64] = min(float(r), d)
+        for du in (0, 1):
+            for dv in (0, 1):
+                fu, fv = math.floor(u) + du, min(max(math.floor(v) + dv, 0), 31)
+                wide[fv, fu % 64] = min(float(wide[fv, fu % 64]), d)
+    ref = torch.where(torch.isfinite(nearest), nearest, wide)
+    ref = torch.where(torch.isfinite(ref), ref, torch.zeros_like(ref))
+    torch.testing.assert_close(zbuf, ref, rtol=0, atol=0)
+
+
+def test_filling_waits_once_when_nothing_is_missing():
+    d = torch.full((8, 16), 2.0)
+    with _Ops() as ops:
+        out = fill_holes(d)
+    assert sum(n.startswith(WAITS) for n in ops.names) == 1
+    assert torch.equal(out, d)
