@@ -18,8 +18,9 @@ import numpy as np
 
 from panogrf.app.errors import UserError
 
-#: The floor's normal within this of the cameras' mean up axis (degrees): the cameras are level
-#: and their up axis (more precise than a fitted plane) is kept.
+#: The floor's normal within this of the cameras' mean up axis, or every camera's up axis within
+#: this of their mean (degrees): the cameras are level and their up axis (more precise than a
+#: fitted plane) is kept.
 LEVEL_TOLERANCE_DEG = 2.0
 
 #: Camera height assumed when neither a height nor a distance is given (metres).
@@ -211,21 +212,31 @@ def make_metric(
     """Level, place and scale reconstructed poses [V, 4, 4] (and points [P, 3]).
 
     Up is the floor plane's normal where a floor is found (within 15 degrees of the cameras'
-    mean up axis), else that axis. Scale: ``heights`` [V] (metres above the floor, needs the
+    mean up axis) and the cameras' own up axes disagree (`LEVEL_TOLERANCE_DEG`), else that
+    axis. Scale: ``heights`` [V] (metres above the floor, needs the
     floor), else ``distance`` (i, j, metres), else the assumed height `ASSUMED_HEIGHT_M` (or,
     without a floor, a first-to-last distance of 1 m), each stated in the report.
     """
     cam_up = camera_up(c2w)
     floor = fit_floor(points, c2w[:, :3, 3], cam_up)
     lines = []
+    # Captures that agree with each other on up were levelled (a 360 camera levels its
+    # panoramas; separate set-ups that share one tilt are rare), and a floor fitted to a few
+    # low points of a bare floor can be tilted: then the cameras' up is kept.
+    spread = float(np.degrees(np.arccos(np.clip(c2w[:, :3, 1] @ cam_up, -1, 1))).max())
     if floor is not None:
         tilt = np.degrees(np.arccos(np.clip(floor.normal @ cam_up, -1, 1)))
         found = f"floor plane from {floor.inliers} of {floor.candidates} low points"
-        if tilt <= LEVEL_TOLERANCE_DEG:
+        if tilt <= LEVEL_TOLERANCE_DEG or spread <= LEVEL_TOLERANCE_DEG:
             up, offset = cam_up, float(np.median(floor.points @ cam_up))
+            agree = (
+                "so the cameras are level"
+                if tilt <= LEVEL_TOLERANCE_DEG
+                else f"but the cameras agree on up within {spread:.2f} deg, so they are level"
+            )
             lines.append(
                 f"upright: {found}; its normal is {tilt:.2f} deg from the cameras' mean up "
-                "axis, so the cameras are level: kept their up axis"
+                f"axis, {agree}: kept their up axis"
             )
         else:
             up, offset = floor.normal, floor.offset

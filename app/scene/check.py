@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -316,9 +317,21 @@ def _inspect(root: str | os.PathLike[str], keep_pixels: bool) -> tuple[SceneRepo
     elif not frames:
         problems.append(f"{TRANSFORMS}: frames is empty; a scene needs at least one view")
 
-    found = [
-        _inspect_frame(root, i, fr, keep_pixels, problems, notes) for i, fr in enumerate(frames)
-    ]
+    def inspect(item: tuple[int, Any]) -> tuple[_Found, list[str], list[str]]:
+        frame_problems: list[str] = []
+        frame_notes: list[str] = []
+        frame = _inspect_frame(root, *item, keep_pixels, frame_problems, frame_notes)
+        return frame, frame_problems, frame_notes
+
+    # The panoramas are decoded side by side (the decoder leaves Python's lock); problems and
+    # notes keep the frames' order.
+    workers = max(1, min(len(frames), os.cpu_count() or 1, 8))
+    with ThreadPoolExecutor(workers) as pool:
+        inspected = list(pool.map(inspect, enumerate(frames)))
+    found = [f for f, _, _ in inspected]
+    for _, frame_problems, frame_notes in inspected:
+        problems.extend(frame_problems)
+        notes.extend(frame_notes)
     _check_sizes(found, w, h, problems)
     _check_separation(found, problems)
 

@@ -6,7 +6,9 @@ validator) so that both can build scenes without importing each other.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -96,7 +98,9 @@ class SceneImages:
         c2w [V, 4, 4] float64; views without depth get zeros (unknown) when any view has depth.
         Poses far from the world's origin are taken relative to `scene_origin` first, in
         double precision, so that ``dtype`` keeps their millimetres."""
-        images = torch.from_numpy(np.stack(pixels)).permute(0, 3, 1, 2).to(dtype) / 255.0
+        # Channels first while still bytes, then one conversion (a quarter of the memory moved).
+        images = torch.from_numpy(np.stack(pixels)).permute(0, 3, 1, 2).contiguous()
+        images = images.to(dtype).div_(255.0)
         depth = None
         if any(d is not None for d in depths):
             h, w = pixels[0].shape[:2]
@@ -104,7 +108,7 @@ class SceneImages:
             depth = torch.from_numpy(np.stack(filled))[:, None].to(dtype)
         origin = scene_origin(c2w)
         local = shifted(c2w, -origin)
-        return cls(images.contiguous(), torch.from_numpy(local).to(dtype), depth, origin)
+        return cls(images, torch.from_numpy(local).to(dtype), depth, origin)
 
 
 @dataclass(frozen=True, eq=False)
@@ -136,7 +140,14 @@ class Scene:
         return any(f.depth_path is not None for f in self.frames)
 
     def load_images(self, dtype: torch.dtype = torch.float32) -> SceneImages:
-        """Read every panorama (and depth map) into tensors on the CPU."""
-        pixels = [read_rgb_with_notes(f.image_path)[0] for f in self.frames]
-        depths = [None if f.depth_path is None else read_depth(f.depth_path) for f in self.frames]
+        """Read every panorama (and depth map) into tensors on the CPU; the panoramas are
+        decoded side by side (the decoder leaves Python's lock)."""
+        workers = max(1, min(len(self.frames), os.cpu_count() or 1))
+
+        def read(f: Frame) -> tuple[np.ndarray, np.ndarray | None]:
+            depth = None if f.depth_path is None else read_depth(f.depth_path)
+            return read_rgb_with_notes(f.image_path)[0], depth
+
+        with ThreadPoolExecutor(workers) as pool:  # errors come out in the frames' order
+            pixels, depths = zip(*pool.map(read, self.frames), strict=True)
         return SceneImages.from_arrays(pixels, depths, self.c2w, dtype)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import torch
 from helpers.room import pose, render
 from torch.utils._python_dispatch import TorchDispatchMode
@@ -89,12 +91,11 @@ def test_splatting_never_waits_for_the_device_and_matches_the_point_by_point_zbu
     from panogrf.model.erp import erp_to_world, world_to_erp
 
     keep = depth[:, 0].reshape(-1) > 0
-    uv, dist = world_to_erp(erp_to_world(depth[:, 0], c2w).reshape(-1, 3)[keep], TGT.float(), 32, 64)
+    points = erp_to_world(depth[:, 0], c2w).reshape(-1, 3)[keep]
+    uv, dist = world_to_erp(points, TGT.float(), 32, 64)
     nearest = torch.full((32, 64), float("inf"))
     wide = torch.full((32, 64), float("inf"))
-    for (u, v), d in zip(uv.tolist(), dist.tolist()):
-        import math
-
+    for (u, v), d in zip(uv.tolist(), dist.tolist(), strict=True):
         ru, rv = round(u), round(v)  # torch.round: half to even, as Python's round
         r = nearest[min(max(rv, 0), 31), ru % 64]
         nearest[min(max(rv, 0), 31), ru % 64] = min(float(r), d)
