@@ -73,15 +73,24 @@ def splat_zbuffer(
     return torch.where(torch.isfinite(out), out, torch.zeros_like(out))
 
 
-def fill_holes(depth: Tensor, iterations: int = 16) -> Tensor:
+#: Passes of `fill_holes` between two looks at whether any hole is left, on a GPU (a look waits
+#: for the device; a pass on a filled map changes nothing). A CPU looks after every pass.
+GPU_PASSES_PER_LOOK = 4
+
+
+def fill_holes(depth: Tensor, iterations: int = 16, look: int | None = None) -> Tensor:
     """Fill empty pixels (0) of [H, W] with the farthest valid 3x3 neighbour, repeatedly: holes
     are mostly disocclusions, whose true surface is the background behind the edge. Pixels
-    still empty after that take the median depth (any finite guess beats none)."""
+    still empty after that take the median depth (any finite guess beats none). ``look``:
+    passes between two looks for holes left (None: 1 on a CPU, `GPU_PASSES_PER_LOOK`
+    elsewhere); the result is the same for any."""
+    if look is None:
+        look = 1 if depth.device.type == "cpu" else GPU_PASSES_PER_LOOK
     out = depth.clone()
-    for _ in range(iterations):
-        empty = out <= 0
-        if not bool(empty.any()):
+    for done in range(iterations):
+        if done % look == 0 and not bool((out <= 0).any()):
             return out
+        empty = out <= 0
         out = torch.where(empty, _filter(out, "max"), out)
     empty = out <= 0
     if bool(empty.any()):

@@ -23,6 +23,7 @@ Shapes: R rays, S samples, V views.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
@@ -110,12 +111,17 @@ def sample_range(cache: SceneCache, centre: Tensor) -> tuple[float, float]:
     # torch.quantile takes < 2^24 values; NaN (no depth) is left out, without a boolean
     # selection that would wait for a GPU.
     dist = dist[:: max(1, dist.numel() >> 20)].float()
-    q = torch.tensor([NEAR_QUANTILE, FAR_QUANTILE], device=dist.device)
-    lo, hi = torch.nanquantile(dist, q).tolist()
+    lo, hi = torch.nanquantile(dist, _quantiles(dist.device)).tolist()
     if math.isnan(lo):  # no usable depth: the range the renderer was trained with
         return 0.5, 15.0
     near = max(MIN_NEAR, NEAR_MARGIN * lo)
     return near, max(2.0 * near, FAR_MARGIN * hi)
+
+
+@functools.lru_cache(maxsize=8)
+def _quantiles(device: torch.device) -> Tensor:
+    """`NEAR_QUANTILE` and `FAR_QUANTILE` on ``device``, copied there once."""
+    return torch.tensor([NEAR_QUANTILE, FAR_QUANTILE], device=device)
 
 
 def with_range(sampling: Sampling, cache: SceneCache, centre: Tensor) -> Sampling:

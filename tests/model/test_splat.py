@@ -114,3 +114,18 @@ def test_filling_waits_once_when_nothing_is_missing():
         out = fill_holes(d)
     assert sum(n.startswith(WAITS) for n in ops.names) == 1
     assert torch.equal(out, d)
+
+
+def test_looking_for_holes_less_often_fills_the_same_with_fewer_waits():
+    depth, c2w = _sources(32)
+    zbuf = splat_zbuffer(depth, c2w, TGT.float(), 32, 64)
+    zbuf[5:12, 20:29] = 0.0  # a hole 7 passes deep
+    waits = {}
+    for look in (1, 4):
+        with _Ops() as ops:
+            filled = fill_holes(zbuf, look=look)
+        waits[look] = sum(n.startswith(WAITS) for n in ops.names)
+        if look == 1:
+            reference = filled
+    assert torch.equal(filled, reference) and (filled > 0).all()
+    assert waits[4] < waits[1]
