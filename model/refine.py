@@ -35,7 +35,9 @@ from panogrf.model.erp import (
     erp_directions,
     erp_to_world,
     latitude_weights,
+    pad_seam,
     sample_erp,
+    sample_padded,
     world_to_erp,
 )
 from panogrf.model.progress import open_stage
@@ -127,17 +129,24 @@ def _box_mean_padded(x: Tensor, k: int) -> Tensor:
     return out / (k * k)
 
 
-def photometric_error(a: Tensor, b: Tensor) -> Tensor:
+def _window_mean(x: Tensor) -> Tensor:
+    return _box_mean_padded(_pad_w(x), 3)
+
+
+def reference_stats(b: Tensor) -> tuple[Tensor, Tensor]:
+    """The 3x3 window mean and variance of a reference image [B, 3, H, W] that
+    `photometric_error` compares against (computed once where many images meet one reference)."""
+    mu = _window_mean(b)
+    return mu, _window_mean(b * b) - mu**2
+
+
+def photometric_error(a: Tensor, b: Tensor, b_stats: tuple[Tensor, Tensor] | None = None) -> Tensor:
     """Per-pixel 0.85 (1 - SSIM) / 2 + 0.15 L1 of images [B, 3, H, W] -> [B, H, W] (``b`` may
-    be [1, 3, H, W] against a batch of ``a``)."""
-
-    def mean(x: Tensor) -> Tensor:  # one term at a time: a stacked tensor is slower
-        return _box_mean_padded(_pad_w(x), 3)
-
-    mu_a, mu_b = mean(a), mean(b)
-    var_a = mean(a * a) - mu_a**2
-    var_b = mean(b * b) - mu_b**2
-    cov = mean(a * b) - mu_a * mu_b
+    be [1, 3, H, W] against a batch of ``a``; ``b_stats``: `reference_stats` of ``b``)."""
+    mu_a = _window_mean(a)  # one term at a time: a stacked tensor is slower
+    mu_b, var_b = reference_stats(b) if b_stats is None else b_stats
+    var_a = _window_mean(a * a) - mu_a**2
+    cov = _window_mean(a * b) - mu_a * mu_b
     c1, c2 = 0.01**2, 0.03**2
     ssim = ((2 * mu_a * mu_b + c1) * (2 * cov + c2)) / (
         (mu_a**2 + mu_b**2 + c1) * (var_a + var_b + c2)
@@ -154,22 +163,33 @@ def warp_from(
     return warp_batch(source, depth[None], ref_c2w[None], src_c2w[None], dirs)
 
 
+def warp_rays(ref_c2w: Tensor, src_c2w: Tensor, dirs: Tensor) -> tuple[Tensor, Tensor]:
+    """What a warp from sources ``src_c2w`` into references ``ref_c2w`` [P, 4, 4] does not take
+    from the depth: the reference's rays in each source's frame [P, H, W, 3] and the reference
+    centre there [P, 3] (x_src = R_s^T (R_r x + t_r - t_s); dirs [H, W, 3])."""
+    rot_s = src_c2w[:, :3, :3].transpose(1, 2)  # [P, 3, 3] world -> source camera
+    rot = rot_s @ ref_c2w[:, :3, :3]
+    shift = (rot_s @ (ref_c2w[:, :3, 3] - src_c2w[:, :3, 3])[..., None])[..., 0]  # [P, 3]
+    return dirs[None] @ rot.transpose(1, 2)[:, None], shift
+
+
+def warp_along(padded: Tensor, depth: Tensor, rays: Tensor, shift: Tensor) -> Tensor:
+    """Sources padded by `pad_seam` [P, 3, H, W + 2] seen along `warp_rays` ``rays``, ``shift``
+    at spherical depths [P, H, W] -> [P, 3, H, W]."""
+    p, h, w = depth.shape
+    cam = depth[..., None] * rays + shift[:, None, None]
+    uv = direction_to_pixel(cam.reshape(p, -1, 3), h, w)
+    return sample_padded(padded, uv).reshape(p, -1, h, w)
+
+
 def warp_batch(
     sources: Tensor, depth: Tensor, ref_c2w: Tensor, src_c2w: Tensor, dirs: Tensor
 ) -> Tensor:
     """Source panoramas [P, 3, H, W] seen from their reference cameras ``ref_c2w`` [P, 4, 4]
     with spherical depths [P, H, W] -> [P, 3, H, W], one batched resampling (on a GPU one launch
-    per operation instead of one per warp). Reference camera frame -> source camera frame:
-    x_src = R_s^T (R_r x + t_r - t_s); the rotated rays do not depend on the depth, so its
-    gradient skips the matrix products."""
-    p, h, w = depth.shape
-    rot_s = src_c2w[:, :3, :3].transpose(1, 2)  # [P, 3, 3] world -> source camera
-    rot = rot_s @ ref_c2w[:, :3, :3]
-    shift = (rot_s @ (ref_c2w[:, :3, 3] - src_c2w[:, :3, 3])[..., None])[..., 0]  # [P, 3]
-    rays = dirs[None] @ rot.transpose(1, 2)[:, None]  # [P, H, W, 3]
-    cam = depth[..., None] * rays + shift[:, None, None]
-    uv = direction_to_pixel(cam.reshape(p, -1, 3), h, w)
-    return sample_erp(sources, uv).reshape(p, -1, h, w)
+    per operation instead of one per warp). The rotated rays do not depend on the depth, so its
+    gradient skips the matrix products (`warp_rays`, `warp_along`)."""
+    return warp_along(pad_seam(sources), depth, *warp_rays(ref_c2w, src_c2w, dirs))
 
 
 def warp_pairs(images: Tensor, depth: Tensor, c2w: Tensor, pairs: _Pairs, dirs: Tensor) -> Tensor:
@@ -284,6 +304,7 @@ def refine_depth(
         dirs = erp_directions(hh, 2 * hh, device=depth.device, dtype=depth.dtype)
         wlat = latitude_weights(hh, 2 * hh, device=depth.device, dtype=depth.dtype)
         target = img[pairs.ref]
+        stats = reference_stats(target)  # the targets do not move: their windows once a stage
 
         def step(
             hh: int = hh,
@@ -291,11 +312,12 @@ def refine_depth(
             dirs: Tensor = dirs,
             wlat: Tensor = wlat,
             target: Tensor = target,
+            stats: tuple[Tensor, Tensor] = stats,
         ) -> None:
             log_d = log_d0 + delta * moves
             log_full = F.interpolate(log_d, size=(hh, 2 * hh), mode="bilinear", align_corners=False)
             warped = warp_pairs(img, torch.exp(log_full)[:, 0], c2w, pairs, dirs)  # all at once
-            loss = _photometric_sum(photometric_error(warped, target), spans, wlat, config)
+            loss = _photometric_sum(photometric_error(warped, target, stats), spans, wlat, config)
             dx = (delta - torch.roll(delta, 1, -1)).abs() * wx
             dy = (delta[..., 1:, :] - delta[..., :-1, :]).abs() * wy
             loss = loss / len(refs) + config.smooth * (dx.mean() + dy.mean())

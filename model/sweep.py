@@ -21,14 +21,16 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from panogrf.model.erp import erp_directions
+from panogrf.model.erp import erp_directions, pad_seam
 from panogrf.model.progress import open_stage
 from panogrf.model.refine import (
     _box_mean_padded,
     _pad_w,
     photometric_error,
+    reference_stats,
+    warp_along,
     warp_batch,
-    warp_from,
+    warp_rays,
 )
 
 
@@ -245,12 +247,17 @@ def _sweep_costs(
     candidates at once: the same arithmetic in a twenty-fourth of the launches."""
     if GPU_BATCH and log_d0.device.type != "cpu":
         return _batched_costs(img, c2w, r, sources, log_d0, offsets, dirs, config, d_range)
+    ref = img[r : r + 1]
+    stats = reference_stats(ref)  # what does not change from one candidate to the next
+    along = [
+        (pad_seam(img[s : s + 1]), *warp_rays(c2w[r][None], c2w[s][None], dirs)) for s in sources
+    ]
     costs = []
     for off in offsets.tolist():
-        d = torch.exp(log_d0 + off).clamp(*d_range)
+        d = torch.exp(log_d0 + off).clamp(*d_range)[None]
         errs = [
-            photometric_error(warp_from(img[s : s + 1], d, c2w[r], c2w[s], dirs), img[r : r + 1])
-            for s in sources
+            photometric_error(warp_along(padded, d, rays, shift), ref, stats)
+            for padded, rays, shift in along
         ]
         err = torch.stack(errs).amin(0)  # [1, H, W]
         costs.append(box_mean(err[None], config.window)[0, 0] + config.prior * abs(off))
@@ -277,12 +284,13 @@ def _batched_costs(
     n = len(offsets)
     d = torch.exp(log_d0[None] + offsets[:, None, None]).clamp(*d_range)  # [D, H, W]
     ref = c2w[r].expand(n, 4, 4)
+    stats = reference_stats(img[r : r + 1])
     errs = []
     for s in sources:
         warped = warp_batch(
             img[s : s + 1].expand(n, -1, -1, -1), d, ref, c2w[s].expand(n, 4, 4), dirs
         )
-        errs.append(photometric_error(warped, img[r : r + 1]))  # [D, H, W]
+        errs.append(photometric_error(warped, img[r : r + 1], stats))  # [D, H, W]
     err = torch.stack(errs).amin(0)
     prior = config.prior * offsets.abs()
     return box_mean(err[:, None], config.window)[:, 0] + prior[:, None, None]
