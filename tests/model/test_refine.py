@@ -14,6 +14,7 @@ from panogrf.model.refine import (
     RefineConfig,
     free_space_violation,
     photometric_error,
+    reference_stats,
     refine_depth,
     warp_from,
 )
@@ -398,3 +399,11 @@ def test_the_sweep_scores_its_candidates_alike_one_at_a_time_and_all_at_once(sce
     batched = sweep._batched_costs(*args, (0.1, 10.0))
     assert one.shape == batched.shape == (24, 64, 128)
     torch.testing.assert_close(batched, one, rtol=0, atol=1e-6)
+
+
+def test_a_reference_compared_many_times_gives_the_same_error_from_its_windows_once():
+    g = torch.Generator().manual_seed(3)
+    a, b = torch.rand(4, 3, 16, 32, generator=g), torch.rand(1, 3, 16, 32, generator=g)
+    stats = reference_stats(b)
+    assert torch.equal(photometric_error(a, b, stats), photometric_error(a, b))
+    assert torch.equal(photometric_error(b, b, stats), torch.zeros(1, 16, 32))
