@@ -87,7 +87,7 @@ def erp_directions(
     return _shared_directions(height, width, device, dtype)
 
 
-@functools.lru_cache(maxsize=32)
+@functools.lru_cache(maxsize=16)  # a few sizes per command: tens of megabytes at most
 def _shared_directions(height: int, width: int, device: torch.device, dtype: torch.dtype) -> Tensor:
     # A plain tensor even when first asked for under no_grad or inference mode.
     with torch.inference_mode(False), torch.no_grad():

@@ -425,3 +425,15 @@ def test_sample_erp_gradcheck():
     img = torch.randn(1, 2, 4, 8, generator=_gen(12), dtype=F64, requires_grad=True)
     uv = torch.tensor([[[-0.3, 1.2], [7.4, 2.6], [3.1, -0.2], [15.2, 0.7]]], dtype=F64)
     assert torch.autograd.gradcheck(lambda x: erp.sample_erp(x, uv), (img,))
+
+
+def test_directions_are_made_once_per_size_and_stay_plain_tensors():
+    a = erp.erp_directions(6, 12)
+    assert erp.erp_directions(6, 12) is a
+    assert erp.erp_directions(6, 12, dtype=torch.float64) is not a
+    with torch.inference_mode():
+        erp.erp_directions(7, 14)
+    b = erp.erp_directions(7, 14)  # first made in inference mode, usable under autograd after
+    depth = torch.ones(7, 14, 1, requires_grad=True)
+    (b * depth).sum().backward()
+    assert not b.is_inference() and depth.grad is not None
