@@ -218,6 +218,8 @@ def cases() -> list[Case]:
              setup=write("scene/transforms.json", "{")),
         Case("transforms not UTF-8", E, ["scene", "check", "scene"],
              setup=write("scene/transforms.json", b"\xff\xfe{")),
+        Case("transforms w Infinity", E, ["scene", "check", "scene"],
+             setup=edit_scene(lambda data, scene: data.update(w=math.inf))),
         Case("frame image missing", E, [*r, "x.png", *tgt, *q],
              setup=lambda w: (w / "scene/images/frame_002.png").unlink()),
         Case("frame image wrong size", E, ["scene", "check", "scene"],

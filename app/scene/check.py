@@ -8,6 +8,7 @@ Each problem names the file or field (and frame index) and says what is wrong; `
 from __future__ import annotations
 
 import json
+import math
 import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -110,7 +111,8 @@ def _positive_int(data: dict, key: str, what: str, problems: list[str]) -> int |
         problems.append(f"{TRANSFORMS}: {key} is missing ({what})")
         return None
     value = data[key]
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or value != int(value):
+    numeric = isinstance(value, (int, float)) and not isinstance(value, bool)
+    if not numeric or not math.isfinite(value) or value != int(value):
         problems.append(f"{TRANSFORMS}: {key} must be a positive integer, got {_short(value)}")
         return None
     if value <= 0:

@@ -6,6 +6,7 @@ Every problem message must name the file or field (and frame index) and say what
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import cv2
@@ -177,6 +178,9 @@ def test_w_h_differ_from_images(scene_dir):
     )
     edit_transforms(scene_dir, lambda d: d.update(w="wide"))
     assert 'w must be a positive integer, got "wide"' in check_scene(scene_dir)[0]
+    for bad in (math.inf, -math.inf, math.nan):  # JSON's Infinity and NaN, which Python reads
+        edit_transforms(scene_dir, lambda d, bad=bad: d.update(w=32, h=bad))
+        assert "h must be a positive integer, got " in check_scene(scene_dir)[0]
 
 
 def test_images_not_2_to_1(scene_dir):
