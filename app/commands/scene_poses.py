@@ -50,6 +50,8 @@ def _check_out(out: Path) -> None:
         raise UserError(f"{out}: already holds a scene (transforms.json); choose another --out")
     if out.exists() and not out.is_dir():
         raise UserError(f"{out}: exists and is not a folder")
+    if out.is_dir() and any(out.iterdir()):  # its files could be overwritten
+        raise UserError(f"{out}: a folder that is not empty; choose a new or empty --out")
 
 
 def _baselines(c2w: np.ndarray) -> str:
@@ -301,9 +303,17 @@ def run_from_panoramas(parsed: argparse.Namespace) -> int:
                 "posed (see the report above)"
             )
         distance = (int(np.searchsorted(keep, i)), int(np.searchsorted(keep, j)), m)
-    metric = sc.make_metric(
-        est.c2w[keep], est.points, None if heights is None else heights[keep], distance
-    )
+    with np.errstate(over="ignore", invalid="ignore"):  # an absurd scale: refused just below
+        metric = sc.make_metric(
+            est.c2w[keep], est.points, None if heights is None else heights[keep], distance
+        )
+    from panogrf.app.scene.check import poses_problems
+
+    problems = poses_problems(metric.c2w)  # never write a scene its own check rejects
+    if problems:
+        given = "--distance" if args.distance else "--camera-height" if heights is not None else ""
+        by = f"{given} {args.distance or args.camera_height}: " if given else ""
+        raise UserError(f"{by}the scaled poses make no scene: {problems[0]}")
     lines += metric.lines
     lines.append(f"median residual over all points: {_deg(est.residual_deg)}")
     names = [files[k].stem for k in keep]

@@ -22,6 +22,11 @@ import torch
 from panogrf.app.errors import UserError
 from panogrf.app.files.atomic import write_bytes_atomic, write_json_atomic  # noqa: F401 (re-exported)
 
+# Every image that cannot be read is reported once, by the caller, naming the file: OpenCV's
+# own warnings (a timestamped "[ WARN:0@0.61] ..." per corrupt file) would be a second, unnamed
+# report.
+cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
+
 #: Largest depth a 16-bit millimetre PNG can hold, in metres.
 MAX_DEPTH_M = 65.535
 
@@ -45,10 +50,15 @@ def read_pixels(path: Path) -> np.ndarray:
         data = path.read_bytes()
     except OSError as exc:
         raise ImageReadError(path, f"cannot read: {exc.strerror or exc}") from None
+    if not data:
+        raise ImageReadError(path, "empty file (0 bytes)")
     # libjpeg decodes a truncated file with a warning only, its lost part flat grey.
     if data[:2] == b"\xff\xd8" and _jpeg_truncated(data):
         raise ImageReadError(path, "truncated JPEG (the file ends before the image does)")
-    pixels = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    try:
+        pixels = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    except cv2.error:  # OpenCV asserts on some inputs instead of returning None
+        pixels = None
     if pixels is None:
         raise ImageReadError(path, "not a readable image (unknown format or corrupt file)")
     return pixels

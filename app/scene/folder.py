@@ -75,10 +75,12 @@ class SceneError(UserError):
     def __init__(self, root: Path, problems: Sequence[str]) -> None:
         self.root = root
         self.problems = tuple(problems)
-        n = len(self.problems)
-        lines = "\n".join(f"  {p}" for p in self.problems)
-        plural = "s" if n != 1 else ""
-        super().__init__(f"invalid scene {root / TRANSFORMS} ({n} problem{plural}):\n{lines}")
+        # One line: the first problem, and where to see the others.
+        first = self.problems[0] if self.problems else "unknown problem"
+        more = len(self.problems) - 1
+        rest = f" (and {more} more: panogrf scene check {root} lists them)" if more else ""
+        where = "" if str(root) in first else f" {root}"  # "scene folder not found: ROOT"
+        super().__init__(f"invalid scene{where}: {first}{rest}")
 
 
 def load_scene(

@@ -45,3 +45,39 @@ def test_a_real_pair_poses_level_with_a_consistent_report(tmp_path, capsys):
     assert 0.0 < np.linalg.norm(move) < 1.0
     assert abs(move[1]) < 0.2 * np.linalg.norm(move)
     assert cli.main(["scene", "check", str(out)]) == 0
+
+
+def _refused(capsys, args: list[str], *names: str) -> str:
+    assert cli.main(args) == 2
+    err = capsys.readouterr().err
+    lines = [x for x in err.splitlines() if not x.startswith("posing: ")]  # progress lines
+    assert len(lines) == 1 and "Traceback" not in err, err
+    assert all(name in lines[0] for name in names), lines[0]
+    return lines[0]
+
+
+def test_scales_that_make_no_scene_are_refused_naming_the_option(tmp_path, capsys):
+    images = [str(PAIR / "studio_small_03.jpg"), str(PAIR / "studio_small_07.jpg")]
+    for option, value, says in (
+        ("--camera-height", "0.01", "same position"),  # the views 0.6 mm apart
+        ("--distance", "0,1=1e30", "farther than"),
+        ("--distance", "0,1=1e308", "NaN or infinite"),
+    ):
+        out = tmp_path / f"s{option}{value}"
+        argv = ["scene", "from-panoramas", *images, "--out", str(out), option, value, "--quiet"]
+        _refused(capsys, argv, option, value, says)
+        assert not out.exists()
+
+
+def test_an_empty_photo_and_a_folder_with_files_are_refused_in_one_line(tmp_path, capsys):
+    empty = tmp_path / "empty.jpg"
+    empty.write_bytes(b"")
+    real = str(PAIR / "studio_small_03.jpg")
+    out = ["--out", str(tmp_path / "s"), "--quiet"]
+    _refused(capsys, ["scene", "from-panoramas", real, str(empty), *out], str(empty), "empty")
+    kept = tmp_path / "mine" / "images" / "studio_small_03.png"
+    kept.parent.mkdir(parents=True)
+    kept.write_text("precious")
+    argv = ["scene", "from-panoramas", real, str(PAIR / "studio_small_07.jpg"), "--out"]
+    _refused(capsys, [*argv, str(tmp_path / "mine"), "--quiet"], "not empty")
+    assert kept.read_text() == "precious"

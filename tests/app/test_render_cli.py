@@ -94,7 +94,8 @@ def test_render_missing_scene_and_bad_output(tmp_path, capsys):
         )
         == 2
     )
-    assert "transforms.json" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"scene folder not found: {tmp_path / 'nope'}" in err
     bad = tmp_path / "missing_dir" / "a.png"
     assert cli.main(["render", str(DEMO), "--out", str(bad), "--target-frame", "0"]) == 2
     assert "does not exist" in capsys.readouterr().err

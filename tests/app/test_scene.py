@@ -384,9 +384,10 @@ def test_all_problems_are_reported_at_once_and_load_raises(scene_dir):
         load_scene(scene_dir)
     assert isinstance(info.value, UserError)
     assert info.value.problems == tuple(problems)
+    # One line for the command's error: the first problem and where to see every one.
     message = str(info.value)
-    assert str(scene_dir / "transforms.json") in message and "4 problems" in message
-    assert all(p in message for p in problems)
+    assert "\n" not in message and message.startswith(f"invalid scene {scene_dir}: {problems[0]}")
+    assert message.endswith(f"(and 3 more: panogrf scene check {scene_dir} lists them)")
 
 
 # --- write_scene refuses bad arrays ----------------------------------------------------------
@@ -421,3 +422,21 @@ def test_truncated_jpeg_is_a_problem(scene_dir):
     )
     with pytest.raises(UserError, match="view_001.png"):
         load_scene(scene_dir, load_images=True)
+
+
+def test_an_empty_image_file_is_one_problem(scene_dir):
+    (scene_dir / "images" / "view_001.png").write_bytes(b"")
+    expected = "frames[1].file_path (images/view_001.png): empty file (0 bytes)"
+    assert only_problem(scene_dir) == expected
+
+
+def test_a_scene_error_is_one_line_naming_the_folder_and_the_first_problem(scene_dir):
+    from panogrf.app.scene.folder import SceneError
+
+    (scene_dir / "images" / "view_001.png").write_bytes(b"")
+    (scene_dir / "images" / "view_002.png").unlink()
+    with pytest.raises(SceneError) as err:
+        load_scene(scene_dir)
+    message = str(err.value)
+    assert "\n" not in message and message.startswith(f"invalid scene {scene_dir}: frames[1]")
+    assert f"(and 1 more: panogrf scene check {scene_dir} lists them)" in message
