@@ -214,9 +214,14 @@ def _check_sizes(found: list[_Found], w: int | None, h: int | None, problems: li
         if w is not None and h is not None and w != 2 * h:
             problems.append(f"{TRANSFORMS}: w={w}, h={h} is not 2:1 (an ERP panorama has w = 2h)")
         return
-    j, ref = sized[0]
-    rw, rh = ref.size
-    for i, f in sized[1:]:
+    # The size the others are held to: transforms.json's where a frame has it, else the most
+    # common one (not simply the first frame's: one odd frame is then the one named).
+    sizes = [f.size for _, f in sized]
+    common = max(sizes, key=sizes.count)
+    want = (w, h) if (w, h) in sizes else common
+    j, ref = next((i, f) for i, f in sized if f.size == want)
+    rw, rh = want
+    for i, f in sized:
         if f.size != ref.size:
             problems.append(
                 f"frames[{i}].file_path ({f.file_path}): image is {f.size[0]}x{f.size[1]} but "

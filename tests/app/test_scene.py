@@ -440,3 +440,13 @@ def test_a_scene_error_is_one_line_naming_the_folder_and_the_first_problem(scene
     message = str(err.value)
     assert "\n" not in message and message.startswith(f"invalid scene {scene_dir}: frames[1]")
     assert f"(and 1 more: panogrf scene check {scene_dir} lists them)" in message
+
+
+def test_the_odd_sized_frame_is_the_one_named(scene_dir):
+    cv2.imwrite(str(scene_dir / "images" / "view_000.png"), np.zeros((8, 16, 3), np.uint8))
+    problems = check_scene(scene_dir)  # (its depth map no longer fits it either)
+    named = [p for p in problems if "all views must have the same size" in p]
+    assert named == [
+        "frames[0].file_path (images/view_000.png): image is 16x8 but frames[1] "
+        "(images/view_001.png) is 32x16; all views must have the same size"
+    ]
