@@ -289,6 +289,11 @@ def run_from_panoramas(parsed: argparse.Namespace) -> int:
     if len(keep) < 2:
         print("\n".join(lines))
         best = max(est.pairs, key=lambda p: p.inliers)
+        if best.reason.startswith("no parallax"):
+            raise UserError(
+                f"{files[best.i]}, {files[best.j]}: taken from one spot (the matches agree with "
+                "a turn alone, no parallax); take the photos a step or more apart (1-3 m indoors)"
+            )
         raise UserError(
             f"{files[best.i]}, {files[best.j]}: no pair of the {n} panoramas could be posed "
             f"(at best {best.inliers} of {best.matches} matches agree, between these two); "

@@ -22,6 +22,11 @@ if TYPE_CHECKING:
     from panogrf.app.poses.colmap import ColmapConfig
 
 
+#: Median angle (degrees) by which a verified pair's matches miss a turn alone, below which the
+#: two were taken from one spot: a step of 0.1 m in a small room already gives about 2 degrees.
+NO_PARALLAX_DEG = 0.2
+
+
 @dataclass
 class PairReport:
     """One pair of panoramas."""
@@ -125,6 +130,16 @@ def _two_view(db_path, image_ids, feats, counts, cfg: ColmapConfig, pair_ij=(0, 
     rot, t = CV_TO_GL @ rot_cv @ CV_TO_GL, CV_TO_GL @ t_cv
     t = t / max(np.linalg.norm(t), 1e-12)
     b1, b2 = feats[i].bearings[m[:, 0]], feats[j].bearings[m[:, 1]]
+    # The same spot twice (a turned or re-saved copy): a turn alone explains the matches.
+    off = float(np.median(np.degrees(np.arccos(np.clip(((b1 @ rot.T) * b2).sum(1), -1, 1)))))
+    if off < NO_PARALLAX_DEG:
+        pair.reason = (
+            f"no parallax: {len(m)} verified matches agree with a turn alone (median "
+            f"{off:.3f} deg off it): taken from one spot"
+        )
+        for v in views:
+            v.note = "not registered: no parallax with the other panorama"
+        return est
     dist, pts = geo.triangulate_pair(rot, t, b1, b2)
     front = (dist > 0).all(1)
     if front.sum() < cfg.min_pair_inliers:

@@ -81,3 +81,14 @@ def test_an_empty_photo_and_a_folder_with_files_are_refused_in_one_line(tmp_path
     argv = ["scene", "from-panoramas", real, str(PAIR / "studio_small_07.jpg"), "--out"]
     _refused(capsys, [*argv, str(tmp_path / "mine"), "--quiet"], "not empty")
     assert kept.read_text() == "precious"
+
+
+def test_a_turned_copy_of_a_photo_is_diagnosed_as_no_parallax(tmp_path, capsys):
+    import cv2
+
+    photo = PAIR / "studio_small_03.jpg"
+    turned = tmp_path / "turned.jpg"  # the same spot, the camera turned by 90 degrees
+    cv2.imwrite(str(turned), np.roll(cv2.imread(str(photo)), 256, axis=1))
+    argv = ["scene", "from-panoramas", str(photo), str(turned), "--out", str(tmp_path / "s")]
+    line = _refused(capsys, [*argv, "--quiet"], str(turned), "no parallax", "apart")
+    assert "a photo between the two" not in line
