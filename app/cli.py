@@ -64,7 +64,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = parse_args(argv)
+    try:  # the commands' modules import torch and OpenCV: a second or more
+        args = parse_args(argv)
+    except KeyboardInterrupt:
+        print("panogrf: interrupted", file=sys.stderr)
+        return 130
     keep_freed_memory()
     try:
         if hasattr(args, "quiet"):  # a command that prepares scenes: its stages on stderr

@@ -231,3 +231,14 @@ def test_a_negatable_switch_takes_both_flags():
     assert from_args(Switch, parser.parse_args([])) == Switch(refine=True)
     assert from_args(Switch, parser.parse_args(["--no-refine"])) == Switch(refine=False)
     assert parser.parse_args(["--no-refine", "--refine"]).refine is True
+
+
+def test_an_interrupt_while_the_commands_load_is_one_line(monkeypatch, capsys):
+    from panogrf.app import cli
+
+    def interrupted(argv=None):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "parse_args", interrupted)
+    assert cli.main(["view", "x"]) == 130
+    assert capsys.readouterr().err == "panogrf: interrupted\n"
