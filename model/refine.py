@@ -41,7 +41,7 @@ from panogrf.model.erp import (
     world_to_erp,
 )
 from panogrf.model.progress import open_stage
-from panogrf.model.steps import OptimisationSteps
+from panogrf.model.steps import OptimisationSteps, adam
 
 
 @dataclass(frozen=True)
@@ -277,8 +277,7 @@ def refine_depth(
     # On a GPU the rate is a tensor the graphs read, and the launches do the same arithmetic.
     cuda = depth.device.type == "cuda"
     graphs = CUDA_GRAPHS and cuda
-    lr = torch.tensor(config.lr, device=depth.device) if cuda else config.lr
-    opt = torch.optim.Adam([delta], lr=lr, capturable=cuda)
+    opt = adam([delta], config.lr)
     refs = [r for r in range(v) if sources[r]]
     # Only views with sources move: the free-space term would otherwise also reach a view that
     # is only another's source.

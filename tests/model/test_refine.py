@@ -407,3 +407,22 @@ def test_a_reference_compared_many_times_gives_the_same_error_from_its_windows_o
     stats = reference_stats(b)
     assert torch.equal(photometric_error(a, b, stats), photometric_error(a, b))
     assert torch.equal(photometric_error(b, b, stats), torch.zeros(1, 16, 32))
+
+
+def test_the_plain_adam_steps_as_torchs_adam_to_the_last_bit():
+    from panogrf.model.steps import PlainAdam
+
+    g = torch.Generator().manual_seed(5)
+    start = torch.randn(3, 1, 8, 16, generator=g)
+    targets = [torch.randn(3, 1, 8, 16, generator=g) for _ in range(6)]
+    results = []
+    for make in (lambda p: torch.optim.Adam([p], lr=0.02), lambda p: PlainAdam([p], 0.02)):
+        p = start.clone().requires_grad_(True)
+        opt = make(p)
+        for i, target in enumerate(targets):
+            opt.param_groups[0]["lr"] = 0.02 * (1 - i / 6)  # a settling rate, as the steps set it
+            opt.zero_grad(set_to_none=True)
+            ((p - target).abs().mean() + 0.3 * (p * p).mean()).backward()
+            opt.step()
+        results.append(p.detach())
+    assert torch.equal(results[0], results[1])
