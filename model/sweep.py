@@ -29,7 +29,6 @@ from panogrf.model.refine import (
     photometric_error,
     reference_stats,
     warp_along,
-    warp_batch,
     warp_rays,
 )
 
@@ -239,19 +238,25 @@ def _sweep_costs(
     dirs: Tensor,
     config: SweepConfig,
     d_range: tuple[float, float],
+    batched: bool | None = None,
 ) -> Tensor:
     """Window-summed photometric cost [D, H, W] of view r at log depths log_d0 + offsets.
 
     On a CPU one candidate at a time: batched over the candidates it is 1.6 times slower on a
     2-core CPU (24 candidates of 256 x 512 do not stay in cache). Elsewhere (`GPU_BATCH`) all
-    candidates at once: the same arithmetic in a twenty-fourth of the launches."""
-    if GPU_BATCH and log_d0.device.type != "cpu":
-        return _batched_costs(img, c2w, r, sources, log_d0, offsets, dirs, config, d_range)
+    candidates at once: the same arithmetic in a twenty-fourth of the launches. ``batched``
+    decides instead where given."""
+    # What does not change from one candidate to the next: the reference's windows, each
+    # source padded for sampling and the reference's rays in its frame.
     ref = img[r : r + 1]
-    stats = reference_stats(ref)  # what does not change from one candidate to the next
+    stats = reference_stats(ref)
     along = [
         (pad_seam(img[s : s + 1]), *warp_rays(c2w[r][None], c2w[s][None], dirs)) for s in sources
     ]
+    if batched is None:
+        batched = GPU_BATCH and log_d0.device.type != "cpu"
+    if batched:
+        return _batched_costs(ref, stats, along, log_d0, offsets, config, d_range)
     costs = []
     for off in offsets.tolist():
         d = torch.exp(log_d0 + off).clamp(*d_range)[None]
@@ -270,27 +275,21 @@ GPU_BATCH = True
 
 
 def _batched_costs(
-    img: Tensor,
-    c2w: Tensor,
-    r: int,
-    sources: list[int],
+    ref: Tensor,
+    stats: tuple[Tensor, Tensor],
+    along: list[tuple[Tensor, Tensor, Tensor]],
     log_d0: Tensor,
     offsets: Tensor,
-    dirs: Tensor,
     config: SweepConfig,
     d_range: tuple[float, float],
 ) -> Tensor:
     """`_sweep_costs` with every candidate in one batch: [D, H, W]."""
     n = len(offsets)
     d = torch.exp(log_d0[None] + offsets[:, None, None]).clamp(*d_range)  # [D, H, W]
-    ref = c2w[r].expand(n, 4, 4)
-    stats = reference_stats(img[r : r + 1])
-    errs = []
-    for s in sources:
-        warped = warp_batch(
-            img[s : s + 1].expand(n, -1, -1, -1), d, ref, c2w[s].expand(n, 4, 4), dirs
-        )
-        errs.append(photometric_error(warped, img[r : r + 1], stats))  # [D, H, W]
+    errs = [
+        photometric_error(warp_along(padded.expand(n, -1, -1, -1), d, rays, shift), ref, stats)
+        for padded, rays, shift in along
+    ]  # each [D, H, W]
     err = torch.stack(errs).amin(0)
     prior = config.prior * offsets.abs()
     return box_mean(err[:, None], config.window)[:, 0] + prior[:, None, None]

@@ -396,7 +396,7 @@ def test_the_sweep_scores_its_candidates_alike_one_at_a_time_and_all_at_once(sce
     dirs = erp_directions(64, 128)
     args = (images, c2w, 0, [1], torch.log(depth[0, 0] * 1.05), offsets, dirs, SweepConfig())
     one = sweep._sweep_costs(*args, (0.1, 10.0))
-    batched = sweep._batched_costs(*args, (0.1, 10.0))
+    batched = sweep._sweep_costs(*args, (0.1, 10.0), batched=True)
     assert one.shape == batched.shape == (24, 64, 128)
     torch.testing.assert_close(batched, one, rtol=0, atol=1e-6)
 
