@@ -65,6 +65,36 @@ VARIANTS: dict[str, tuple[str, dict, dict, str]] = {
 }
 
 
+def _cheaper_variants() -> dict[str, tuple[str, dict, dict, str]]:
+    """Cheaper settings of the shipped stages (not stages left out): fewer sweep candidates
+    over the same span (``sweepN``), fewer refinement steps (``refineC+F``: C at half the rows,
+    F at the full rows), and the two together (``sweepN,refineC+F`` as one name)."""
+    import dataclasses
+
+    from panogrf.model.depth_config import DEFAULT_SWEEP
+    from panogrf.model.refine import PREPARE_REFINE
+
+    sweeps = {
+        n: {"fusion_sweep": dataclasses.replace(DEFAULT_SWEEP, candidates=n)} for n in (16, 12)
+    }
+    refines = {
+        (c, f): {"refine": dataclasses.replace(PREPARE_REFINE, coarse=c, iterations=f)}
+        for c, f in ((30, 10), (20, 10))
+    }
+    out = {}
+    for n, attrs in sweeps.items():
+        out[f"sweep{n}"] = ("full", attrs, {}, f"the sweep with {n} candidates")
+    for (c, f), kw in refines.items():
+        out[f"refine{c}+{f}"] = ("full", {}, kw, f"the refinement with {c} + {f} steps")
+    for n, attrs in sweeps.items():
+        for (c, f), kw in refines.items():
+            out[f"sweep{n}+refine{c}+{f}"] = ("full", attrs, kw, f"sweep{n} and refine{c}+{f}")
+    return out
+
+
+VARIANTS |= _cheaper_variants()
+
+
 def scene_folders(paths: list[Path]) -> list[Path]:
     out = []
     for p in paths:

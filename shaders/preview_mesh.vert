@@ -16,13 +16,15 @@ out vec3 v_dir;
 // Log distance, 0 at LOG_NEAR metres (defined at compile time), 1 at u_far; per vertex: cheaper.
 out float v_log_dist;
 
-const float PI = 3.14159265358979;
+#include "erp_uv.glsl"
 
 void main() {
     vec3 c = (u_w2c * vec4(in_pos, 1.0)).xyz;
     float r = length(c);
-    float lon = atan(c.x, -c.z) / PI;  // [-1, 1]
-    float lat = asin(clamp(c.y / max(r, 1e-6), -1.0, 1.0)) / (0.5 * PI);
+    // Longitude in [-1, 1], latitude in [-1, 1] (the minimax arctangent of erp_uv.glsl: the
+    // built-in atan and asin cost a CPU rasteriser's vertex stage more than the rest of it).
+    float lon = erp_atan2(c.x, -c.z) * 0.31830989;
+    float lat = erp_atan2(c.y, length(c.xz)) * 0.63661977;
     if (u_unwrap == 1 && lon < 0.0) lon += 2.0;
     v_uv = in_uv;
     v_dir = in_dir;
