@@ -1,0 +1,114 @@
+"""Which sources give a novel view its detail: the agreement-weighted blend of all (shipped)
+against one source per pixel (issue 56: two misaligned copies of a texture average to a blur).
+
+    python lab/detail_pick.py --data data/loo_classic data/loo_home data/loo_lit ZIND_SCENES... \
+        --out lab/results/detail_pick.json
+
+Per scene (three views, the middle one rendered from the outer two at 512 rows): the shipped
+preparation (mode full, per-scene refinement), one `fast` network pass at 256 rows, then the
+detail above 32 rows added by each variant from that same pass:
+- ``blend``: shipped (`panogrf.renderer.detail.add_detail`);
+- ``best``: each pixel's detail from the source that agrees best with the network there;
+- ``sharpN``: the agreement weights raised to the power N, normalised (between the two).
+The gate (no detail where no source agrees) is the shipped one in every variant.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+from pathlib import Path
+
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
+
+
+def add_detail_pick(cache, c2w, low, height, config, pick: str):
+    from panogrf.renderer import detail as D
+    from panogrf.renderer.cache import resize_erp
+
+    size = (height, 2 * height)
+    h = low.rgb.shape[-2]
+    depth = D._upsample_depth(D.projection_depth(cache, c2w, low, config), size)
+    sampling = config.sampling if height >= cache.images.shape[-2] else "bilinear"
+    proj, masked = D._projected(cache, c2w.to(depth.dtype), depth[0], sampling)
+    proj_low = resize_erp(proj, h)
+    diff = D._smooth((proj_low - low.rgb[None]).abs().mean(1))
+    weight = torch.exp(-diff / config.agreement)
+    if masked is not None:
+        weight = weight * D.mask_factor(resize_erp(masked, h)[:, 0])
+    total = weight.sum(0, keepdim=True)
+    if pick == "blend":
+        blend_w = weight / total.clamp(min=1e-6)
+    elif pick == "best":
+        blend_w = torch.nn.functional.one_hot(weight.argmax(0), weight.shape[0])
+        blend_w = blend_w.permute(2, 0, 1).to(weight.dtype)
+    else:
+        k = float(pick.removeprefix("sharp"))
+        p = weight**k
+        blend_w = p / p.sum(0, keepdim=True).clamp(min=1e-12)
+    gate = total.clamp(max=1.0)
+    up = D.upsample_erp(torch.cat((low.rgb, gate, blend_w)), size)
+    up_rgb, up_gate, up_w = up[:3], up[3:4], up[4:]
+    blend = (up_w[:, None] * proj).sum(0)
+    cut = min(config.cutoff or h, h)
+    diff = blend - up_rgb if cut < h else blend
+    detail = diff - D.upsample_erp(resize_erp(diff[None], cut)[0], size)
+    return (up_rgb + up_gate * detail).clamp(0, 1)
+
+
+def main() -> None:
+    from depth_stages import middle_first, scene_folders
+
+    from panogrf.app.scene.folder import load_scene
+    from panogrf.app.scene.session import default_models
+    from panogrf.app.scoring import image_scores
+    from panogrf.model.refine import PREPARE_REFINE
+    from panogrf.renderer.detail import DEFAULT_DETAIL
+    from panogrf.renderer.methods import SourceViews
+    from panogrf.renderer.render import render_panorama
+
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--data", type=Path, nargs="+", required=True)
+    parser.add_argument("--variants", default="blend,best,sharp2,sharp4")
+    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--out", type=Path, default=Path("lab/results/detail_pick.json"))
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+    variants = args.variants.split(",")
+    models = default_models()
+    net = models.renderer("panogrf")
+    rows: dict[str, dict[str, list[dict]]] = {v: {} for v in variants}
+    for folder in scene_folders(args.data):
+        group = folder.parent.name if (folder.parent / "dataset.json").exists() else "real"
+        data = middle_first(load_scene(folder, load_images=True).images, 512)
+        views = SourceViews(data.images[[0, 2]], data.c2w[[0, 2]], refine=PREPARE_REFINE)
+        cache = views.cache_for("panogrf", models)
+        with torch.no_grad():
+            low = render_panorama(net, cache, data.c2w[1], DEFAULT_DETAIL.net_height, "fast")
+            for v in variants:
+                rgb = add_detail_pick(cache, data.c2w[1], low, 512, DEFAULT_DETAIL, v)
+                s = image_scores(rgb, data.images[1:2])
+                row = {k: s[k] for k in ("ws_psnr", "ssim", "lpips")} | {"scene": str(folder)}
+                rows[v].setdefault(group, []).append(row)
+                print(f"{group}/{folder.name} {v:>7}: {s['ws_psnr']:.2f} dB LPIPS {s['lpips']:.3f}",
+                      flush=True)  # fmt: skip
+        table = {
+            v: {
+                g: {k: statistics.fmean(r[k] for r in rs) for k in ("ws_psnr", "ssim", "lpips")}
+                for g, rs in [*per.items(), ("pooled", [r for rs in per.values() for r in rs])]
+            }
+            for v, per in rows.items()
+        }
+        args.out.write_text(json.dumps({"table": table, "rows": rows}, indent=1))
+    print(f"\n{'variant':>8} " + " ".join(f"{g:>22}" for g in table[variants[0]]))
+    for v in variants:
+        cells = [f"{t['ws_psnr']:6.2f} / {t['lpips']:.4f}" for t in table[v].values()]
+        print(f"{v:>8} " + " ".join(f"{c:>22}" for c in cells))
+
+
+if __name__ == "__main__":
+    main()
