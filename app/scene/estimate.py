@@ -77,6 +77,11 @@ def prepare_out_dir(scene_root: Path, out_dir: Path) -> None:
         )
     if out_dir.exists() and not out_dir.is_dir():
         raise UserError(f"--out {out_dir} exists and is not a folder")
+    if out_dir.resolve() in scene_root.resolve().parents:
+        raise UserError(
+            f"--out {out_dir} holds the input scene folder: it would be replaced, choose another"
+        )
+    # The output replaces the folder whole: only an earlier output of this command may be there.
     existing = out_dir / TRANSFORMS
     if existing.is_file():
         try:
@@ -88,6 +93,11 @@ def prepare_out_dir(scene_root: Path, out_dir: Path) -> None:
                 f"{existing} exists and was not written by `panogrf depth`: refusing to overwrite "
                 "another scene, choose an empty folder"
             )
+    elif out_dir.is_dir() and any(out_dir.iterdir()):
+        raise UserError(
+            f"--out {out_dir} is not empty and holds no earlier `panogrf depth` output: "
+            "refusing to replace its files, choose an empty or new folder"
+        )
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:

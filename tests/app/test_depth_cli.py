@@ -182,6 +182,35 @@ def test_refuses_to_write_into_the_input_scene(tmp_path, capsys, random_weights)
     assert "not written by `panogrf depth`" in one_line_error(capsys)
 
 
+def test_refuses_to_replace_a_folder_of_other_files_or_one_holding_the_input(
+    tmp_path, capsys, random_weights
+):
+    """The output replaces its folder whole: a folder of other files, or the folder the input
+    scene is in, would be lost (found by a hostile-input pass: both exited 0)."""
+    mine = tmp_path / "mine"
+    (mine / "sub").mkdir(parents=True)
+    (mine / "important.txt").write_text("keep")
+    assert cli.main(["depth", str(DEMO), "--out", str(mine)]) == 2
+    assert "is not empty" in one_line_error(capsys)
+    assert (mine / "important.txt").read_text() == "keep" and (mine / "sub").is_dir()
+    work = tmp_path / "work"
+    shutil.copytree(DEMO, work / "scene")
+    (work / "notes.txt").write_text("keep")
+    assert cli.main(["depth", str(work / "scene"), "--out", str(work)]) == 2
+    assert "holds the input scene" in one_line_error(capsys)
+    assert (work / "scene" / "transforms.json").is_file() and (work / "notes.txt").exists()
+
+
+def test_out_may_be_the_current_folder(tmp_path, monkeypatch, random_weights):
+    """``--out .`` (an empty folder) is written like any other (it raised on the folder's
+    empty name)."""
+    here = tmp_path / "here"
+    here.mkdir()
+    monkeypatch.chdir(here)
+    assert cli.main(["depth", str(DEMO), "--out", ".", "--quiet"]) == 0
+    assert (tmp_path / "here" / "transforms.json").is_file()
+
+
 def test_unwritable_out_dir_is_a_one_line_error(tmp_path, capsys, random_weights):
     blocker = tmp_path / "file.txt"
     blocker.write_text("not a folder")
