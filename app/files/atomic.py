@@ -216,6 +216,24 @@ def json_text(data: object) -> str:
     return _FLAT_LIST.sub(lambda m: "[" + ", ".join(x.strip() for x in m[1].split(",")) + "]", text)
 
 
+#: Digits beyond which a JSON integer is read as an infinity (of its sign): Python refuses to
+#: convert more than 4300 with a ValueError, and no count, size or coordinate needs them; the
+#: readers' own checks then name the field as not finite.
+MAX_INT_DIGITS = 100
+
+
+def _bounded_int(text: str) -> int | float:
+    if len(text.lstrip("-")) > MAX_INT_DIGITS:
+        return -math.inf if text.startswith("-") else math.inf
+    return int(text)
+
+
+def parse_json(text: str) -> object:
+    """``json.loads`` for files a user hands over: an integer of more than `MAX_INT_DIGITS`
+    digits is an infinity instead of Python's int-conversion error."""
+    return json.loads(text, parse_int=_bounded_int)
+
+
 def write_json_atomic(path: str | os.PathLike[str], data: object) -> None:
     """Write ``data`` as indented JSON (UTF-8), atomically; number lists stay on one line.
 

@@ -11,8 +11,10 @@
 
 from __future__ import annotations
 
+import io
 import os
 import re
+import warnings
 from pathlib import Path
 
 import cv2
@@ -52,6 +54,12 @@ def read_pixels(path: Path) -> np.ndarray:
         raise ImageReadError(path, f"cannot read: {exc.strerror or exc}") from None
     if not data:
         raise ImageReadError(path, "empty file (0 bytes)")
+    if _declares_too_many_pixels(data):
+        raise ImageReadError(
+            path,
+            f"too large: more than {MAX_PIXELS // 1_000_000} million pixels "
+            f"({MAX_SIDE}x{MAX_SIDE // 2} at most); resize it first",
+        )
     # libjpeg decodes a truncated file with a warning only, its lost part flat grey.
     if data[:2] == b"\xff\xd8" and _jpeg_truncated(data):
         raise ImageReadError(path, "truncated JPEG (the file ends before the image does)")
@@ -62,6 +70,29 @@ def read_pixels(path: Path) -> np.ndarray:
     if pixels is None:
         raise ImageReadError(path, "not a readable image (unknown format or corrupt file)")
     return pixels
+
+
+#: Largest image decoded (a 16K panorama): a header can declare a size its few compressed
+#: bytes expand to (a 40000x20000 PNG of 2 MB took 30 s and 5 GB to decode).
+MAX_SIDE = 16384
+MAX_PIXELS = MAX_SIDE * MAX_SIDE // 2
+
+
+def _declares_too_many_pixels(data: bytes) -> bool:
+    """Whether the header (read by Pillow, nothing decoded) declares over `MAX_PIXELS`; False
+    where Pillow cannot tell (OpenCV then decides)."""
+    from PIL import Image
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # Pillow's own warning over 89 million pixels
+            with Image.open(io.BytesIO(data)) as im:
+                width, height = im.size
+    except Image.DecompressionBombError:  # over twice Pillow's limit: 179 million pixels
+        return True
+    except Exception:  # noqa: BLE001 (any format Pillow does not read: OpenCV's to judge)
+        return False
+    return width * height > MAX_PIXELS
 
 
 # A marker inside entropy-coded data: 0xFF not followed by a stuffed 0x00, a restart marker

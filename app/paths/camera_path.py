@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from panogrf.app.errors import UserError
+from panogrf.app.files.atomic import parse_json
 from panogrf.app.files.images import write_json_atomic
 from panogrf.app.scene.folder import number_array, pose_problems
 
@@ -36,6 +37,9 @@ CAMERA_TYPES = ("equirectangular", "perspective")
 DEFAULT_FOV_DEG = 75.0
 #: At most this many problems are listed in one error message.
 _MAX_LISTED = 20
+#: The frame rate and the duration a path may give (a video encoder takes no rate below one
+#: frame a minute or over a thousand a second; a day of video is more than any walk-through).
+_TIME_RANGES = {"fps": (1 / 60, 1000.0), "seconds": (1e-3, 86400.0)}
 _KNOWN_KEYS = (
     "camera_type",
     "render_width",
@@ -130,12 +134,14 @@ def _check_top(data: dict, problems: list[str]) -> None:
             problems.append(f"{key} is missing (output size in pixels)")
         elif not _number(value) or value <= 0 or value != int(value):
             problems.append(f"{key}: expected a positive integer, got {json.dumps(value)}")
-    for key in ("fps", "seconds"):
+    for key, (low, high) in _TIME_RANGES.items():
         value = data.get(key)
         if value is None:
             problems.append(f"{key} is missing")
-        elif not _number(value) or value <= 0:
-            problems.append(f"{key}: expected a positive number, got {json.dumps(value)}")
+        elif not _number(value) or not low <= value <= high:
+            problems.append(
+                f"{key}: expected a number in [{low:g}, {high:g}], got {json.dumps(value)}"
+            )
     if data.get("smoothness_value") is not None and not _number(data["smoothness_value"]):
         problems.append(
             f"smoothness_value: expected a number, got {json.dumps(data['smoothness_value'])}"
@@ -181,12 +187,14 @@ def _check_camera(i: int, camera: Any, perspective: bool, problems: list[str]) -
 
 
 def _raise(path: Path, problems: list[str]) -> None:
-    listed = problems[:_MAX_LISTED]
-    if len(problems) > _MAX_LISTED:
-        listed.append(f"... and {len(problems) - _MAX_LISTED} more")
-    lines = "\n".join(f"  {path.name}: {p}" for p in listed)
-    n, plural = len(problems), "s" if len(problems) != 1 else ""
-    raise UserError(f"invalid camera path {path} ({n} problem{plural}):\n{lines}")
+    """One line: the first problem, then the others (at most `_MAX_LISTED` in all)."""
+    first, rest = problems[0], problems[1:_MAX_LISTED]
+    more = ""
+    if len(problems) > 1:
+        unlisted = len(problems) - _MAX_LISTED
+        tail = f"; and {unlisted} more" if unlisted > 0 else ""
+        more = f" (and {len(problems) - 1} more: {'; '.join(rest)}{tail})"
+    raise UserError(f"invalid camera path {path}: {first}{more}")
 
 
 def read_camera_path(path: str | os.PathLike[str]) -> CameraPath:
@@ -195,7 +203,7 @@ def read_camera_path(path: str | os.PathLike[str]) -> CameraPath:
     if not path.is_file():
         raise UserError(f"{path}: camera path file not found")
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
+        data = parse_json(path.read_text(encoding="utf-8"))
     except UnicodeDecodeError:
         raise UserError(f"{path}: not UTF-8 text") from None
     except OSError as exc:

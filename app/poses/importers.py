@@ -39,7 +39,7 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from panogrf.app.errors import UserError
-from panogrf.app.files.atomic import write_text_atomic
+from panogrf.app.files.atomic import parse_json, write_text_atomic
 from panogrf.app.poses import CV_TO_GL
 from panogrf.model.cubemap import FACE_NAMES, face_rotations
 
@@ -117,7 +117,7 @@ def read_opensfm(path: str | Path) -> ImportedPoses:
     """An OpenSfM reconstruction.json with spherical cameras -> poses sorted by shot name."""
     path = Path(path)
     try:
-        data = json.loads(_read_text(path))
+        data = parse_json(_read_text(path))
     except json.JSONDecodeError as exc:
         raise UserError(f"{path}: not JSON ({exc.msg}, line {exc.lineno})") from None
     if isinstance(data, dict):

@@ -19,6 +19,7 @@ import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
+from panogrf.app.files.atomic import parse_json
 from panogrf.app.files.images import ImageReadError, read_depth, read_rgb_with_notes
 from panogrf.app.scene.types import (
     CAMERA_MODEL,
@@ -31,6 +32,8 @@ from panogrf.app.scene.types import (
 
 #: Largest allowed max |R^T R - I| (and last-row deviation) of a pose.
 POSE_TOLERANCE = 1e-4
+#: At most this many pairs of views at the same position are listed one by one.
+MAX_LISTED_PAIRS = 20
 #: Two views closer than this (metres) are "at the same position": no baseline to triangulate.
 MIN_VIEW_SEPARATION_M = 1e-3
 
@@ -241,7 +244,15 @@ def _check_separation(found: list[_Found], problems: list[str]) -> None:
     if len(posed) < 2:
         return
     centres = np.stack([c for _, c in posed])
-    for a, b in sorted(cKDTree(centres).query_pairs(MIN_VIEW_SEPARATION_M)):
+    pairs = cKDTree(centres).query_pairs(MIN_VIEW_SEPARATION_M, output_type="ndarray")
+    pairs = pairs.reshape(-1, 2)
+    pairs = pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
+    if len(pairs) > MAX_LISTED_PAIRS:  # one view copied many times: n^2 / 2 pairs
+        problems.append(
+            f"{len(pairs)} pairs of frames are at the same position (under "
+            f"{1000 * MIN_VIEW_SEPARATION_M:g} mm apart); the first {MAX_LISTED_PAIRS} follow"
+        )
+    for a, b in pairs[:MAX_LISTED_PAIRS].tolist():
         dist_mm = 1000.0 * float(np.linalg.norm(centres[a] - centres[b]))
         problems.append(
             f"frames[{posed[a][0]}] and frames[{posed[b][0]}]: views at the same position "
@@ -275,7 +286,7 @@ def _read_transforms(root: Path, problems: list[str]) -> dict | None:
         problems.append(f"{TRANSFORMS}: file not found in {root}")
         return None
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
+        data = parse_json(path.read_text(encoding="utf-8"))
     except UnicodeDecodeError:
         problems.append(f"{TRANSFORMS}: not UTF-8 text")
         return None
@@ -296,6 +307,17 @@ def _read_transforms(root: Path, problems: list[str]) -> dict | None:
     return data
 
 
+def _check_nadir(data: dict, problems: list[str]) -> None:
+    """The scene's own nadir cap, as `render` and `view` will read it."""
+    from panogrf.renderer.nadir import METADATA_KEY, parse_nadir
+
+    if METADATA_KEY in data:
+        try:
+            parse_nadir(data[METADATA_KEY])
+        except ValueError as exc:
+            problems.append(f"{TRANSFORMS}: {METADATA_KEY}: {exc}")
+
+
 def _inspect(root: str | os.PathLike[str], keep_pixels: bool) -> tuple[SceneReport, list[_Found]]:
     root = Path(root)
     problems: list[str] = []
@@ -314,6 +336,7 @@ def _inspect(root: str | os.PathLike[str], keep_pixels: bool) -> tuple[SceneRepo
         )
     w = _positive_int(data, "w", "panorama width in pixels", problems)
     h = _positive_int(data, "h", "panorama height in pixels", problems)
+    _check_nadir(data, problems)
     frames = data.get("frames")
     if frames is None:
         problems.append(f"{TRANSFORMS}: frames is missing (the list of views)")

@@ -7,6 +7,7 @@ import json
 from pathlib import Path
 
 from panogrf.app.errors import UserError
+from panogrf.app.files.atomic import parse_json
 
 
 def scene_folders(root: Path) -> tuple[list[Path], bool]:
@@ -35,7 +36,7 @@ def scene_folders(root: Path) -> tuple[list[Path], bool]:
 def read_index(index_path: Path) -> list[Path]:
     """The scene folders a ``dataset.json`` lists: {"scenes": [{"folder": NAME, ...}, ...]}."""
     try:
-        data = json.loads(index_path.read_text(encoding="utf-8"))
+        data = parse_json(index_path.read_text(encoding="utf-8"))
     except OSError as exc:
         raise UserError(f"{index_path}: cannot read ({exc.strerror or exc})") from None
     except UnicodeDecodeError:

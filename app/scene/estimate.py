@@ -18,6 +18,7 @@ import numpy as np
 import torch
 
 from panogrf.app.errors import UserError
+from panogrf.app.files.atomic import parse_json
 
 if TYPE_CHECKING:
     from panogrf.app.scene.folder import Scene
@@ -190,7 +191,7 @@ def estimate_scene(
     clamped = [float(x) for x in out_of_range.flatten(1).float().mean(dim=1)]
     sources = [[names[j] for j in src] for src in est.sources]
     stems = _unique_stems(names)
-    raw = json.loads((scene_root / TRANSFORMS).read_text(encoding="utf-8"))
+    raw = parse_json((scene_root / TRANSFORMS).read_text(encoding="utf-8"))
     meta = {
         "mode": mode,
         "weights": dict(weights or {}),
