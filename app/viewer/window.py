@@ -25,6 +25,7 @@ H toggle the overlay, Esc quit. The keys and the mouse are handled in
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 
@@ -56,6 +57,9 @@ class PanoViewer(ExportsMixin, OverlayMixin, ControlsMixin, mglw.WindowConfig):
     # No clear before every frame: the display pass covers the whole window unless the
     # letterbox leaves bars, and only then is the window cleared (`on_render`).
     clear_color = None
+    # moderngl-window logs its GL vendor, version and timing at INFO on stderr: ten lines of
+    # noise around the viewer's own messages (and despite --quiet). Warnings still show.
+    log_level = logging.WARNING
     setup: ViewerSetup | None = None  # set by `run_viewer` before the window is made
 
     def __init__(self, **kwargs) -> None:
