@@ -54,12 +54,8 @@ def read_pixels(path: Path) -> np.ndarray:
         raise ImageReadError(path, f"cannot read: {exc.strerror or exc}") from None
     if not data:
         raise ImageReadError(path, "empty file (0 bytes)")
-    if _declares_too_many_pixels(data):
-        raise ImageReadError(
-            path,
-            f"too large: more than {MAX_PIXELS // 1_000_000} million pixels "
-            f"({MAX_SIDE}x{MAX_SIDE // 2} at most); resize it first",
-        )
+    if problem := _header_problem(data):
+        raise ImageReadError(path, problem)
     # libjpeg decodes a truncated file with a warning only, its lost part flat grey.
     if data[:2] == b"\xff\xd8" and _jpeg_truncated(data):
         raise ImageReadError(path, "truncated JPEG (the file ends before the image does)")
@@ -78,21 +74,32 @@ MAX_SIDE = 16384
 MAX_PIXELS = MAX_SIDE * MAX_SIDE // 2
 
 
-def _declares_too_many_pixels(data: bytes) -> bool:
-    """Whether the header (read by Pillow, nothing decoded) declares over `MAX_PIXELS`; False
-    where Pillow cannot tell (OpenCV then decides)."""
+def _header_problem(data: bytes) -> str | None:
+    """What Pillow finds wrong with an image before anything is decoded: a size over
+    `MAX_PIXELS`, or a PNG whose chunks are cut short or fail their checksums (libpng would
+    print a line of its own, naming no file, before OpenCV gives up). None where Pillow finds
+    nothing or cannot read the format (OpenCV then decides)."""
     from PIL import Image
 
+    too_large = (
+        f"too large: more than {MAX_PIXELS // 1_000_000} million pixels "
+        f"({MAX_SIDE}x{MAX_SIDE // 2} at most); resize it first"
+    )
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # Pillow's own warning over 89 million pixels
             with Image.open(io.BytesIO(data)) as im:
                 width, height = im.size
+                if width * height > MAX_PIXELS:
+                    return too_large
+                if im.format == "PNG":
+                    im.verify()  # every chunk there and its CRC right; decodes nothing
     except Image.DecompressionBombError:  # over twice Pillow's limit: 179 million pixels
-        return True
-    except Exception:  # noqa: BLE001 (any format Pillow does not read: OpenCV's to judge)
-        return False
-    return width * height > MAX_PIXELS
+        return too_large
+    except Exception as exc:  # noqa: BLE001 (any format Pillow does not read: OpenCV's to judge)
+        if data[:8] == b"\x89PNG\r\n\x1a\n":
+            return f"corrupt or truncated PNG ({exc})"
+    return None
 
 
 # A marker inside entropy-coded data: 0xFF not followed by a stuffed 0x00, a restart marker

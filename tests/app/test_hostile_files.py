@@ -80,3 +80,17 @@ def test_an_image_declaring_a_huge_size_is_refused_before_decoding(tmp_path):
     ok = tmp_path / "ok.png"
     Image.fromarray(np.zeros((8, 16, 3), np.uint8)).save(ok)
     assert read_rgb(ok).shape == (8, 16, 3)
+
+
+def test_a_truncated_png_is_one_named_problem_without_libpngs_own_line(tmp_path, capfd):
+    path = tmp_path / "cut.png"
+    Image.fromarray(np.random.default_rng(0).integers(0, 255, (64, 128, 3), np.uint8)).save(path)
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 2])
+    try:
+        read_rgb(path)
+    except Exception as exc:  # noqa: BLE001
+        assert "cut.png" in str(exc) and "corrupt or truncated PNG" in str(exc)
+    else:
+        raise AssertionError("a truncated PNG was read")
+    assert "libpng" not in capfd.readouterr().err
