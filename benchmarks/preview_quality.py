@@ -47,6 +47,8 @@ CONFIGS = (
     Config("sharp, geometry at 192", 64, None, 192, True),
     Config("sharp, geometry at 128", 64, None, 128, True),
     Config("sharp, geometry at 128, 128-row meshes to 10k", 128, 10000, 128, True),
+    Config("sharp, geometry at 128, 128-row meshes to 6k", 128, 6000, 128, True),
+    Config("sharp, geometry at 128, 128-row meshes to 4k", 128, 4000, 128, True),
     Config("drawn at 256, upsampled, 128-row meshes to 10k", 128, 10000, 256, False),
 )
 DISPLAY = (512, 1024)
