@@ -152,7 +152,7 @@ def atomic_output(path: str | os.PathLike[str], directory: bool = False) -> Iter
     """``with atomic_output(out) as tmp:`` write ``tmp`` (a file, or with ``directory`` a new
     empty folder); on a clean exit it replaces ``out``, on any error it is removed and ``out``
     is untouched."""
-    path = Path(os.path.abspath(path))  # "." or "out/.." name no folder to replace
+    path = Path(os.path.abspath(path))  # "." and "a/.." have no name of their own
     sweep_stale(path.parent)
     tmp = temp_path(path)
     try:
