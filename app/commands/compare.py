@@ -83,12 +83,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def load_image(path: Path) -> LoadedImage:
     """Read an image with OpenCV as RGB float32 in [0, 1]; UserError if that is not possible."""
-    if not path.is_file():
-        raise UserError(f"{path}: no such file")
     try:
-        raw = read_pixels(path)  # also refuses a truncated JPEG
+        raw = read_pixels(path)  # names a folder, a missing file, a truncated JPEG, ...
     except ImageReadError as exc:
-        raise UserError(f"{path}: not an image OpenCV can read ({exc.reason})") from None
+        raise UserError(f"{path}: {exc.reason}") from None
     if raw.dtype == np.uint8:
         depth, scale = "8-bit", 255.0
     elif raw.dtype == np.uint16:

@@ -107,14 +107,14 @@ def _one_line_error(capsys, argv: list[str], match: str) -> None:
 
 def test_missing_file_is_one_line_error(pair, tmp_path, capsys):
     pa, _, _, _ = pair
-    _one_line_error(capsys, [str(pa), str(tmp_path / "nope.png")], "no such file")
+    _one_line_error(capsys, [str(pa), str(tmp_path / "nope.png")], "nope.png: file not found")
 
 
 def test_unreadable_and_size_mismatch_are_errors(pair, tmp_path, capsys):
     pa, _, _, _ = pair
     junk = tmp_path / "junk.png"
     junk.write_text("not a png")
-    _one_line_error(capsys, [str(junk), str(pa)], "not an image")
+    _one_line_error(capsys, [str(junk), str(pa)], "junk.png: not a readable image")
     small = _write(tmp_path / "small.png", _rgb(5, 16, 32))
     _one_line_error(
         capsys, [str(pa), str(small)], f"differ in size: {pa} is 64x32, {small} is 32x16"
@@ -139,4 +139,4 @@ def test_truncated_jpeg_is_refused(pair, tmp_path, capsys):
     ok, buf = cv2.imencode(".jpg", cv2.cvtColor(a, cv2.COLOR_RGB2BGR))
     cut = tmp_path / "cut.jpg"
     cut.write_bytes(buf.tobytes()[: len(buf) // 2])
-    _one_line_error(capsys, [str(pa), str(cut)], "cut.jpg: not an image OpenCV can read (truncated")
+    _one_line_error(capsys, [str(pa), str(cut)], "cut.jpg: truncated JPEG")
