@@ -27,7 +27,22 @@ def format_table(report: dict) -> str:
     head += [f"WS-PSNR {b} m" for b in bs] + ["WS-PSNR mean", "LPIPS mean"]
     head += ["WS-PSNR real"] if real else []
     head += ["frontier"]
-    lines = [
+    chain = report.get("depth_chain")
+    lines = []
+    if chain:
+        nets = chain["networks"]
+        listed = ", ".join(f"{k} {_params(v)}" for k, v in nets.items())
+        prep = chain.get("prepare_s_median")
+        lines += [
+            f"Depth chain (mode full): {len(nets)} networks, {_params(sum(nets.values()))} "
+            f"parameters ({listed}); a scene's preparation (depth, refinement, feature maps; "
+            f"read back where the scene cache holds it, `--no-cache` times the work) "
+            f"{_f(prep, '.2f')} s median"
+            + (f" (`{chain['setting'][0]}`)" if chain.get("setting") else "")
+            + ".",
+            "",
+        ]
+    lines += [
         f"Quality: {cfg['scenes_per_baseline']} triplet(s) per baseline at {cfg['height']} rows "
         f"(middle view from the outer two); time: one render at {cfg['time_height']} rows "
         f"({report['machine']}); `*`: time predicted from the {cfg['height']}-row render "

@@ -30,6 +30,7 @@ from panogrf.app.bench.settings import (
     GLContext,
     PeakMemory,
     Setting,
+    depth_networks,
     parameters,
     prepare_setting,
     release_scene,
@@ -357,12 +358,21 @@ def _report(cfg, baselines, per, cases, case_out, models) -> dict:
             "refine_depth": None if cfg.refine is None else repr(cfg.refine),
         },
         "results": results,
+        "depth_chain": _depth_chain(results, models),
         "frontier": fronts,
         "viewer_defaults": {d: d in fronts["ws_psnr"] for d in VIEWER_DEFAULTS if d in results},
         "problems": problems,
         "machine": f"{torch.get_num_threads()} torch thread(s), CPU; shared with other jobs",
         "_gallery": [(c, case_out[c.name]) for c in cases if not c.name.startswith("sweep")],
     }
+
+
+def _depth_chain(results: dict, models: Models) -> dict:
+    """The shipped depth chain's networks and a scene's preparation for PanoGRF (the first
+    PanoGRF setting measured: depth, refinement and feature maps are the same for each)."""
+    neural = [n for n, r in results.items() if r["method"] == "panogrf"]
+    prep = results[neural[0]]["prepare_s_median"] if neural else None
+    return {"networks": depth_networks(models), "prepare_s_median": prep, "setting": neural[:1]}
 
 
 def _u8(x: Tensor) -> np.ndarray:

@@ -148,6 +148,17 @@ def parameters(setting: Setting, models: Models) -> int:
     return total
 
 
+def depth_networks(models: Models) -> dict[str, int]:
+    """The shipped depth chain's (mode full) networks and their parameters, in the order it runs
+    them: the monocular network, the mono-guided and the unguided MVS, the selector, the blend."""
+    est = models.estimator("full")
+    nets = {"monocular": est.mono}
+    names = {"full": "MVS mono-guided", "mvs": "MVS unguided"}
+    nets |= {names.get(k, f"MVS {k}"): net for k, net in est.mvs.items()}
+    nets |= {"selector": est.selector, "blend": est.blend}
+    return {name: _count(net) for name, net in nets.items() if net is not None}
+
+
 def _count(module: torch.nn.Module) -> int:
     return sum(p.numel() for p in module.parameters())
 

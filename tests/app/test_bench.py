@@ -144,8 +144,18 @@ def test_bench_command_on_a_tiny_dataset(tmp_path, capsys):
 
     # The per-scene refinement, as the CLI's default (conftest's quick one in tests).
     assert report["config"]["refine_depth"] == repr(refine.PREPARE_REFINE)
+    chain = report["depth_chain"]  # the shipped chain's networks and its preparation
+    assert list(chain["networks"]) == [
+        "monocular",
+        "MVS mono-guided",
+        "MVS unguided",
+        "selector",
+        "blend",
+    ]
+    assert all(n > 0 for n in chain["networks"].values()) and chain["prepare_s_median"] > 0
     table = (out / "table.md").read_text()
     assert "`panogrf:draft`" in table and "at_source" in table
+    assert table.startswith("Depth chain (mode full): 5 networks, ")
     assert "panogrf:draft" in capsys.readouterr().out
 
 
