@@ -239,6 +239,25 @@ def _check_sizes(found: list[_Found], w: int | None, h: int | None, problems: li
         problems.append(f"{TRANSFORMS}: w={w}, h={h} but the images are {rw}x{rh} (width x height)")
 
 
+def _check_shared_files(found: list[_Found], problems: list[str]) -> None:
+    """Two frames reading one panorama: one photograph cannot have two poses."""
+    first: dict[str, int] = {}
+    shared = []
+    for i, f in enumerate(found):
+        if f.file_path is None:
+            continue
+        key = os.path.normpath(f.file_path)
+        if key in first:
+            shared.append(f"frames[{first[key]}] and frames[{i}] both read {f.file_path}")
+        else:
+            first[key] = i
+    if len(shared) > MAX_LISTED_PAIRS:
+        problems.append(
+            f"{len(shared)} frames read a panorama another frame reads; the first follow"
+        )
+    problems.extend(f"{p}: each view needs its own panorama" for p in shared[:MAX_LISTED_PAIRS])
+
+
 def _check_separation(found: list[_Found], problems: list[str]) -> None:
     posed = [(i, f.c2w[:3, 3]) for i, f in enumerate(found) if f.c2w is not None]
     if len(posed) < 2:
@@ -363,6 +382,7 @@ def _inspect(root: str | os.PathLike[str], keep_pixels: bool) -> tuple[SceneRepo
         problems.extend(frame_problems)
         notes.extend(frame_notes)
     _check_sizes(found, w, h, problems)
+    _check_shared_files(found, problems)
     _check_separation(found, problems)
 
     known = [f.depth[f.depth > 0] for f in found if f.depth is not None]

@@ -53,9 +53,25 @@ def test_a_bad_nadir_cap_in_the_scene_is_found_by_scene_check(tmp_path):
 
 def test_many_views_at_one_position_are_counted_not_all_listed(tmp_path):
     root = _scene(tmp_path, lambda d: d.update(frames=d["frames"] * 10))  # 30 views, 3 places
-    problems = check_scene(root)
+    problems = [p for p in check_scene(root) if "same position" in p]
     assert problems[0].startswith("135 pairs of frames are at the same position")
-    assert len(problems) == 21 and all("same position" in p for p in problems)
+    assert len(problems) == 21
+
+
+def test_two_frames_reading_one_panorama_are_a_problem(tmp_path):
+    def edit(data):
+        data["frames"][1]["file_path"] = "./" + data["frames"][0]["file_path"]
+
+    problems = check_scene(_scene(tmp_path, edit))
+    assert len(problems) == 1, problems
+    assert problems[0].startswith("frames[0] and frames[1] both read ")
+    copies = [
+        p
+        for p in check_scene(_scene(tmp_path / "b", lambda d: d.update(frames=d["frames"] * 10)))
+        if "both read" in p or "read a panorama" in p
+    ]
+    assert copies[0] == "27 frames read a panorama another frame reads; the first follow"
+    assert len(copies) == 21
 
 
 def _png_declaring(width: int, height: int) -> bytes:
