@@ -132,6 +132,9 @@ def _relative_path(frame: dict, key: str, where: str, problems: list[str]) -> st
     if Path(value).is_absolute():
         problems.append(f"{where}.{key} ({value}): must be relative to the scene folder")
         return None
+    if os.path.normpath(value).split(os.sep)[0] == os.pardir:  # a scene is one folder
+        problems.append(f"{where}.{key} ({value}): must stay inside the scene folder")
+        return None
     return value
 
 

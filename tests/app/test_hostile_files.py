@@ -110,3 +110,16 @@ def test_a_truncated_png_is_one_named_problem_without_libpngs_own_line(tmp_path,
     else:
         raise AssertionError("a truncated PNG was read")
     assert "libpng" not in capfd.readouterr().err
+
+
+def test_a_file_outside_the_scene_folder_is_refused_like_an_absolute_path(tmp_path):
+    def edit(data):
+        data["frames"][0]["file_path"] = "../scene/" + data["frames"][0]["file_path"]
+
+    problems = check_scene(_scene(tmp_path, edit))
+    assert len(problems) == 1 and "must stay inside the scene folder" in problems[0], problems
+    inside = _scene(
+        tmp_path / "b",
+        lambda d: d["frames"][0].update(file_path="images/../" + d["frames"][0]["file_path"]),
+    )
+    assert check_scene(inside) == []
