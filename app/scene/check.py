@@ -32,7 +32,7 @@ from panogrf.app.scene.types import (
 
 #: Largest allowed max |R^T R - I| (and last-row deviation) of a pose.
 POSE_TOLERANCE = 1e-4
-#: At most this many pairs of views at the same position are listed one by one.
+#: At most this many pairs of frames (at one position, or reading one panorama) are listed.
 MAX_LISTED_PAIRS = 20
 #: Two views closer than this (metres) are "at the same position": no baseline to triangulate.
 MIN_VIEW_SEPARATION_M = 1e-3
