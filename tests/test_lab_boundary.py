@@ -61,3 +61,11 @@ def test_lab_ablation_weights_load_from_the_repository(monkeypatch):
         net = dw.load_renderer(preset)
         assert net.config == dw.RENDERER_PRESETS[preset]
     assert dw.load_renderer.__wrapped__("panogrf").config == dw.RENDERER_PRESETS["panogrf"]
+
+
+def test_no_product_module_over_400_lines():
+    files = [p for root in PRODUCT for p in (ROOT / root).rglob("*.py")]
+    long = {
+        str(p.relative_to(ROOT)): n for p in files if (n := len(p.read_text().splitlines())) > 400
+    }
+    assert long == {}

@@ -31,7 +31,7 @@ from panogrf.app.runtime import (
     resolve_device,
 )
 from panogrf.app.scene import session
-from panogrf.app.scene.check import MAX_POSITION_M
+from panogrf.app.scene.pose_check import MAX_POSITION_M
 from panogrf.app.scene.session import MAX_HEIGHT
 from panogrf.renderer.methods import METHODS
 from panogrf.renderer.nadir import nadir_setting

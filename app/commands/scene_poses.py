@@ -124,7 +124,7 @@ def run_import(parsed: argparse.Namespace) -> int:
         s = 1.0
         lines.append("scale: the tool's own units, taken as metres (no --distance or --scale)")
     c2w = sc.scale_centres(c2w, s)
-    from panogrf.app.scene.check import poses_problems
+    from panogrf.app.scene.pose_check import poses_problems
 
     problems = poses_problems(c2w)  # never write a scene its own check rejects (issue 57, S3)
     if problems:
@@ -312,7 +312,7 @@ def run_from_panoramas(parsed: argparse.Namespace) -> int:
         metric = sc.make_metric(
             est.c2w[keep], est.points, None if heights is None else heights[keep], distance
         )
-    from panogrf.app.scene.check import poses_problems
+    from panogrf.app.scene.pose_check import poses_problems
 
     problems = poses_problems(metric.c2w)  # never write a scene its own check rejects
     if problems:

@@ -2,7 +2,8 @@
 
 Each problem names the file or field (and frame index) and says what is wrong; `load_scene` and
 ``panogrf scene check`` both use it. `number_array` and `pose_problems` are shared with
-`panogrf.app.paths.camera_path` and `panogrf.app.scene.folder.write_scene`.
+`panogrf.app.paths.camera_path` and `panogrf.app.scene.folder.write_scene` (they live in
+`panogrf.app.scene.pose_check`).
 """
 
 from __future__ import annotations
@@ -17,10 +18,16 @@ from typing import Any
 
 import numpy as np
 import torch
-from scipy.spatial import cKDTree
 
 from panogrf.app.files.atomic import parse_json
 from panogrf.app.files.images import ImageReadError, read_depth, read_rgb_with_notes
+from panogrf.app.scene.pose_check import (
+    MAX_LISTED_PAIRS,
+    _short,
+    number_array,
+    pose_problems,
+    same_position_problems,
+)
 from panogrf.app.scene.types import (
     CAMERA_MODEL,
     RESERVED_KEYS,
@@ -29,13 +36,6 @@ from panogrf.app.scene.types import (
     Scene,
     SceneImages,
 )
-
-#: Largest allowed max |R^T R - I| (and last-row deviation) of a pose.
-POSE_TOLERANCE = 1e-4
-#: At most this many pairs of frames (at one position, or reading one panorama) are listed.
-MAX_LISTED_PAIRS = 20
-#: Two views closer than this (metres) are "at the same position": no baseline to triangulate.
-MIN_VIEW_SEPARATION_M = 1e-3
 
 
 @dataclass(frozen=True, eq=False)
@@ -54,59 +54,6 @@ class SceneReport:
     @property
     def ok(self) -> bool:
         return not self.problems
-
-
-# --- validation helpers, shared with camera_path.py -------------------------------------------
-
-
-def number_array(value: Any) -> np.ndarray:
-    """A JSON value (nested lists of numbers) -> float64 array; ValueError saying what is wrong."""
-    stack = [value]
-    while stack:
-        item = stack.pop()
-        if isinstance(item, list):
-            stack.extend(item)
-        elif isinstance(item, bool) or not isinstance(item, (int, float)):
-            raise ValueError(f"contains a non-number ({_short(item)})")
-    try:
-        return np.array(value, dtype=np.float64)
-    except ValueError:
-        raise ValueError("is not a rectangular list of numbers") from None
-
-
-#: Largest camera position (metres from the world's origin) a scene may hold: a geo-referenced
-#: capture is within 1e7 m of its grid's origin; far larger numbers are a broken export.
-MAX_POSITION_M = 1e9
-
-
-def pose_problems(m: np.ndarray, tol: float = POSE_TOLERANCE) -> list[str]:
-    """Problems of a [4, 4] camera-to-world matrix: finite, rigid (R^T R = I, det +1), last row,
-    a position within `MAX_POSITION_M`."""
-    if not np.isfinite(m).all():
-        return ["contains NaN or infinite values"]
-    problems = []
-    if np.abs(m[:3, 3]).max() > MAX_POSITION_M:
-        problems.append(
-            f"position {_fmt_row(m[:3, 3])} is farther than {MAX_POSITION_M:g} m from the origin"
-        )
-    if np.abs(m[3] - (0.0, 0.0, 0.0, 1.0)).max() > tol:
-        problems.append(f"last row is {_fmt_row(m[3])}, expected [0, 0, 0, 1]")
-    r = m[:3, :3]
-    err = float(np.abs(r.T @ r - np.eye(3)).max())
-    if err > tol:
-        problems.append(f"rotation is not orthonormal (max |R^T R - I| = {err:.3g})")
-    elif np.linalg.det(r) < 0:
-        problems.append("rotation is a reflection (det = -1); expected det = +1")
-    return problems
-
-
-def _short(value: Any) -> str:
-    text = json.dumps(value) if isinstance(value, (str, bool, dict, type(None))) else repr(value)
-    return text if len(text) <= 30 else text[:27] + "..."
-
-
-def _fmt_row(row: np.ndarray) -> str:
-    return "[" + ", ".join(f"{x:g}" for x in row) + "]"
 
 
 def _positive_int(data: dict, key: str, what: str, problems: list[str]) -> int | None:
@@ -263,37 +210,7 @@ def _check_shared_files(found: list[_Found], problems: list[str]) -> None:
 
 def _check_separation(found: list[_Found], problems: list[str]) -> None:
     posed = [(i, f.c2w[:3, 3]) for i, f in enumerate(found) if f.c2w is not None]
-    if len(posed) < 2:
-        return
-    centres = np.stack([c for _, c in posed])
-    pairs = cKDTree(centres).query_pairs(MIN_VIEW_SEPARATION_M, output_type="ndarray")
-    pairs = pairs.reshape(-1, 2)
-    pairs = pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
-    if len(pairs) > MAX_LISTED_PAIRS:  # one view copied many times: n^2 / 2 pairs
-        problems.append(
-            f"{len(pairs)} pairs of frames are at the same position (under "
-            f"{1000 * MIN_VIEW_SEPARATION_M:g} mm apart); the first {MAX_LISTED_PAIRS} follow"
-        )
-    for a, b in pairs[:MAX_LISTED_PAIRS].tolist():
-        dist_mm = 1000.0 * float(np.linalg.norm(centres[a] - centres[b]))
-        problems.append(
-            f"frames[{posed[a][0]}] and frames[{posed[b][0]}]: views at the same position "
-            f"({dist_mm:.2f} mm apart); views must be at least "
-            f"{MIN_VIEW_SEPARATION_M * 1000:g} mm apart"
-        )
-
-
-def poses_problems(c2w: np.ndarray) -> list[str]:
-    """What `panogrf scene check` would say of these poses [V, 4, 4] (each a rigid pose within
-    reach, no two views at one position): a writer checks them before it writes a scene."""
-    problems: list[str] = []
-    found = []
-    for i, m in enumerate(np.asarray(c2w, np.float64)):
-        bad = pose_problems(m)
-        problems.extend(f"frames[{i}].transform_matrix: {p}" for p in bad)
-        found.append(_Found(c2w=None if bad else m))
-    _check_separation(found, problems)
-    return problems
+    problems.extend(same_position_problems([i for i, _ in posed], [c for _, c in posed]))
 
 
 def _read_transforms(root: Path, problems: list[str]) -> dict | None:

@@ -32,12 +32,14 @@ import torch
 from panogrf.app.errors import UserError
 from panogrf.app.files.images import write_depth, write_json_atomic, write_rgb
 from panogrf.app.scene.check import (
-    MIN_VIEW_SEPARATION_M,
-    POSE_TOLERANCE,
     SceneReport,
     check_scene,
     inspect_and_load,
     inspect_scene,
+)
+from panogrf.app.scene.pose_check import (
+    MIN_VIEW_SEPARATION_M,
+    POSE_TOLERANCE,
     number_array,
     pose_problems,
 )

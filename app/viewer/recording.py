@@ -170,7 +170,7 @@ def _number(value, where: str, low: float, high: float) -> float:
 def _keyframe(k, i: int) -> Keyframe:
     """One nerfstudio keyframe checked: a rigid pose within reach, a field of view, a
     transition; a `ValueError` naming the field otherwise."""
-    from panogrf.app.scene.check import pose_problems
+    from panogrf.app.scene.pose_check import pose_problems
 
     where = f"keyframes[{i}]"
     if not isinstance(k, dict) or "matrix" not in k:
