@@ -95,8 +95,22 @@ def _shared_directions(height: int, width: int, device: torch.device, dtype: tor
 
 
 def _directions(height: int, width: int, device: torch.device, dtype: torch.dtype) -> Tensor:
+    return erp_direction_rows(height, width, 0, height, device=device, dtype=dtype)
+
+
+def erp_direction_rows(
+    height: int,
+    width: int,
+    first: int,
+    last: int,
+    *,
+    device: torch.device | str | None = None,
+    dtype: torch.dtype = torch.float32,
+) -> Tensor:
+    """Rows ``first`` to ``last`` (excluded) of `erp_directions` (height, width): [last -
+    first, W, 3], the same values, made anew (a band of a panorama too large to hold whole)."""
     v, u = torch.meshgrid(
-        torch.arange(height, device=device, dtype=dtype),
+        torch.arange(first, last, device=device, dtype=dtype),
         torch.arange(width, device=device, dtype=dtype),
         indexing="ij",
     )

@@ -41,6 +41,7 @@ from panogrf.model.erp import (
     world_to_erp,
 )
 from panogrf.model.progress import open_stage
+from panogrf.model.ssim import photometric_error, reference_stats
 from panogrf.model.steps import OptimisationSteps, adam
 
 
@@ -110,51 +111,6 @@ def nearest_sources(c2w: Tensor, sources: list[list[int]], k: int) -> list[list[
     return [nearest(r, src) for r, src in enumerate(sources)]
 
 
-def _pad_w(x: Tensor, p: int = 1) -> Tensor:
-    x = torch.cat((x[..., -p:], x, x[..., :p]), -1)
-    return F.pad(x, (0, 0, p, p), mode="replicate")
-
-
-def _box_mean_padded(x: Tensor, k: int) -> Tensor:
-    """Mean over k x k windows of [B, C, H + k - 1, W + k - 1] (already padded) -> [B, C, H, W]:
-    separable sums of shifted slices (``F.avg_pool2d`` with stride 1 is several times slower
-    on a CPU, and took 40 % of the fusion's time)."""
-    h, w = x.shape[-2] - k + 1, x.shape[-1] - k + 1
-    rows = x[..., 0:h, :]
-    for i in range(1, k):
-        rows = rows + x[..., i : i + h, :]
-    out = rows[..., 0:w]
-    for j in range(1, k):
-        out = out + rows[..., j : j + w]
-    return out / (k * k)
-
-
-def _window_mean(x: Tensor) -> Tensor:
-    return _box_mean_padded(_pad_w(x), 3)
-
-
-def reference_stats(b: Tensor) -> tuple[Tensor, Tensor]:
-    """The 3x3 window mean and variance of a reference image [B, 3, H, W] that
-    `photometric_error` compares against (computed once where many images meet one reference)."""
-    mu = _window_mean(b)
-    return mu, _window_mean(b * b) - mu**2
-
-
-def photometric_error(a: Tensor, b: Tensor, b_stats: tuple[Tensor, Tensor] | None = None) -> Tensor:
-    """Per-pixel 0.85 (1 - SSIM) / 2 + 0.15 L1 of images [B, 3, H, W] -> [B, H, W] (``b`` may
-    be [1, 3, H, W] against a batch of ``a``; ``b_stats``: `reference_stats` of ``b``)."""
-    mu_a = _window_mean(a)  # one term at a time: a stacked tensor is slower
-    mu_b, var_b = reference_stats(b) if b_stats is None else b_stats
-    var_a = _window_mean(a * a) - mu_a**2
-    cov = _window_mean(a * b) - mu_a * mu_b
-    c1, c2 = 0.01**2, 0.03**2
-    ssim = ((2 * mu_a * mu_b + c1) * (2 * cov + c2)) / (
-        (mu_a**2 + mu_b**2 + c1) * (var_a + var_b + c2)
-    )
-    dssim = ((1 - ssim) / 2).clamp(0, 1)
-    return (0.85 * dssim + 0.15 * (a - b).abs()).mean(1)
-
-
 def warp_from(
     source: Tensor, depth: Tensor, ref_c2w: Tensor, src_c2w: Tensor, dirs: Tensor
 ) -> Tensor:
@@ -190,13 +146,6 @@ def warp_batch(
     per operation instead of one per warp). The rotated rays do not depend on the depth, so its
     gradient skips the matrix products (`warp_rays`, `warp_along`)."""
     return warp_along(pad_seam(sources), depth, *warp_rays(ref_c2w, src_c2w, dirs))
-
-
-def warp_pairs(images: Tensor, depth: Tensor, c2w: Tensor, pairs: _Pairs, dirs: Tensor) -> Tensor:
-    """Every (reference, source) pair's source panorama of ``images`` [V, 3, H, W] seen from the
-    reference with the reference's depth ``depth`` [V, H, W] -> [P, 3, H, W] (`warp_batch`)."""
-    ref, src = pairs.ref, pairs.src
-    return warp_batch(images[src], depth[ref], c2w[ref], c2w[src], dirs)
 
 
 #: Gap (log depth) below which a point in front of a source's surface is not a violation: the
@@ -304,18 +253,19 @@ def refine_depth(
         wlat = latitude_weights(hh, 2 * hh, device=depth.device, dtype=depth.dtype)
         target = img[pairs.ref]
         stats = reference_stats(target)  # the targets do not move: their windows once a stage
+        # Nor do the sources and the references' rays in their frames (`warp_batch`).
+        along = (pad_seam(img[pairs.src]), *warp_rays(c2w[pairs.ref], c2w[pairs.src], dirs))
 
         def step(
             hh: int = hh,
-            img: Tensor = img,
-            dirs: Tensor = dirs,
+            along: tuple[Tensor, Tensor, Tensor] = along,
             wlat: Tensor = wlat,
             target: Tensor = target,
             stats: tuple[Tensor, Tensor] = stats,
         ) -> None:
             log_d = log_d0 + delta * moves
             log_full = F.interpolate(log_d, size=(hh, 2 * hh), mode="bilinear", align_corners=False)
-            warped = warp_pairs(img, torch.exp(log_full)[:, 0], c2w, pairs, dirs)  # all at once
+            warped = warp_along(along[0], torch.exp(log_full)[:, 0][pairs.ref], *along[1:])
             loss = _photometric_sum(photometric_error(warped, target, stats), spans, wlat, config)
             dx = (delta - torch.roll(delta, 1, -1)).abs() * wx
             dy = (delta[..., 1:, :] - delta[..., :-1, :]).abs() * wy

@@ -42,7 +42,7 @@ from torch import Tensor, nn
 
 from panogrf.model.erp import erp_to_world, latitude_weights, sample_erp, world_to_erp
 from panogrf.model.layers import CircularConv2d
-from panogrf.model.sweep import box_mean
+from panogrf.model.ssim import box_mean
 
 #: Channels of `selection_features`.
 FEATURES = 18

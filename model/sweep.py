@@ -4,7 +4,7 @@ sources matches best, and the fusion of depth hypotheses there.
 After the MVS networks (`panogrf.model.depth`): the cost volume works at a quarter of 128 rows,
 the sweep at `SweepConfig.height` rows puts back the detail a real capture has. Every candidate
 of a reference view is scored by the same photometric error as the refinement
-(`panogrf.model.refine.photometric_error`, the minimum over the sources, summed over a window);
+(`panogrf.model.ssim.photometric_error`, the minimum over the sources, summed over a window);
 the depth moves where a candidate is clearly better. With several hypotheses (mono-guided and
 unguided MVS) each pixel starts from the one its sources agree with (`photometric_choice`), or
 from a learned `Chooser`'s choice (`panogrf.model.select`). `median_filter` then takes out the
@@ -23,14 +23,8 @@ from torch import Tensor
 
 from panogrf.model.erp import erp_directions, pad_seam
 from panogrf.model.progress import open_stage
-from panogrf.model.refine import (
-    _box_mean_padded,
-    _pad_w,
-    photometric_error,
-    reference_stats,
-    warp_along,
-    warp_rays,
-)
+from panogrf.model.refine import warp_along, warp_rays
+from panogrf.model.ssim import _pad_w, box_mean, photometric_error, reference_stats
 
 
 @dataclass(frozen=True)
@@ -87,12 +81,6 @@ def median_filter(depth: Tensor, window: int) -> Tensor:
         F.unfold(_pad_w(d[None], p), window).median(1).values.reshape(1, h, w) for d in depth
     ]
     return torch.stack(out)
-
-
-def box_mean(x: Tensor, k: int) -> Tensor:
-    """Mean of [B, C, H, W] over a k x k window (ERP: wrapping at the seam, rows repeated at
-    the poles)."""
-    return _box_mean_padded(_pad_w(x, k // 2), k)
 
 
 def sweep_depth(

@@ -32,7 +32,12 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from panogrf.model.erp import direction_to_pixel, erp_directions, sample_padded
+from panogrf.model.erp import (
+    direction_to_pixel,
+    erp_direction_rows,
+    erp_directions,
+    sample_padded,
+)
 from panogrf.model.layers import circular_pad
 from panogrf.model.render_net import RendererNet
 from panogrf.model.splat import proxy_depth
@@ -146,14 +151,41 @@ def project_sources(
     return _projected(cache, c2w, depth, sampling)[0]
 
 
+#: Pixels of a band of rows in `project_sources` (larger panoramas are read band by band: an 8K
+#: output's intermediates are a few hundred MB each).
+BAND_PIXELS = 1 << 21
+
+
 def _projected(
     cache: SceneCache, c2w: Tensor, depth: Tensor, sampling: str = "bilinear"
 ) -> tuple[Tensor, Tensor | None]:
     """`project_sources` and the sources' masked fraction there [V, 1, H, W] (None without
-    a nadir mask)."""
+    a nadir mask), band of rows by band of rows beyond `BAND_PIXELS`."""
     h, w = depth.shape
-    dirs = erp_directions(h, w, device=depth.device, dtype=depth.dtype) @ c2w[:3, :3].T
-    points = c2w[:3, 3] + dirs * depth[..., None]  # [H, W, 3] world
+    if h * w <= BAND_PIXELS:
+        dirs = erp_directions(h, w, device=depth.device, dtype=depth.dtype)
+        return _projected_rows(cache, c2w, depth, dirs, sampling)
+    v, rows = cache.num_views, max(1, BAND_PIXELS // w)
+    colour = depth.new_empty(v, 3, h, w)
+    masked = None if cache.mask is None else depth.new_empty(v, 1, h, w)
+    for first in range(0, h, rows):
+        last = min(h, first + rows)
+        dirs = erp_direction_rows(h, w, first, last, device=depth.device, dtype=depth.dtype)
+        c, m = _projected_rows(cache, c2w, depth[first:last], dirs, sampling)
+        colour[..., first:last, :] = c
+        if masked is not None and m is not None:
+            masked[..., first:last, :] = m
+    return colour, masked
+
+
+def _projected_rows(
+    cache: SceneCache, c2w: Tensor, depth: Tensor, dirs: Tensor, sampling: str
+) -> tuple[Tensor, Tensor | None]:
+    """`_projected` of rows whose camera-frame directions are ``dirs`` [h, W, 3] at depth
+    ``depth`` [h, W]."""
+    h, w = depth.shape
+    dirs = dirs @ c2w[:3, :3].T
+    points = c2w[:3, 3] + dirs * depth[..., None]  # [h, W, 3] world
     w2c = cache.w2c
     cam = points.reshape(1, -1, 3) @ w2c[:, :3, :3].transpose(1, 2) + w2c[:, None, :3, 3]
     hi, wi = cache.images.shape[-2:]
@@ -189,14 +221,16 @@ def add_detail(
     # One upsampling for the network's colour, the gate and the sources' weights.
     up = upsample_erp(torch.cat((low.rgb, gate, blend_w)), size)
     up_rgb, up_gate, up_w = up[:3], up[3:4], up[4:]
-    blend = (up_w[:, None] * proj).sum(0)  # [3, H, W]
+    # In place from here: at an 8K output each full-resolution copy is 350 MB.
+    blend = proj.mul_(up_w[:, None]).sum(0)  # [3, H, W]
+    del proj
     cut = min(config.cutoff or h, h)
     # Above the cutoff the blend replaces the network's colour: (blend - low-pass of blend) -
     # (rgb - low-pass of rgb), one low-pass of the difference. At the network's own rows its
     # colour has nothing above the cutoff to replace.
-    diff = blend - up_rgb if cut < h else blend
-    detail = diff - upsample_erp(resize_erp(diff[None], cut)[0], size)
-    return (up_rgb + up_gate * detail).clamp(0, 1)
+    diff = blend.sub_(up_rgb) if cut < h else blend
+    detail = diff.sub_(upsample_erp(resize_erp(diff[None], cut)[0], size))
+    return detail.mul_(up_gate).add_(up_rgb).clamp_(0, 1)
 
 
 @torch.no_grad()

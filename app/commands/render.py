@@ -209,7 +209,8 @@ def run_pose(cfg: RenderConfig, args: argparse.Namespace) -> int:
     from panogrf.app.files.images import to_uint8, write_rgb
     from panogrf.app.paths.frames import FrameRenderer
     from panogrf.app.scene.folder import load_scene
-    from panogrf.app.scoring import image_scores
+    from panogrf.app.scoring import SCORE_ROWS, image_scores
+    from panogrf.model.progress import stage
 
     scene = load_scene(cfg.scene, load_images=True)
     refuse_scene_inputs(cfg.out, scene)
@@ -233,12 +234,16 @@ def run_pose(cfg: RenderConfig, args: argparse.Namespace) -> int:
         if target is None:  # a pose of one's own: warned as a camera path's frame
             _warn_pose(tgt, scene.c2w[sources], views)
         start = time.perf_counter()
-        rgb = frames.panorama(tgt, height)
+        with stage("rendering", 1) as progress:
+            rgb = frames.panorama(tgt, height)
+            progress.advance()
         seconds = time.perf_counter() - start
     finally:
         frames.release()
     try:
-        write_rgb(cfg.out, to_uint8(rgb))
+        with stage(f"writing {cfg.out.name}", 1) as progress:
+            write_rgb(cfg.out, to_uint8(rgb))
+            progress.advance()
     except OSError as exc:
         raise UserError(f"cannot write {cfg.out}: {exc.strerror or exc}") from None
     summary = {
@@ -254,6 +259,7 @@ def run_pose(cfg: RenderConfig, args: argparse.Namespace) -> int:
     if target is not None:
         summary["target_frame"] = target
         summary["metrics"] = image_scores(rgb, data.images[target : target + 1])
+        summary["ssim_lpips_rows"] = min(height, SCORE_ROWS)
     _print_summary(cfg, summary, prep, seconds)
     return 0
 
@@ -264,6 +270,8 @@ def _print_summary(cfg: RenderConfig, summary: dict, prep: float, seconds: float
     if cfg.json:
         print(json.dumps(_json_safe(summary), indent=2, allow_nan=False))
         return
+    from panogrf.app.scoring import SCORE_ROWS
+
     width, height = summary["size"]
     print(
         f"wrote {cfg.out} ({width}x{height}, {cfg.method}, {cfg.quality}): "
@@ -272,9 +280,10 @@ def _print_summary(cfg: RenderConfig, summary: dict, prep: float, seconds: float
     )
     if "metrics" in summary:
         m = summary["metrics"]
+        scored = "" if height <= SCORE_ROWS else f" (SSIM, LPIPS at {2 * SCORE_ROWS}x{SCORE_ROWS})"
         print(
             f"vs frame {cfg.target_frame}: PSNR {m['psnr']:.2f} dB, "
-            f"WS-PSNR {m['ws_psnr']:.2f} dB, SSIM {m['ssim']:.4f}, LPIPS {m['lpips']:.4f}"
+            f"WS-PSNR {m['ws_psnr']:.2f} dB, SSIM {m['ssim']:.4f}, LPIPS {m['lpips']:.4f}{scored}"
         )
 
 

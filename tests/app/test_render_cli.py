@@ -279,3 +279,30 @@ def test_a_pose_far_from_every_source_is_warned(random_nets, tmp_path, capsys):
     captured = capsys.readouterr()
     json.loads(captured.out)  # stdout stays the JSON summary
     assert "warning: the --c2w pose is" in captured.err and "outside the region" in captured.err
+
+
+def test_render_names_every_stage_after_the_preparation(random_nets, tmp_path):
+    """Rendering, writing and scoring each show as a stage (an 8K render was silent for a
+    minute after "preparing the scene")."""
+    from panogrf.model import progress
+
+    seen: list[tuple[str, str]] = []
+
+    class Recorder:
+        def started(self, stage):
+            seen.append(("start", stage.name))
+
+        def advanced(self, stage):
+            pass
+
+        def ended(self, stage):
+            seen.append(("end", stage.name))
+
+    out = tmp_path / "mid.png"
+    args = ["render", str(DEMO), "--out", str(out), "--target-frame", "1", "--height", "32"]
+    with progress.listening(Recorder()):
+        assert cli.main([*args, "--quiet"]) == 0
+    names = [name for kind, name in seen if kind == "start"]
+    for name in ("rendering", "writing mid.png", "scoring"):
+        assert name in names and ("end", name) in seen
+    assert names.index("rendering") < names.index("writing mid.png") < names.index("scoring")

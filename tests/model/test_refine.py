@@ -13,12 +13,11 @@ from panogrf.model.erp import erp_directions
 from panogrf.model.refine import (
     RefineConfig,
     free_space_violation,
-    photometric_error,
-    reference_stats,
     refine_depth,
     warp_from,
 )
-from panogrf.model.sweep import SweepConfig, box_mean, median_filter, sweep_depth
+from panogrf.model.ssim import box_mean, photometric_error, reference_stats
+from panogrf.model.sweep import SweepConfig, median_filter, sweep_depth
 
 RADIUS = 3.0
 

@@ -182,3 +182,25 @@ def test_an_unknown_projection_is_refused():
     low = _low_pass(truth, truth_depth, H // 2)
     with pytest.raises(ValueError, match="projection"):
         add_detail(cache, target, low, H, DetailConfig(net_height=H // 2, projection="mesh"))
+
+
+def test_projection_band_by_band_is_the_same_as_whole(monkeypatch):
+    """A panorama beyond `BAND_PIXELS` is projected band of rows by band: the same colours and
+    masked fractions to the last bit."""
+    from panogrf.renderer import detail
+
+    g = torch.Generator().manual_seed(0)
+    v, h = 2, 24
+    images = torch.rand(v, 3, h, 2 * h, generator=g)
+    c2w = torch.eye(4).repeat(v, 1, 1)
+    c2w[1, 0, 3] = 0.5
+    depth = 1.0 + torch.rand(v, 1, h, 2 * h, generator=g)
+    mask = (torch.rand(v, 1, h, 2 * h, generator=g) > 0.8).float()
+    cache = SceneCache(images, c2w, depth, torch.zeros(v, 4, h, 2 * h), 4, mask)
+    target = torch.eye(4)
+    target[:3, 3] = torch.tensor([0.2, 0.1, -0.1])
+    d = 0.8 + torch.rand(h, 2 * h, generator=g)
+    whole = detail._projected(cache, target, d, "bicubic")
+    monkeypatch.setattr(detail, "BAND_PIXELS", 5 * 2 * h)  # bands of 5 rows, the last of 4
+    banded = detail._projected(cache, target, d, "bicubic")
+    assert torch.equal(whole[0], banded[0]) and torch.equal(whole[1], banded[1])

@@ -1,0 +1,77 @@
+"""The photometric error's written-out forward and gradient against the plain formula and
+autograd."""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+
+from panogrf.model.ssim import _window_adjoint, box_mean, photometric_error, reference_stats
+
+
+def _plain(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """The formula as written, with average pooling on the same ERP padding (autograd's
+    gradient)."""
+
+    def pool(x: torch.Tensor) -> torch.Tensor:
+        x = torch.cat((x[..., -1:], x, x[..., :1]), -1)
+        return F.avg_pool2d(F.pad(x, (0, 0, 1, 1), mode="replicate"), 3, 1)
+
+    b = b.expand_as(a)
+    mu_a, mu_b = pool(a), pool(b)
+    var_a, var_b = pool(a * a) - mu_a**2, pool(b * b) - mu_b**2
+    cov = pool(a * b) - mu_a * mu_b
+    c1, c2 = 0.01**2, 0.03**2
+    ssim = ((2 * mu_a * mu_b + c1) * (2 * cov + c2)) / (
+        (mu_a**2 + mu_b**2 + c1) * (var_a + var_b + c2)
+    )
+    return (0.85 * ((1 - ssim) / 2).clamp(0, 1) + 0.15 * (a - b).abs()).mean(1)
+
+
+def _pair(batch: int, dtype: torch.dtype = torch.float64) -> tuple[torch.Tensor, torch.Tensor]:
+    g = torch.Generator().manual_seed(batch)
+    b = torch.rand(1, 3, 7, 12, generator=g, dtype=dtype)
+    a = (b + 0.3 * torch.rand(batch, 3, 7, 12, generator=g, dtype=dtype)).clamp(0, 1)
+    return a, b
+
+
+def test_the_error_and_its_gradient_match_the_plain_formula():
+    a, b = _pair(3)
+    a.requires_grad_(True)
+    weights = torch.rand(3, 7, 12, dtype=torch.float64)
+    got = photometric_error(a, b)
+    want = _plain(a, b)
+    torch.testing.assert_close(got, want, rtol=0, atol=1e-12)
+    (g_got,) = torch.autograd.grad((got * weights).sum(), a)
+    (g_want,) = torch.autograd.grad((want * weights).sum(), a)
+    torch.testing.assert_close(g_got, g_want, rtol=0, atol=1e-12)
+    with torch.no_grad():  # the forward without a graph is the same error
+        torch.testing.assert_close(photometric_error(a, b), want, rtol=0, atol=1e-12)
+
+
+def test_gradcheck_including_where_the_clamp_cuts():
+    a, b = _pair(2)
+    a = a.detach().requires_grad_(True)
+    stats = reference_stats(b)
+    assert torch.autograd.gradcheck(lambda x: photometric_error(x, b, stats), (a,))
+    # Anti-correlated windows: SSIM below 0 (the clamp's lower end still passes).
+    assert torch.autograd.gradcheck(lambda x: photometric_error(1 - x, b, stats), (a,))
+
+
+def test_the_window_adjoint_is_the_transpose_of_the_window_mean():
+    g = torch.Generator().manual_seed(0)
+    x = torch.rand(2, 3, 6, 9, generator=g, dtype=torch.float64)
+    y = torch.rand(2, 3, 6, 9, generator=g, dtype=torch.float64)
+    lhs = (box_mean(x, 3) * y).sum()
+    rhs = (x * _window_adjoint(y)).sum()
+    torch.testing.assert_close(lhs, rhs, rtol=1e-12, atol=0)
+
+
+def test_inputs_are_left_as_they_were():
+    a, b = _pair(2, torch.float32)
+    stats = reference_stats(b)
+    copies = [t.clone() for t in (a, b, *stats)]
+    photometric_error(a, b, stats)
+    photometric_error(a.clone().requires_grad_(True), b, stats).sum().backward()
+    for before, after in zip(copies, (a, b, *stats), strict=True):
+        assert torch.equal(before, after)
