@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from panogrf.app.commands import scene_poses, scene_prepare
+from panogrf.app.commands import scene_faces, scene_poses, scene_prepare
 from panogrf.app.errors import UserError
 from panogrf.app.options import add_options, from_args, option
 from panogrf.app.scene.folder import TRANSFORMS, SceneReport, inspect_scene
@@ -203,7 +203,7 @@ _SUBCOMMANDS: dict[str, Callable[[argparse._SubParsersAction], None]] = {
     "prepare": scene_prepare.add_prepare,
     "from-panoramas": scene_poses._add_from_panoramas,
     "import": scene_poses._add_import,
-    "faces": scene_poses._add_faces,
+    "faces": scene_faces._add_faces,
 }
 
 

@@ -45,6 +45,10 @@ def test_a_real_pair_poses_level_with_a_consistent_report(tmp_path, capsys):
     assert 0.0 < np.linalg.norm(move) < 1.0
     assert abs(move[1]) < 0.2 * np.linalg.norm(move)
     assert cli.main(["scene", "check", str(out)]) == 0
+    # The photographs are kept as they were taken (copied, not re-encoded as PNG).
+    for photo, frame in zip(images, load_scene(out).frames, strict=True):
+        assert frame.image_path.suffix == ".jpg"
+        assert frame.image_path.read_bytes() == Path(photo).read_bytes()
 
 
 def _refused(capsys, args: list[str], *names: str) -> str:
