@@ -17,6 +17,16 @@ from torch import Tensor
 from panogrf.model.erp import erp_directions, invert_rigid, pad_seam, sample_padded
 from panogrf.model.render_net import RendererNet
 
+#: A render at H rows reads its sources' colours at most this many times finer (`at_most`):
+#: sources twice as fine as the render give it detail (`panogrf.renderer.detail`), finer ones
+#: only alias. None: the sources as they are.
+SOURCE_ROWS_PER_ROW: int | None = 2
+
+
+def source_rows(height: int) -> int | None:
+    """The rows of the sources that a render at ``height`` rows reads (None: all of them)."""
+    return None if SOURCE_ROWS_PER_ROW is None else SOURCE_ROWS_PER_ROW * height
+
 
 @dataclass
 class SceneCache:
@@ -37,6 +47,23 @@ class SceneCache:
         self._images_padded = {1: pad_seam(self.images)}
         self.mask_padded = None if self.mask is None else pad_seam(self.mask.to(self.maps.dtype))
         self._surface: tuple[Tensor, Tensor] | None = None
+        self._levels: dict[int, SceneCache] = {}
+
+    def at_most(self, rows: int | None) -> SceneCache:
+        """This cache with its sources area-averaged to ``rows`` rows where they have more (made
+        once per size; the rest shared). A render reads the sources' colours at one point per
+        pixel: from sources far finer than it, that picks one texel of many, and fine texture
+        aliases (`SOURCE_ROWS_PER_ROW`)."""
+        if rows is None or self.images.shape[-2] <= rows:
+            return self
+        if rows not in self._levels:
+            small = F.interpolate(self.images, size=(rows, 2 * rows), mode="area")
+            level = SceneCache(small, self.c2w, self.depth, self.maps, self.feature_channels)
+            level.maps_padded, level.mask, level.mask_padded = (
+                self.maps_padded, self.mask, self.mask_padded)  # fmt: skip
+            level._surface = self._surface
+            self._levels[rows] = level
+        return self._levels[rows]
 
     def surface_points(self) -> tuple[Tensor, Tensor]:
         """The sources' depth lifted to the world, [V*h*w, 3], and where it is known (> 0)

@@ -42,7 +42,7 @@ from panogrf.model.layers import circular_pad
 from panogrf.model.render_net import RendererNet
 from panogrf.model.splat import proxy_depth
 from panogrf.model.sweep import median_filter
-from panogrf.renderer.cache import SceneCache, resize_erp
+from panogrf.renderer.cache import SceneCache, resize_erp, source_rows
 from panogrf.renderer.nadir import mask_factor
 from panogrf.renderer.render import RenderOutput, Sampling, render_panorama
 
@@ -207,6 +207,7 @@ def add_detail(
     detail: [3, H, 2H] in [0, 1]. The sources are read at `projection_depth`, upsampled."""
     size = (height, 2 * height)
     h = low.rgb.shape[-2]
+    cache = cache.at_most(source_rows(height))
     depth = _upsample_depth(projection_depth(cache, c2w, low, config), size)
     sampling = config.sampling if height >= cache.images.shape[-2] else "bilinear"
     proj, masked = _projected(cache, c2w.to(depth.dtype), depth[0], sampling)

@@ -42,7 +42,7 @@ from panogrf.model.sampling import (
     sample_pdf,
 )
 from panogrf.model.splat import ProxyDepth, proxy_depth
-from panogrf.renderer.cache import SceneCache
+from panogrf.renderer.cache import SceneCache, source_rows
 from panogrf.renderer.nadir import mask_factor
 
 
@@ -304,6 +304,7 @@ def render_panorama(
     """
     width = 2 * height
     c2w = c2w.to(cache.images.dtype)
+    cache = cache.at_most(source_rows(height))
     origins, dirs = target_rays(c2w, height, width)
     sampling = sampling_for(quality, cache, c2w)
     proxy = None

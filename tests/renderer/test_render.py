@@ -122,3 +122,26 @@ def test_composite_of_an_opaque_first_sample():
     rgb = torch.tensor([[[0.2, 0.4, 0.6], [1.0, 1.0, 1.0], [0.0, 0.0, 0.0]]])
     out = composite(sigma, rgb, torch.tensor([[1.0, 2.0, 3.0]]))
     assert torch.allclose(out.rgb, torch.tensor([[0.2, 0.4, 0.6]]), atol=1e-4)
+
+
+def test_sources_finer_than_twice_the_render_are_read_area_averaged(monkeypatch):
+    """A render at H rows reads sources of more than 2H rows averaged down to 2H (one read per
+    pixel of far finer sources aliases); sources of at most 2H rows as they are."""
+    from panogrf.renderer import cache as cache_module
+
+    net, cache = _scene()  # 32-row sources
+    assert cache.at_most(32) is cache and cache.at_most(64) is cache
+    level = cache.at_most(16)
+    assert level is cache.at_most(16)  # made once
+    assert level.images.shape[-2:] == (16, 32) and level.maps is cache.maps
+    want = torch.nn.functional.interpolate(cache.images, size=(16, 32), mode="area")
+    assert torch.equal(level.images, want)
+    tgt = torch.eye(4)
+    tgt[2, 3] = 0.2
+    averaged = SceneCache(want, cache.c2w, cache.depth, cache.maps, cache.feature_channels)
+    at_8 = render_panorama(net, cache, tgt, 8, "fast")
+    assert torch.equal(at_8.rgb, render_panorama(net, averaged, tgt, 8, "fast").rgb)
+    at_16 = render_panorama(net, cache, tgt, 16, "fast")  # 32 rows = 2 x 16: as they are
+    monkeypatch.setattr(cache_module, "SOURCE_ROWS_PER_ROW", None)
+    assert torch.equal(at_16.rgb, render_panorama(net, cache, tgt, 16, "fast").rgb)
+    assert not torch.equal(at_8.rgb, render_panorama(net, cache, tgt, 8, "fast").rgb)
