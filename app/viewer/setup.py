@@ -82,3 +82,18 @@ class ViewerSetup:
             else m[:, 0].cpu().numpy(),
             **kw,
         )
+
+
+def preview_sources(images: np.ndarray, preview_height: int) -> np.ndarray:
+    """The sources [V, H, W, 3] uint8 as the GL preview reads them: area-averaged to twice its
+    rows where they have more. It reads one point per pixel, and from far finer sources fine
+    texture aliases (9 synthetic scenes photographed at 2048 rows, the sharp preview at 512
+    rows: 28.25 -> 28.68 dB WS-PSNR, LPIPS 0.089 -> 0.084, `lab/preview_source_level.py`);
+    an 8K photo's texture is also 15 times smaller."""
+    import cv2
+
+    rows = 2 * preview_height
+    if images.shape[1] <= rows:
+        return images
+    size = (2 * rows, rows)
+    return np.stack([cv2.resize(im, size, interpolation=cv2.INTER_AREA) for im in images])

@@ -41,7 +41,7 @@ from panogrf.app.viewer.overlay import OverlayMixin
 from panogrf.app.viewer.refinement import Refinement
 from panogrf.app.viewer.script import ScriptPlayer, parse_script
 from panogrf.app.viewer.setup import UPSAMPLED_MOVING_ROWS as UPSAMPLED_MOVING_ROWS
-from panogrf.app.viewer.setup import ViewerSetup
+from panogrf.app.viewer.setup import ViewerSetup, preview_sources
 
 __all__ = ["PanoViewer", "ViewerSetup", "parse_script", "run_viewer"]
 from panogrf.shaders import load as load_shader
@@ -124,7 +124,7 @@ class PanoViewer(ExportsMixin, OverlayMixin, ControlsMixin, mglw.WindowConfig):
         s = self.setup
         return PreviewRenderer(
             self.ctx,
-            s.images,
+            preview_sources(s.images, s.preview_height),
             depth,
             s.c2w,
             mesh_height=s.mesh_height,

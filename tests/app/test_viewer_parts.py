@@ -169,3 +169,19 @@ def test_the_first_walking_speed_follows_the_sources_spacing():
     assert walk_speed(line(0.0, 0.3, 0.6)) == pytest.approx(0.15)
     assert walk_speed(line(0.0, 40.0)) == 1.0 and walk_speed(line(0.0, 0.01)) == 0.1
     assert walk_speed(line(0.0)) == 0.5
+
+
+def test_the_preview_reads_sources_at_most_twice_its_rows():
+    import cv2
+
+    from panogrf.app.viewer.setup import preview_sources
+
+    rng = np.random.default_rng(0)
+    images = rng.integers(0, 256, (2, 64, 128, 3), dtype=np.uint8)
+    assert preview_sources(images, 32) is images  # 64 rows = 2 x 32: as they are
+    small = preview_sources(images, 16)
+    assert small.shape == (2, 32, 64, 3) and small.dtype == np.uint8
+    want = cv2.resize(images[1], (64, 32), interpolation=cv2.INTER_AREA)
+    assert np.array_equal(small[1], want)
+    # Area averaging, not picking: a 2x2 block's mean.
+    assert abs(int(small[0, 5, 7, 0]) - images[0, 10:12, 14:16, 0].mean()) <= 0.5
