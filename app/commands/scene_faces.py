@@ -32,7 +32,7 @@ def run_faces(parsed: argparse.Namespace) -> int:
         seen[path.stem] = path
     if args.out.exists() and not args.out.is_dir():
         raise UserError(f"--out {args.out}: is a file, not a folder")
-    images = read_panoramas(args.panoramas)
+    images = read_panoramas(args.panoramas).images
     size = args.size or images.shape[3] // 4
     if size < 8:
         raise UserError(f"--size {size}: faces need at least 8 px")

@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -27,22 +28,41 @@ world y up (levelled so the cameras' mean up axis is +y), the first view at x = 
 -z, metres once scaled."""
 
 
-def read_panoramas(paths: list[Path]) -> np.ndarray:
-    """Panorama files -> uint8 [V, 3, H, W]; UserError naming the file for any bad one."""
+class Panoramas(NamedTuple):
+    """Panorama files read at one size."""
+
+    images: np.ndarray  # uint8 [V, 3, H, W]
+    resized: list[bool]  # which were area-averaged down to that size (the others as they are)
+
+    def note(self, paths: list[Path]) -> str | None:
+        """The line that says which were resized, if any."""
+        if not any(self.resized):
+            return None
+        h, w = self.images.shape[2:]
+        names = ", ".join(p.name for p, r in zip(paths, self.resized, strict=True) if r)
+        return f"resized to the smallest photo's {w}x{h}: {names}"
+
+
+def read_panoramas(paths: list[Path]) -> Panoramas:
+    """Panorama files -> uint8 [V, 3, H, W] at the smallest one's size (larger ones
+    area-averaged down: photos from two cameras, or one re-exported, still make a scene);
+    UserError naming the file for any bad one."""
+    import cv2
+
     images = []
     for path in paths:
         img = read_rgb(path)  # ImageReadError (a UserError) names the file
         h, w = img.shape[:2]
         if w != 2 * h:
             raise UserError(f"{path}: {w}x{h} is not a 2:1 equirectangular panorama")
-        if images and img.shape != images[0].shape:
-            first = images[0].shape
-            raise UserError(
-                f"{path}: {w}x{h}, but {paths[0]} is {first[1]}x{first[0]}; "
-                "all panoramas must have the same size"
-            )
         images.append(img)
-    return np.stack(images).transpose(0, 3, 1, 2)
+    rows = min(img.shape[0] for img in images)
+    resized = [img.shape[0] > rows for img in images]
+    images = [
+        cv2.resize(img, (2 * rows, rows), interpolation=cv2.INTER_AREA) if r else img
+        for img, r in zip(images, resized, strict=True)
+    ]
+    return Panoramas(np.stack(images).transpose(0, 3, 1, 2), resized)
 
 
 def _check_out(out: Path) -> None:
@@ -102,9 +122,12 @@ def run_import(parsed: argparse.Namespace) -> int:
         )
     if len(files) < 2:
         raise UserError(f"{args.pose_file}: a scene needs at least two panoramas")
-    images = read_panoramas(files)
+    read = read_panoramas(files)
+    images = read.images
     c2w = poses.c2w[order]
     lines = [f"imported {len(files)} poses from {args.pose_file} ({args.format})"]
+    if note := read.note(files):
+        lines.append(note)
     if not args.keep_world:
         up = sc.camera_up(c2w)
         tilt = [np.degrees(np.arccos(np.clip(m[:3, 1] @ up, -1, 1))) for m in c2w]
@@ -135,7 +158,8 @@ def run_import(parsed: argparse.Namespace) -> int:
         names = [f"view_{k:03d}" for k in range(len(files))]
     try:
         meta = {"poses": {"imported": args.format}}
-        write_scene(args.out, c2w, images, names=names, metadata=meta, files=files)
+        copies = [None if r else f for f, r in zip(files, read.resized, strict=True)]
+        write_scene(args.out, c2w, images, names=names, metadata=meta, files=copies)
     except OSError as exc:  # a full disk (T10)
         raise UserError(f"cannot write {args.out}: {exc.strerror or exc}") from None
     lines += [f"  {n}" for n in poses.notes]
@@ -208,7 +232,8 @@ def run_from_panoramas(parsed: argparse.Namespace) -> int:
     if len(files) < 2:
         raise UserError(f"{files[0]}: one panorama; poses need at least two of the same place")
     _check_out(args.out)
-    images = read_panoramas(files)
+    read = read_panoramas(files)
+    images = read.images
     for a in range(len(files)):
         for b in range(a + 1, len(files)):
             if np.array_equal(images[a], images[b]):
@@ -218,6 +243,8 @@ def run_from_panoramas(parsed: argparse.Namespace) -> int:
     distance = sc.parse_distance(args.distance, n) if args.distance else None
     est = estimate_poses_colmap([img.transpose(1, 2, 0) for img in images])
     lines = [f"{n} panoramas ({images.shape[3]}x{images.shape[2]})", *pose_report(files, est)]
+    if note := read.note(files):
+        lines.insert(1, note)
     keep = np.flatnonzero(est.registered)
     if len(keep) < 2:
         print("\n".join(lines))
@@ -280,7 +307,7 @@ def run_from_panoramas(parsed: argparse.Namespace) -> int:
             images[keep],
             names=names,
             metadata=meta,
-            files=[files[k] for k in keep],
+            files=[None if read.resized[k] else files[k] for k in keep],
         )
     except OSError as exc:
         raise UserError(f"cannot write {args.out}: {exc.strerror or exc}") from None

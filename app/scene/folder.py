@@ -118,16 +118,17 @@ def write_scene(
     *,
     names: Sequence[str] | None = None,
     metadata: dict[str, Any] | None = None,
-    files: Sequence[str | os.PathLike[str]] | None = None,
+    files: Sequence[str | os.PathLike[str] | None] | None = None,
 ) -> Scene:
     """Write a scene folder: ``images/<name>.png``, ``depths/<name>.png``, ``transforms.json``.
 
     c2w: [V, 4, 4] camera-to-world (OpenGL, metres). images: [V, 3, H, W], float in [0, 1] or
     uint8, W = 2H. depths: [V, 1, H, W] spherical depth in metres (<= 0 or non-finite: unknown).
     names: output file stems (default ``view_000``...). metadata: extra top-level JSON keys.
-    files: the photographs ``images`` were read from, one per view: copied as they are
-    (``images/<name>.jpg`` for a JPEG), not re-encoded as PNG (an 8K JPEG of 2.6 MB is an
-    18 MB PNG, seconds to encode); the scene reads them back to the same pixels.
+    files: the photographs ``images`` were read from, one per view (None: not a file's own
+    pixels, e.g. resized): copied as they are (``images/<name>.jpg`` for a JPEG), not
+    re-encoded as PNG (an 8K JPEG of 2.6 MB is an 18 MB PNG, seconds to encode); the scene
+    reads them back to the same pixels.
     Every file is written atomically and transforms.json last, so an interrupted write never
     leaves a transforms.json that points at missing files. Raises ValueError for bad arrays.
     """
@@ -164,13 +165,14 @@ def write_scene(
     if files is not None and len(files) != v:
         raise ValueError(f"need {v} files, got {len(files)}")
     for i, name in enumerate(names):
-        if files is None:
+        source = None if files is None else files[i]
+        if source is None:
             image_file = f"images/{name}.png"
             write_rgb(root / image_file, pixels[i].transpose(1, 2, 0))
         else:
-            image_file = f"images/{name}{Path(files[i]).suffix.lower()}"
+            image_file = f"images/{name}{Path(source).suffix.lower()}"
             with atomic_output(root / image_file) as tmp:
-                shutil.copyfile(files[i], tmp)
+                shutil.copyfile(source, tmp)
         entry: dict[str, Any] = {"file_path": image_file, "transform_matrix": poses[i].tolist()}
         depth_path = None
         if depth is not None:

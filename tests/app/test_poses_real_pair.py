@@ -96,3 +96,24 @@ def test_a_turned_copy_of_a_photo_is_diagnosed_as_no_parallax(tmp_path, capsys):
     argv = ["scene", "from-panoramas", str(photo), str(turned), "--out", str(tmp_path / "s")]
     line = _refused(capsys, [*argv, "--quiet"], str(turned), "no parallax", "apart")
     assert "a photo between the two" not in line
+
+
+def test_photos_of_two_sizes_pose_at_the_smaller(tmp_path, capsys):
+    """A photo from another camera (here: one of the pair at twice the size) no longer stops
+    the scene: it is area-averaged to the smaller one's size, said in the report, and written
+    as PNG; the other is kept as it is."""
+    from PIL import Image
+
+    large = tmp_path / "studio_07_large.jpg"
+    Image.open(PAIR / "studio_small_07.jpg").resize((2048, 1024), Image.BICUBIC).save(large)
+    small = PAIR / "studio_small_03.jpg"
+    out = tmp_path / "studio"
+    assert cli.main(["scene", "from-panoramas", str(small), str(large), "--out", str(out)]) == 0
+    report = capsys.readouterr().out
+    assert "resized to the smallest photo's 1024x512: studio_07_large.jpg" in report
+    scene = load_scene(out)
+    assert (scene.width, scene.height) == (1024, 512)
+    kept, resized = (f.image_path for f in scene.frames)
+    assert kept.read_bytes() == small.read_bytes()
+    assert resized.suffix == ".png"
+    assert cli.main(["scene", "check", str(out)]) == 0
