@@ -51,27 +51,40 @@ class TerminalProgress:
             return
         with self._lock:
             entry = {"stage": stage, "bar": None, "shown": self.clock(), "shown_done": 0}
+            entry["quiet"] = stage.lazy  # a lazy stage: shown once it has taken `interval`
             self._open[id(stage)] = entry
-            if self.tty:
-                from tqdm import tqdm
+            if not stage.lazy:
+                self._show(entry)
 
-                entry["bar"] = tqdm(
-                    total=stage.total,
-                    desc=stage.name,
-                    file=self.stream,
-                    leave=True,
-                    dynamic_ncols=True,
-                    bar_format=BAR,
-                )
-            else:
-                self._line(entry)
+    def _show(self, entry: dict) -> None:
+        """Start showing a stage: its bar on a terminal, else its line."""
+        entry["quiet"] = False
+        stage = entry["stage"]
+        if self.tty:
+            from tqdm import tqdm
+
+            entry["bar"] = tqdm(
+                total=stage.total,
+                initial=stage.done,
+                desc=stage.name,
+                file=self.stream,
+                leave=True,
+                dynamic_ncols=True,
+                bar_format=BAR,
+            )
+            entry["shown"] = self.clock()
+        else:
+            self._line(entry)
 
     def advanced(self, stage: Stage) -> None:
         with self._lock:
             entry = self._open.get(id(stage))
             if entry is None:
                 return
-            if entry["bar"] is not None:
+            if entry["quiet"]:
+                if self.clock() - entry["shown"] >= self.interval:
+                    self._show(entry)
+            elif entry["bar"] is not None:
                 bar = entry["bar"]
                 bar.update(stage.done - bar.n)
                 entry["shown"] = self.clock()
@@ -81,7 +94,7 @@ class TerminalProgress:
     def ended(self, stage: Stage) -> None:
         with self._lock:
             entry = self._open.pop(id(stage), None)
-            if entry is None:
+            if entry is None or entry["quiet"]:  # a lazy stage that never took long: no lines
                 return
             if entry["bar"] is not None:
                 entry["bar"].close()
@@ -109,7 +122,9 @@ class TerminalProgress:
             now = self.clock()
             if now - entry["shown"] < self.interval:
                 return
-            if entry["bar"] is not None:
+            if entry["quiet"]:
+                self._show(entry)
+            elif entry["bar"] is not None:
                 entry["bar"].refresh()
                 entry["shown"] = now
             else:

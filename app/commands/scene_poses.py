@@ -49,13 +49,17 @@ def read_panoramas(paths: list[Path]) -> Panoramas:
     UserError naming the file for any bad one."""
     import cv2
 
+    from panogrf.model.progress import stage
+
     images = []
-    for path in paths:
-        img = read_rgb(path)  # ImageReadError (a UserError) names the file
-        h, w = img.shape[:2]
-        if w != 2 * h:
-            raise UserError(f"{path}: {w}x{h} is not a 2:1 equirectangular panorama")
-        images.append(img)
+    with stage("reading the photos", len(paths), lazy=True) as progress:
+        for path in paths:
+            img = read_rgb(path)  # ImageReadError (a UserError) names the file
+            h, w = img.shape[:2]
+            if w != 2 * h:
+                raise UserError(f"{path}: {w}x{h} is not a 2:1 equirectangular panorama")
+            images.append(img)
+            progress.advance()
     rows = min(img.shape[0] for img in images)
     resized = [img.shape[0] > rows for img in images]
     images = [

@@ -36,6 +36,7 @@ from panogrf.app.scene.types import (
     Scene,
     SceneImages,
 )
+from panogrf.model.progress import stage
 
 
 @dataclass(frozen=True, eq=False)
@@ -295,8 +296,14 @@ def _inspect(root: str | os.PathLike[str], keep_pixels: bool) -> tuple[SceneRepo
     # The panoramas are decoded side by side (the decoder leaves Python's lock); problems and
     # notes keep the frames' order.
     workers = max(1, min(len(frames), os.cpu_count() or 1, 8))
-    with ThreadPoolExecutor(workers) as pool:
-        inspected = list(pool.map(inspect, enumerate(frames)))
+    with (
+        stage("reading the panoramas", len(frames), lazy=True) as progress,
+        ThreadPoolExecutor(workers) as pool,
+    ):
+        inspected = []
+        for item in pool.map(inspect, enumerate(frames)):
+            inspected.append(item)
+            progress.advance()
     found = [f for f, _, _ in inspected]
     for _, frame_problems, frame_notes in inspected:
         problems.extend(frame_problems)

@@ -89,6 +89,7 @@ def test_every_stage_of_a_preparation_reports_each_small_unit(small_demo):
     views = prepared.scene.num_views
     names = [e[1] for e in recorder.events if e[0] == "start"]
     assert names == [
+        "reading the panoramas",  # lazy: shown only when it takes a while
         session.PREPARING,  # around the others: it speaks up between them
         "depth: monocular network",
         "depth: multi-view stereo",
@@ -286,3 +287,34 @@ def test_scene_prepare_bad_input_is_one_line(tmp_path, capsys):
     assert cli.main(["scene", "prepare", str(DEMO), "--sources", "0,7"]) == 2
     err = capsys.readouterr().err
     assert "frames 0..2" in err and len(err.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("tty", [False, True])
+def test_a_lazy_stage_speaks_only_once_it_takes_long(tty):
+    """A lazy stage (reading the photos) that ends within a second adds no line; one whose
+    unit takes longer is shown by the heartbeat, then as any stage (a fake clock)."""
+    now = [0.0]
+    out = io.StringIO()
+    shower = TerminalProgress(out, tty=tty, clock=lambda: now[0])
+    with progress.listening(shower):
+        with progress.stage("reading the panoramas", 3, lazy=True) as s:
+            for _ in range(3):
+                now[0] += 0.2
+                shower.beat()
+                s.advance()
+    assert out.getvalue() == ""
+    with progress.listening(shower):
+        with progress.stage("reading the photos", 2, lazy=True) as s:
+            now[0] += 0.5
+            shower.beat()
+            assert out.getvalue() == ""
+            now[0] += 0.6  # 1.1 s into its first unit: the heartbeat shows it
+            shower.beat()
+            assert "reading the photos" in out.getvalue()
+            s.advance()
+            s.advance()
+    if not tty:
+        lines = out.getvalue().splitlines()
+        assert lines[0].startswith("reading the photos: 0/2") and lines[-1].startswith(
+            "reading the photos: 2/2"
+        )
