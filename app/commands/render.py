@@ -92,8 +92,10 @@ class RenderConfig:
         parse=frame_indices,
     )
     """The source frames (None: every frame but the target)."""
-    height: int | None = option(None, "output height; width = 2x (default: scene's)")
-    """Rows of the panorama (None: the scene's)."""
+    height: int | None = option(
+        None, "output height; width = 2x (default: the scene's, at most 4096)"
+    )
+    """Rows of the panorama (None: the scene's, at most `MAX_HEIGHT`)."""
     method: str = option("panogrf", "default panogrf", choices=tuple(sorted(METHODS)))
     """The method (`panogrf.renderer.methods.METHODS`)."""
     quality: str = option(
@@ -220,7 +222,7 @@ def run_pose(cfg: RenderConfig, args: argparse.Namespace) -> int:
     # scene's origin (`SceneImages.origin`), so map-grid coordinates keep their millimetres.
     target = cfg.target_frame
     tgt = scene.c2w[target] if target is not None else parse_c2w(cfg.c2w)
-    height = cfg.height or scene.height
+    height = cfg.height or min(scene.height, MAX_HEIGHT)  # a 16K scene: 4096 rows unless asked
     views, models = _source_views(args, scene, sources)
     start = time.perf_counter()
     frames = FrameRenderer(views, models, cfg.quality, cfg.method, data.origin)

@@ -9,6 +9,7 @@ Registered under `panogrf scene` by `panogrf.app.commands.scene`. The pose work 
 from __future__ import annotations
 
 import argparse
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import NamedTuple
@@ -33,6 +34,12 @@ class Panoramas(NamedTuple):
 
     images: np.ndarray  # uint8 [V, 3, H, W]
     resized: list[bool]  # which were area-averaged down to that size (the others as they are)
+    originals: list[np.ndarray]  # uint8 [H', W', 3] each, as read
+
+    def kept(self, keep: np.ndarray) -> Panoramas:
+        """Views ``keep`` only, at the smallest of their own sizes (a photo left out no longer
+        sets the scene's size)."""
+        return _at_smallest([self.originals[k] for k in keep])
 
     def note(self, paths: list[Path]) -> str | None:
         """The line that says which were resized, if any."""
@@ -47,8 +54,6 @@ def read_panoramas(paths: list[Path]) -> Panoramas:
     """Panorama files -> uint8 [V, 3, H, W] at the smallest one's size (larger ones
     area-averaged down: photos from two cameras, or one re-exported, still make a scene);
     UserError naming the file for any bad one."""
-    import cv2
-
     from panogrf.model.progress import stage
 
     images = []
@@ -60,13 +65,27 @@ def read_panoramas(paths: list[Path]) -> Panoramas:
                 raise UserError(f"{path}: {w}x{h} is not a 2:1 equirectangular panorama")
             images.append(img)
             progress.advance()
-    rows = min(img.shape[0] for img in images)
-    resized = [img.shape[0] > rows for img in images]
+    return _at_smallest(images)
+
+
+def _at_smallest(originals: list[np.ndarray]) -> Panoramas:
+    import cv2
+
+    rows = min(img.shape[0] for img in originals)
+    resized = [img.shape[0] > rows for img in originals]
     images = [
         cv2.resize(img, (2 * rows, rows), interpolation=cv2.INTER_AREA) if r else img
-        for img, r in zip(images, resized, strict=True)
+        for img, r in zip(originals, resized, strict=True)
     ]
-    return Panoramas(np.stack(images).transpose(0, 3, 1, 2), resized)
+    return Panoramas(np.stack(images).transpose(0, 3, 1, 2), resized, originals)
+
+
+def _view_names(paths: list[Path]) -> list[str]:
+    """The photos' stems, or ``view_000``... if two share one or one is not plain (``.jpg``)."""
+    names = [p.stem for p in paths]
+    if len(set(names)) != len(names) or any(not n or n.startswith(".") for n in names):
+        names = [f"view_{k:03d}" for k in range(len(paths))]
+    return names
 
 
 def _check_out(out: Path) -> None:
@@ -113,7 +132,7 @@ def _match_images(fmt: str, pose_file: Path, names: list[str] | None, given: lis
 
 def run_import(parsed: argparse.Namespace) -> int:
     from panogrf.app.poses.importers import read_poses
-    from panogrf.app.scene.folder import write_scene
+    from panogrf.app.scene.folder import write_new_scene
 
     args = from_args(ImportOptions, parsed)
     _check_out(args.out)
@@ -157,15 +176,10 @@ def run_import(parsed: argparse.Namespace) -> int:
     if problems:
         more = f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""
         raise UserError(f"{args.pose_file}: the imported poses make no scene: {problems[0]}{more}")
-    names = [Path(f).stem for f in files]
-    if len(set(names)) != len(names):
-        names = [f"view_{k:03d}" for k in range(len(files))]
-    try:
-        meta = {"poses": {"imported": args.format}}
-        copies = [None if r else f for f, r in zip(files, read.resized, strict=True)]
-        write_scene(args.out, c2w, images, names=names, metadata=meta, files=copies)
-    except OSError as exc:  # a full disk (T10)
-        raise UserError(f"cannot write {args.out}: {exc.strerror or exc}") from None
+    meta = {"poses": {"imported": args.format}}
+    copies = [None if r else f for f, r in zip(files, read.resized, strict=True)]
+    names = _view_names([Path(f) for f in files])
+    write_new_scene(args.out, c2w, images, names=names, metadata=meta, files=copies)
     lines += [f"  {n}" for n in poses.notes]
     lines.append(f"baselines (m): {_baselines(c2w)}")
     lines.append(f"wrote {args.out}")
@@ -229,7 +243,7 @@ def _add_import(sub: argparse._SubParsersAction) -> None:
 def run_from_panoramas(parsed: argparse.Namespace) -> int:
     from panogrf.app.files.images import write_json_atomic
     from panogrf.app.poses.colmap import estimate_poses_colmap
-    from panogrf.app.scene.folder import write_scene
+    from panogrf.app.scene.folder import write_new_scene
 
     args = from_args(FromPanoramasOptions, parsed)
     files = list(args.panoramas)
@@ -279,15 +293,24 @@ def run_from_panoramas(parsed: argparse.Namespace) -> int:
     from panogrf.app.scene.pose_check import poses_problems
 
     problems = poses_problems(metric.c2w)  # never write a scene its own check rejects
+    same = re.match(r"frames\[(\d+)\] and frames\[(\d+)\]: views at the same position",
+                    problems[0] if problems else "")  # fmt: skip
+    centres = est.c2w[keep][:, :3, 3]  # as posed, before the scale: a copy sits on its photo
+    spread = np.ptp(centres, axis=0).max()
+    if same and np.linalg.norm(np.subtract(*centres[[int(same[1]), int(same[2])]])) < 1e-3 * spread:
+        a, b = (files[keep[int(same[k])]] for k in (1, 2))
+        print("\n".join(lines))
+        raise UserError(
+            f"{a}, {b}: posed at one spot (under 1 mm apart): the same photo twice, or taken "
+            "without a step between; leave one out"
+        )
     if problems:
         given = "--distance" if args.distance else "--camera-height" if heights is not None else ""
         by = f"{given} {args.distance or args.camera_height}: " if given else ""
         raise UserError(f"{by}the scaled poses make no scene: {problems[0]}")
     lines += metric.lines
     lines.append(f"median residual over all points: {_deg(est.residual_deg)}")
-    names = [files[k].stem for k in keep]
-    if len(set(names)) != len(names):
-        names = [f"view_{k:03d}" for k in keep]
+    names = _view_names([files[k] for k in keep])
     lines.append(f"baselines (m): {_baselines(metric.c2w)}")
     if len(keep) < n:
         left = [files[k].name for k in range(n) if not est.registered[k]]
@@ -295,7 +318,9 @@ def run_from_panoramas(parsed: argparse.Namespace) -> int:
             f"left out {n - len(keep)} panorama(s) that could not be posed: {', '.join(left)}; "
             + ADVICE
         )
-    lines.append(f"wrote {args.out} (the report: {args.out / REPORT})")
+    kept = read.kept(keep)  # at the smallest kept photo's size
+    size = f"{kept.images.shape[3]}x{kept.images.shape[2]}"
+    lines.append(f"wrote {args.out} ({size}; the report: {args.out / REPORT})")
     meta = {
         "poses": {
             "estimated_from": [str(files[k]) for k in keep],
@@ -304,17 +329,8 @@ def run_from_panoramas(parsed: argparse.Namespace) -> int:
             "report": REPORT,
         }
     }
-    try:
-        write_scene(
-            args.out,
-            metric.c2w,
-            images[keep],
-            names=names,
-            metadata=meta,
-            files=[None if read.resized[k] else files[k] for k in keep],
-        )
-    except OSError as exc:
-        raise UserError(f"cannot write {args.out}: {exc.strerror or exc}") from None
+    copies = [None if r else files[k] for k, r in zip(keep, kept.resized, strict=True)]
+    write_new_scene(args.out, metric.c2w, kept.images, names=names, metadata=meta, files=copies)
     report = _report_json(files, est, lines)
     report["scale"] = metric.lines
     try:

@@ -184,3 +184,19 @@ def write_scene(
     data = {"camera_model": CAMERA_MODEL, "w": w, "h": h, **metadata, "frames": entries}
     write_json_atomic(root / TRANSFORMS, data)
     return Scene(root, w, h, tuple(frames), metadata)
+
+
+def write_new_scene(out: Path, *args: Any, **kwargs: Any) -> None:
+    """`write_scene` into ``out``, a folder that is absent or empty; on a failed write (a full
+    disk) what was written goes again, so the same command can run again, and the error is
+    one line (UserError)."""
+    existed = out.exists()
+    try:
+        write_scene(out, *args, **kwargs)
+    except OSError as exc:
+        if existed:
+            for item in out.iterdir():
+                shutil.rmtree(item) if item.is_dir() else item.unlink()
+        else:
+            shutil.rmtree(out, ignore_errors=True)
+        raise UserError(f"cannot write {out}: {exc.strerror or exc}") from None

@@ -117,3 +117,61 @@ def test_photos_of_two_sizes_pose_at_the_smaller(tmp_path, capsys):
     assert kept.read_bytes() == small.read_bytes()
     assert resized.suffix == ".png"
     assert cli.main(["scene", "check", str(out)]) == 0
+
+
+def test_a_photo_named_like_a_hidden_file_and_a_copy_at_another_size(tmp_path, capsys):
+    """A photo named ``.jpg`` gives its view a plain name instead of a traceback; one photo
+    twice (a copy at another size) is named, file by file, as posed at one spot."""
+    from PIL import Image
+
+    hidden = tmp_path / "v" / ".jpg"
+    hidden.parent.mkdir()
+    hidden.write_bytes((PAIR / "studio_small_07.jpg").read_bytes())
+    out = tmp_path / "a"
+    assert cli.main(["scene", "from-panoramas", str(PAIR / "studio_small_03.jpg"), str(hidden),
+                     "--out", str(out), "--quiet"]) == 0  # fmt: skip
+    assert [f.name for f in load_scene(out).frames] == ["view_000", "view_001"]
+    copy = tmp_path / "studio_03_large.jpg"
+    Image.open(PAIR / "studio_small_03.jpg").resize((2048, 1024), Image.BICUBIC).save(copy)
+    photos = [str(PAIR / "studio_small_03.jpg"), str(copy), str(PAIR / "studio_small_07.jpg")]
+    capsys.readouterr()
+    assert cli.main(["scene", "from-panoramas", *photos, "--out", str(tmp_path / "b")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "studio_small_03.jpg" in err and "studio_03_large.jpg" in err
+    assert "posed at one spot" in err and "frames[" not in err
+
+
+def test_a_left_out_photo_does_not_set_the_scenes_size():
+    from panogrf.app.commands.scene_poses import _at_smallest
+
+    rng = np.random.default_rng(0)
+    big = [rng.integers(0, 256, (64, 128, 3), dtype=np.uint8) for _ in range(2)]
+    thumb = rng.integers(0, 256, (8, 16, 3), dtype=np.uint8)
+    read = _at_smallest([big[0], thumb, big[1]])
+    assert read.images.shape == (3, 3, 8, 16) and read.resized == [True, False, True]
+    kept = read.kept(np.array([0, 2]))
+    assert kept.images.shape == (2, 3, 64, 128) and kept.resized == [False, False]
+    assert np.array_equal(kept.images[1], big[1].transpose(2, 0, 1))
+
+
+def test_a_failed_write_leaves_nothing_behind(tmp_path, monkeypatch):
+    """A scene that cannot be written whole (a full disk) is removed again: the same command
+    can run again (it refuses a folder that is not empty)."""
+    import errno
+
+    from panogrf.app.errors import UserError
+    from panogrf.app.scene import folder
+
+    def half(root, *args, **kwargs):
+        (root / "images").mkdir(parents=True)
+        (root / "images" / "a.jpg").write_bytes(b"x")
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(folder, "write_scene", half)
+    for out in (tmp_path / "new", tmp_path / "empty"):
+        if out.name == "empty":
+            out.mkdir()
+        with pytest.raises(UserError, match="No space left on device"):
+            folder.write_new_scene(out, None, None)
+        assert not out.exists() or not any(out.iterdir())
+    assert (tmp_path / "empty").is_dir()  # the user's own (empty) folder stays
