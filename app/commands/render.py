@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import time
 from dataclasses import dataclass
@@ -283,6 +284,7 @@ def _print_summary(cfg: RenderConfig, summary: dict, prep: float, seconds: float
     if "metrics" in summary:
         m = summary["metrics"]
         scored = "" if height <= SCORE_ROWS else f" (SSIM, LPIPS at {2 * SCORE_ROWS}x{SCORE_ROWS})"
+        scored = " (n/a: too few rows for SSIM or LPIPS)" if math.isnan(m["lpips"]) else scored
         print(
             f"vs frame {cfg.target_frame}: PSNR {m['psnr']:.2f} dB, "
             f"WS-PSNR {m['ws_psnr']:.2f} dB, SSIM {m['ssim']:.4f}, LPIPS {m['lpips']:.4f}{scored}"

@@ -306,3 +306,10 @@ def test_render_names_every_stage_after_the_preparation(random_nets, tmp_path):
     for name in ("rendering", "writing mid.png", "scoring"):
         assert name in names and ("end", name) in seen
     assert names.index("rendering") < names.index("writing mid.png") < names.index("scoring")
+
+
+def test_a_render_too_small_to_score_says_why(random_nets, tmp_path, capsys):
+    args = ["render", str(DEMO), "--out", str(tmp_path / "s.png"), "--target-frame", "1"]
+    assert cli.main([*args, "--height", "8", "--quiet"]) == 0
+    line = capsys.readouterr().out.strip().splitlines()[-1]
+    assert "LPIPS nan (n/a: too few rows for SSIM or LPIPS)" in line
