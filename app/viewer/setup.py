@@ -92,8 +92,10 @@ def preview_sources(images: np.ndarray, preview_height: int) -> np.ndarray:
     an 8K photo's texture is also 15 times smaller."""
     import cv2
 
-    rows = 2 * preview_height
-    if images.shape[1] <= rows:
+    from panogrf.renderer.cache import source_rows
+
+    rows = source_rows(preview_height)  # the renders' own rule: twice the rows
+    if rows is None or images.shape[1] <= rows:
         return images
     size = (2 * rows, rows)
     return np.stack([cv2.resize(im, size, interpolation=cv2.INTER_AREA) for im in images])

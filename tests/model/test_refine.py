@@ -8,6 +8,7 @@ import math
 
 import pytest
 import torch
+from helpers.photometric import plain_photometric, pool
 
 from panogrf.model.erp import erp_directions
 from panogrf.model.refine import (
@@ -221,25 +222,10 @@ def test_free_space_brings_the_views_together_where_the_photometry_is_blank(scen
 def test_fast_window_means_match_average_pooling():
     """The separable slice sums of `photometric_error` and `box_mean` against
     ``F.avg_pool2d`` on the same seam-wrapped, pole-repeated padding."""
-    F = torch.nn.functional
     gen = torch.Generator().manual_seed(0)
     a = torch.rand(2, 3, 24, 48, generator=gen)
     b = (a + 0.2 * torch.rand(1, 3, 24, 48, generator=gen)).clamp(0, 1)
-
-    def pool(x, k=3):
-        p = k // 2
-        x = torch.cat((x[..., -p:], x, x[..., :p]), -1)
-        return F.avg_pool2d(F.pad(x, (0, 0, p, p), mode="replicate"), k, 1)
-
-    bb = b.expand_as(a)
-    mu_a, mu_b = pool(a), pool(bb)
-    var_a, var_b = pool(a * a) - mu_a**2, pool(bb * bb) - mu_b**2
-    cov = pool(a * bb) - mu_a * mu_b
-    c1, c2 = 0.01**2, 0.03**2
-    ssim = ((2 * mu_a * mu_b + c1) * (2 * cov + c2)) / (
-        (mu_a**2 + mu_b**2 + c1) * (var_a + var_b + c2)
-    )
-    want = (0.85 * ((1 - ssim) / 2).clamp(0, 1) + 0.15 * (a - bb).abs()).mean(1)
+    want = plain_photometric(a, b)
     torch.testing.assert_close(photometric_error(a, b), want, atol=1e-5, rtol=0)
     torch.testing.assert_close(box_mean(a, 7), pool(a, 7), atol=1e-6, rtol=0)
 

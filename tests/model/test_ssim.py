@@ -4,28 +4,9 @@ autograd."""
 from __future__ import annotations
 
 import torch
-import torch.nn.functional as F
+from helpers.photometric import plain_photometric
 
 from panogrf.model.ssim import _window_adjoint, box_mean, photometric_error, reference_stats
-
-
-def _plain(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    """The formula as written, with average pooling on the same ERP padding (autograd's
-    gradient)."""
-
-    def pool(x: torch.Tensor) -> torch.Tensor:
-        x = torch.cat((x[..., -1:], x, x[..., :1]), -1)
-        return F.avg_pool2d(F.pad(x, (0, 0, 1, 1), mode="replicate"), 3, 1)
-
-    b = b.expand_as(a)
-    mu_a, mu_b = pool(a), pool(b)
-    var_a, var_b = pool(a * a) - mu_a**2, pool(b * b) - mu_b**2
-    cov = pool(a * b) - mu_a * mu_b
-    c1, c2 = 0.01**2, 0.03**2
-    ssim = ((2 * mu_a * mu_b + c1) * (2 * cov + c2)) / (
-        (mu_a**2 + mu_b**2 + c1) * (var_a + var_b + c2)
-    )
-    return (0.85 * ((1 - ssim) / 2).clamp(0, 1) + 0.15 * (a - b).abs()).mean(1)
 
 
 def _pair(batch: int, dtype: torch.dtype = torch.float64) -> tuple[torch.Tensor, torch.Tensor]:
@@ -40,7 +21,7 @@ def test_the_error_and_its_gradient_match_the_plain_formula():
     a.requires_grad_(True)
     weights = torch.rand(3, 7, 12, dtype=torch.float64)
     got = photometric_error(a, b)
-    want = _plain(a, b)
+    want = plain_photometric(a, b)
     torch.testing.assert_close(got, want, rtol=0, atol=1e-12)
     (g_got,) = torch.autograd.grad((got * weights).sum(), a)
     (g_want,) = torch.autograd.grad((want * weights).sum(), a)
