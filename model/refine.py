@@ -40,8 +40,9 @@ from panogrf.model.erp import (
     sample_padded,
     world_to_erp,
 )
+from panogrf.model.depth_warp import warp_along
 from panogrf.model.progress import open_stage
-from panogrf.model.ssim import photometric_error, reference_stats
+from panogrf.model.ssim import luma, photometric_error, reference_stats
 from panogrf.model.steps import OptimisationSteps, adam
 
 
@@ -81,6 +82,9 @@ class RefineConfig:
     ``lr`` to 0 (a half cosine); 0: constant. At a constant rate Adam ends hovering about a
     minimum by up to ``lr`` per pixel, where rounding decides the side: a depth moved by one
     part in a million came out 7 mm away (mean; 19 % of the pixels more than 1 cm)."""
+
+    luma: bool = False
+    """Compare the warps' luminance (`panogrf.model.ssim.luma`) instead of their colour."""
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.settle <= 1.0:
@@ -127,15 +131,6 @@ def warp_rays(ref_c2w: Tensor, src_c2w: Tensor, dirs: Tensor) -> tuple[Tensor, T
     rot = rot_s @ ref_c2w[:, :3, :3]
     shift = (rot_s @ (ref_c2w[:, :3, 3] - src_c2w[:, :3, 3])[..., None])[..., 0]  # [P, 3]
     return dirs[None] @ rot.transpose(1, 2)[:, None], shift
-
-
-def warp_along(padded: Tensor, depth: Tensor, rays: Tensor, shift: Tensor) -> Tensor:
-    """Sources padded by `pad_seam` [P, 3, H, W + 2] seen along `warp_rays` ``rays``, ``shift``
-    at spherical depths [P, H, W] -> [P, 3, H, W]."""
-    p, h, w = depth.shape
-    cam = depth[..., None] * rays + shift[:, None, None]
-    uv = direction_to_pixel(cam.reshape(p, -1, 3), h, w)
-    return sample_padded(padded, uv).reshape(p, -1, h, w)
 
 
 def warp_batch(
@@ -249,6 +244,8 @@ def refine_depth(
             continue
         mode = "area" if images.shape[-2] > hh else "bilinear"
         img = F.interpolate(images, size=(hh, 2 * hh), mode=mode).detach()
+        if config.luma:
+            img = luma(img)
         dirs = erp_directions(hh, 2 * hh, device=depth.device, dtype=depth.dtype)
         wlat = latitude_weights(hh, 2 * hh, device=depth.device, dtype=depth.dtype)
         target = img[pairs.ref]
