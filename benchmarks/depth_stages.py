@@ -81,13 +81,7 @@ def _cheaper_variants() -> dict[str, tuple[str, dict, dict, str]]:
         (c, f): {"refine": dataclasses.replace(PREPARE_REFINE, coarse=c, iterations=f)}
         for c, f in ((30, 10), (20, 10))
     }
-    luma_sweep = {"fusion_sweep": dataclasses.replace(DEFAULT_SWEEP, luma=True)}
-    luma_refine = {"refine": dataclasses.replace(PREPARE_REFINE, luma=True)}
-    out = {
-        "luma": ("full", luma_sweep, luma_refine, "the sweep and the refinement on luminance"),
-        "luma-sweep": ("full", luma_sweep, {}, "the sweep on luminance"),
-        "luma-refine": ("full", {}, luma_refine, "the refinement on luminance"),
-    }
+    out = {}
     for n, attrs in sweeps.items():
         out[f"sweep{n}"] = ("full", attrs, {}, f"the sweep with {n} candidates")
     for (c, f), kw in refines.items():

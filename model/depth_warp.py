@@ -3,7 +3,7 @@ the depth written out: the warp the sweep scores its candidates by and the refin
 through.
 
 The reference's rays in the source's frame and its centre there do not depend on the depth
-(`panogrf.model.refine.warp_rays`); per pixel the point is q = d r + s, its source pixel
+(`warp_rays`); per pixel the point is q = d r + s, its source pixel
 (u, v) = ERP(q), and d(u, v)/dd has a closed form in q and r (`_pixel_rate`). The backward pass
 is then the resampling's gradient in its grid (one call of torch's own kernel, not the image's
 gradient) times that rate, in place of autograd's record of the two dozen passes of the
@@ -20,7 +20,35 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from panogrf.model.erp import direction_to_pixel
+from panogrf.model.erp import direction_to_pixel, pad_seam
+
+
+def warp_from(
+    source: Tensor, depth: Tensor, ref_c2w: Tensor, src_c2w: Tensor, dirs: Tensor
+) -> Tensor:
+    """The source panorama [1, 3, H, W] seen from the reference camera with its spherical depth
+    [H, W] (metres): [1, 3, H, W]. dirs: [H, W, 3] reference camera-frame ray directions."""
+    return warp_batch(source, depth[None], ref_c2w[None], src_c2w[None], dirs)
+
+
+def warp_rays(ref_c2w: Tensor, src_c2w: Tensor, dirs: Tensor) -> tuple[Tensor, Tensor]:
+    """What a warp from sources ``src_c2w`` into references ``ref_c2w`` [P, 4, 4] does not take
+    from the depth: the reference's rays in each source's frame [P, H, W, 3] and the reference
+    centre there [P, 3] (x_src = R_s^T (R_r x + t_r - t_s); dirs [H, W, 3])."""
+    rot_s = src_c2w[:, :3, :3].transpose(1, 2)  # [P, 3, 3] world -> source camera
+    rot = rot_s @ ref_c2w[:, :3, :3]
+    shift = (rot_s @ (ref_c2w[:, :3, 3] - src_c2w[:, :3, 3])[..., None])[..., 0]  # [P, 3]
+    return dirs[None] @ rot.transpose(1, 2)[:, None], shift
+
+
+def warp_batch(
+    sources: Tensor, depth: Tensor, ref_c2w: Tensor, src_c2w: Tensor, dirs: Tensor
+) -> Tensor:
+    """Source panoramas [P, 3, H, W] seen from their reference cameras ``ref_c2w`` [P, 4, 4]
+    with spherical depths [P, H, W] -> [P, 3, H, W], one batched resampling (on a GPU one launch
+    per operation instead of one per warp). The rotated rays do not depend on the depth, so its
+    gradient skips the matrix products (`warp_rays`, `warp_along`)."""
+    return warp_along(pad_seam(sources), depth, *warp_rays(ref_c2w, src_c2w, dirs))
 
 
 def warp_along(padded: Tensor, depth: Tensor, rays: Tensor, shift: Tensor) -> Tensor:
@@ -72,7 +100,9 @@ class _DepthWarp(torch.autograd.Function):
         flat = rays.reshape(rays.shape[0], -1, 3)  # one set of rays may serve every depth
         q = depth.reshape(p, -1, 1) * flat + shift[:, None]
         grid = _grid(padded, q)
-        out = F.grid_sample(padded, grid, mode="bilinear", padding_mode="border", align_corners=False)
+        out = F.grid_sample(
+            padded, grid, mode="bilinear", padding_mode="border", align_corners=False
+        )
         if ctx.needs_input_grad[1]:
             rate = _pixel_rate(q, flat, h, w)
             ctx.save_for_backward(padded, grid, *rate)

@@ -30,19 +30,17 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from panogrf.model.depth_warp import warp_along, warp_rays
 from panogrf.model.erp import (
-    direction_to_pixel,
     erp_directions,
     erp_to_world,
     latitude_weights,
     pad_seam,
     sample_erp,
-    sample_padded,
     world_to_erp,
 )
-from panogrf.model.depth_warp import warp_along
 from panogrf.model.progress import open_stage
-from panogrf.model.ssim import luma, photometric_error, reference_stats
+from panogrf.model.ssim import photometric_error, reference_stats
 from panogrf.model.steps import OptimisationSteps, adam
 
 
@@ -83,9 +81,6 @@ class RefineConfig:
     minimum by up to ``lr`` per pixel, where rounding decides the side: a depth moved by one
     part in a million came out 7 mm away (mean; 19 % of the pixels more than 1 cm)."""
 
-    luma: bool = False
-    """Compare the warps' luminance (`panogrf.model.ssim.luma`) instead of their colour."""
-
     def __post_init__(self) -> None:
         if not 0.0 <= self.settle <= 1.0:
             raise ValueError(f"settle must be in [0, 1], got {self.settle}")
@@ -113,34 +108,6 @@ def nearest_sources(c2w: Tensor, sources: list[list[int]], k: int) -> list[list[
         return sorted(src, key=lambda j: float((centres[j] - centres[r]).norm()))[:k]
 
     return [nearest(r, src) for r, src in enumerate(sources)]
-
-
-def warp_from(
-    source: Tensor, depth: Tensor, ref_c2w: Tensor, src_c2w: Tensor, dirs: Tensor
-) -> Tensor:
-    """The source panorama [1, 3, H, W] seen from the reference camera with its spherical depth
-    [H, W] (metres): [1, 3, H, W]. dirs: [H, W, 3] reference camera-frame ray directions."""
-    return warp_batch(source, depth[None], ref_c2w[None], src_c2w[None], dirs)
-
-
-def warp_rays(ref_c2w: Tensor, src_c2w: Tensor, dirs: Tensor) -> tuple[Tensor, Tensor]:
-    """What a warp from sources ``src_c2w`` into references ``ref_c2w`` [P, 4, 4] does not take
-    from the depth: the reference's rays in each source's frame [P, H, W, 3] and the reference
-    centre there [P, 3] (x_src = R_s^T (R_r x + t_r - t_s); dirs [H, W, 3])."""
-    rot_s = src_c2w[:, :3, :3].transpose(1, 2)  # [P, 3, 3] world -> source camera
-    rot = rot_s @ ref_c2w[:, :3, :3]
-    shift = (rot_s @ (ref_c2w[:, :3, 3] - src_c2w[:, :3, 3])[..., None])[..., 0]  # [P, 3]
-    return dirs[None] @ rot.transpose(1, 2)[:, None], shift
-
-
-def warp_batch(
-    sources: Tensor, depth: Tensor, ref_c2w: Tensor, src_c2w: Tensor, dirs: Tensor
-) -> Tensor:
-    """Source panoramas [P, 3, H, W] seen from their reference cameras ``ref_c2w`` [P, 4, 4]
-    with spherical depths [P, H, W] -> [P, 3, H, W], one batched resampling (on a GPU one launch
-    per operation instead of one per warp). The rotated rays do not depend on the depth, so its
-    gradient skips the matrix products (`warp_rays`, `warp_along`)."""
-    return warp_along(pad_seam(sources), depth, *warp_rays(ref_c2w, src_c2w, dirs))
 
 
 #: Gap (log depth) below which a point in front of a source's surface is not a violation: the
@@ -244,8 +211,6 @@ def refine_depth(
             continue
         mode = "area" if images.shape[-2] > hh else "bilinear"
         img = F.interpolate(images, size=(hh, 2 * hh), mode=mode).detach()
-        if config.luma:
-            img = luma(img)
         dirs = erp_directions(hh, 2 * hh, device=depth.device, dtype=depth.dtype)
         wlat = latitude_weights(hh, 2 * hh, device=depth.device, dtype=depth.dtype)
         target = img[pairs.ref]

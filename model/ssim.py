@@ -64,16 +64,6 @@ def _window_adjoint(g: Tensor) -> Tensor:
     return core
 
 
-#: Weights of the colour channels in `luma`: Rec. 601 luminance.
-LUMA = (0.299, 0.587, 0.114)
-
-
-def luma(images: Tensor) -> Tensor:
-    """Images [B, 3, H, W] -> their luminance [B, 1, H, W] (`LUMA`)."""
-    w = images.new_tensor(LUMA).view(1, 3, 1, 1)
-    return (images * w).sum(1, keepdim=True)
-
-
 def reference_stats(b: Tensor) -> tuple[Tensor, Tensor]:
     """The 3x3 window mean and variance of a reference image [B, 3, H, W] that
     `photometric_error` compares against (computed once where many images meet one reference)."""

@@ -21,11 +21,10 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from panogrf.model.depth_warp import warp_along, warp_rays
 from panogrf.model.erp import erp_directions, pad_seam
 from panogrf.model.progress import open_stage
-from panogrf.model.depth_warp import warp_along
-from panogrf.model.refine import warp_rays
-from panogrf.model.ssim import _pad_w, box_mean, luma, photometric_error, reference_stats
+from panogrf.model.ssim import _pad_w, box_mean, photometric_error, reference_stats
 
 
 @dataclass(frozen=True)
@@ -49,8 +48,6 @@ class SweepConfig:
     """Cost per unit of |log(d / d_net)|: where the error is flat, the network's depth wins."""
     min_gain: float = 0.02
     """A pixel moves only if its best cost is this much below the cost at the network's depth."""
-    luma: bool = False
-    """Compare the warps' luminance (`panogrf.model.ssim.luma`) instead of their colour."""
 
 
 class Chooser(Protocol):
@@ -239,8 +236,6 @@ def _sweep_costs(
     decides instead where given."""
     # What does not change from one candidate to the next: the reference's windows, each
     # source padded for sampling and the reference's rays in its frame.
-    if config.luma:
-        img = luma(img)
     ref = img[r : r + 1]
     stats = reference_stats(ref)
     along = [

@@ -10,12 +10,12 @@ import pytest
 import torch
 from helpers.photometric import plain_photometric, pool
 
+from panogrf.model.depth_warp import warp_from
 from panogrf.model.erp import erp_directions
 from panogrf.model.refine import (
     RefineConfig,
     free_space_violation,
     refine_depth,
-    warp_from,
 )
 from panogrf.model.ssim import box_mean, photometric_error, reference_stats
 from panogrf.model.sweep import SweepConfig, median_filter, sweep_depth

@@ -6,7 +6,12 @@ from __future__ import annotations
 import torch
 from helpers.photometric import plain_photometric
 
-from panogrf.model.ssim import _window_adjoint, box_mean, photometric_error, reference_stats
+from panogrf.model.ssim import (
+    _window_adjoint,
+    box_mean,
+    photometric_error,
+    reference_stats,
+)
 
 
 def _pair(batch: int, dtype: torch.dtype = torch.float64) -> tuple[torch.Tensor, torch.Tensor]:
@@ -56,3 +61,14 @@ def test_inputs_are_left_as_they_were():
     photometric_error(a.clone().requires_grad_(True), b, stats).sum().backward()
     for before, after in zip(copies, (a, b, *stats), strict=True):
         assert torch.equal(before, after)
+
+
+def test_one_channel_images_take_their_own_gradient():
+    """One channel (a grey image): the error and its gradient are the plain formula's too."""
+    a, b = _pair(2)
+    a, b = a[:, :1].detach().requires_grad_(True), b[:, :1]
+    got, want = photometric_error(a, b), plain_photometric(a, b)
+    torch.testing.assert_close(got, want, rtol=0, atol=1e-12)
+    (g_got,) = torch.autograd.grad(got.sum(), a)
+    (g_want,) = torch.autograd.grad(want.sum(), a)
+    torch.testing.assert_close(g_got, g_want, rtol=0, atol=1e-12)
