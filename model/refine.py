@@ -25,6 +25,7 @@ import itertools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import torch
 import torch.nn.functional as F
@@ -183,61 +184,40 @@ def refine_depth(
     On a GPU each stage's steps replay one CUDA graph (`OptimisationSteps`): a step is a few hundred
     small operations whose launches, not their arithmetic, would otherwise take the time."""
     v, _, h, w = depth.shape
-    log_d0 = torch.log(depth.clamp(*d_range)).detach()
-    delta = torch.zeros_like(log_d0, requires_grad=True)
-    # On a GPU the rate is a tensor the graphs read, and the launches do the same arithmetic.
-    cuda = depth.device.type == "cuda"
-    graphs = CUDA_GRAPHS and cuda
-    opt = adam([delta], config.lr)
     refs = [r for r in range(v) if sources[r]]
+    if not refs or config.iterations + config.coarse + config.fine <= 0:
+        return depth
+    log_d0 = torch.log(depth.clamp(*d_range)).detach()
     # Only views with sources move: the free-space term would otherwise also reach a view that
     # is only another's source.
     moves = torch.zeros(v, 1, 1, 1, dtype=depth.dtype, device=depth.device)
     moves[refs] = 1.0
-    if not refs or config.iterations + config.coarse + config.fine <= 0:
-        return depth
-    wx, wy = _edge_weights(images, (h, w))
+    problem = _Problem(
+        log_d0,
+        torch.zeros_like(log_d0, requires_grad=True),
+        moves,
+        *_edge_weights(images, (h, w)),
+        c2w.to(depth.dtype),
+        _Pairs.of([(r, s) for r in refs for s in sources[r]], depth.device),
+        _Pairs.of([(r, s) for r in range(v) for s in sources[r]], depth.device),
+        _spans([len(sources[r]) for r in refs]),
+        config,
+    )
+    opt = adam([problem.delta], config.lr)
+    # On a GPU the rate is a tensor the graphs read, and the launches do the same arithmetic.
+    graphs = CUDA_GRAPHS and depth.device.type == "cuda"
     rows = (config.height // 2, config.height, min(2 * config.height, images.shape[-2]))
     stages = tuple(zip(rows, (config.coarse, config.iterations, config.fine), strict=True))
-    pairs = _Pairs.of([(r, s) for r in refs for s in sources[r]], depth.device)
-    all_pairs = _Pairs.of([(r, s) for r in range(v) for s in sources[r]], depth.device)
-    spans = _spans([len(sources[r]) for r in refs])
-    c2w = c2w.to(depth.dtype)
     # Progress: a unit per step (each a warp of every view's sources).
     total = sum(max(steps, 0) for _, steps in stages)
     progress, done = open_stage("depth refinement", total), 0
     for hh, steps in stages:
         if steps <= 0:
             continue
-        mode = "area" if images.shape[-2] > hh else "bilinear"
-        img = F.interpolate(images, size=(hh, 2 * hh), mode=mode).detach()
-        dirs = erp_directions(hh, 2 * hh, device=depth.device, dtype=depth.dtype)
-        wlat = latitude_weights(hh, 2 * hh, device=depth.device, dtype=depth.dtype)
-        target = img[pairs.ref]
-        stats = reference_stats(target)  # the targets do not move: their windows once a stage
-        # Nor do the sources and the references' rays in their frames (`warp_batch`).
-        along = (pad_seam(img[pairs.src]), *warp_rays(c2w[pairs.ref], c2w[pairs.src], dirs))
+        stage = _stage(images, problem, hh)
 
-        def step(
-            hh: int = hh,
-            along: tuple[Tensor, Tensor, Tensor] = along,
-            wlat: Tensor = wlat,
-            target: Tensor = target,
-            stats: tuple[Tensor, Tensor] = stats,
-        ) -> None:
-            log_d = log_d0 + delta * moves
-            log_full = F.interpolate(log_d, size=(hh, 2 * hh), mode="bilinear", align_corners=False)
-            warped = warp_along(along[0], torch.exp(log_full)[:, 0][pairs.ref], *along[1:])
-            loss = _photometric_sum(photometric_error(warped, target, stats), spans, wlat, config)
-            dx = (delta - torch.roll(delta, 1, -1)).abs() * wx
-            dy = (delta[..., 1:, :] - delta[..., :-1, :]).abs() * wy
-            loss = loss / len(refs) + config.smooth * (dx.mean() + dy.mean())
-            loss = loss + config.prior * delta.abs().mean()
-            if config.free_space > 0:
-                loss = loss + config.free_space * _free_space_at(
-                    log_d, log_full, hh, c2w, all_pairs, config
-                )
-            loss.backward()
+        def step(stage: _Stage = stage) -> None:
+            _loss(problem, stage).backward()
             opt.step()
 
         rate = _rate(config, done, total)
@@ -247,7 +227,66 @@ def refine_depth(
         done += steps
     progress.close()
     with torch.no_grad():
-        return torch.exp(log_d0 + delta * moves).clamp(*d_range)
+        return torch.exp(log_d0 + problem.delta * moves).clamp(*d_range)
+
+
+class _Problem(NamedTuple):
+    """What every step of a refinement reads: the depth and its correction, the weights of the
+    smoothness, the poses, the warped pairs and the settings."""
+
+    log_d0: Tensor  # [V, 1, h, w] the depth given, log metres
+    delta: Tensor  # [V, 1, h, w] the correction (optimised)
+    moves: Tensor  # [V, 1, 1, 1] 1 for the views with sources
+    wx: Tensor  # the edge-aware smoothness' weights across columns and rows
+    wy: Tensor
+    c2w: Tensor  # [V, 4, 4]
+    pairs: _Pairs  # (reference, source) of the views that move
+    all_pairs: _Pairs  # every view's, for the free-space term
+    spans: list[tuple[int, int]]  # each moving view's pairs in ``pairs``
+    config: RefineConfig
+
+
+class _Stage(NamedTuple):
+    """What does not change during a stage (at ``rows`` rows): the sources padded and the
+    references' rays in their frames (`warp_rays`), the latitude weights, the references and
+    their window statistics."""
+
+    rows: int
+    along: tuple[Tensor, Tensor, Tensor]
+    wlat: Tensor
+    target: Tensor
+    stats: tuple[Tensor, Tensor]
+
+
+def _stage(images: Tensor, problem: _Problem, hh: int) -> _Stage:
+    like, pairs = problem.log_d0, problem.pairs
+    mode = "area" if images.shape[-2] > hh else "bilinear"
+    img = F.interpolate(images, size=(hh, 2 * hh), mode=mode).detach()
+    dirs = erp_directions(hh, 2 * hh, device=like.device, dtype=like.dtype)
+    c2w = problem.c2w
+    along = (pad_seam(img[pairs.src]), *warp_rays(c2w[pairs.ref], c2w[pairs.src], dirs))
+    wlat = latitude_weights(hh, 2 * hh, device=like.device, dtype=like.dtype)
+    target = img[pairs.ref]
+    return _Stage(hh, along, wlat, target, reference_stats(target))
+
+
+def _loss(p: _Problem, stage: _Stage) -> Tensor:
+    """A step's loss: the photometric error of the warps at the stage's rows, the smoothness and
+    the size of the correction, and the free-space term."""
+    config, delta, hh = p.config, p.delta, stage.rows
+    log_d = p.log_d0 + delta * p.moves
+    log_full = F.interpolate(log_d, size=(hh, 2 * hh), mode="bilinear", align_corners=False)
+    warped = warp_along(stage.along[0], torch.exp(log_full)[:, 0][p.pairs.ref], *stage.along[1:])
+    errs = photometric_error(warped, stage.target, stage.stats)
+    loss = _photometric_sum(errs, p.spans, stage.wlat, config)
+    dx = (delta - torch.roll(delta, 1, -1)).abs() * p.wx
+    dy = (delta[..., 1:, :] - delta[..., :-1, :]).abs() * p.wy
+    loss = loss / len(p.spans) + config.smooth * (dx.mean() + dy.mean())
+    loss = loss + config.prior * delta.abs().mean()
+    if config.free_space > 0:
+        fs = _free_space_at(log_d, log_full, hh, p.c2w, p.all_pairs, config)
+        loss = loss + config.free_space * fs
+    return loss
 
 
 def _rate(config: RefineConfig, done: int, total: int) -> Callable[[int], float] | None:
