@@ -69,3 +69,14 @@ def test_no_product_module_over_400_lines():
         str(p.relative_to(ROOT)): n for p in files if (n := len(p.read_text().splitlines())) > 400
     }
     assert long == {}
+
+
+def test_no_function_of_the_models_over_60_lines():
+    """The networks and the depth chain (`model/`) read in pieces: no function over 60 lines."""
+    long = {}
+    for p in (ROOT / "model").rglob("*.py"):
+        for node in ast.walk(ast.parse(p.read_text())):
+            if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
+                if (n := node.end_lineno - node.lineno + 1) > 60:  # type: ignore[operator]
+                    long[f"{p.relative_to(ROOT)}:{node.name}"] = n
+    assert long == {}
