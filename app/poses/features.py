@@ -16,6 +16,7 @@ from functools import lru_cache
 import cv2
 import numpy as np
 import torch
+from torch import Tensor
 
 from panogrf.model.cubemap import face_directions, face_rotations
 from panogrf.model.erp import direction_to_pixel
@@ -102,6 +103,15 @@ def detect(
     return Features(np.concatenate(bearings), np.concatenate(descs).astype(np.float32))
 
 
+def _squared_distances(a: Tensor, b: Tensor, sq_a: Tensor, sq_b: Tensor) -> Tensor:
+    """Squared L2 distances [Na, Nb] of descriptors ``a`` [Na, D] and ``b`` [Nb, D] (``sq_*``:
+    their squared norms): one matrix product and one pass in place. The matching compares
+    squared distances (the ratio test squared): a square root over every pair of keypoints
+    would only cost a pass."""
+    dist = torch.addmm(sq_b.expand(len(a), -1), a, b.T, alpha=-2.0)
+    return dist.add_(sq_a[:, None]).clamp_(min=0)
+
+
 def match(a: Features, b: Features, ratio: float = 0.8) -> np.ndarray:
     """Indices [M, 2] of mutual nearest neighbours that pass the ratio test (a -> b).
 
@@ -120,10 +130,10 @@ def match(a: Features, b: Features, ratio: float = 0.8) -> np.ndarray:
     block = 2048
     for lo in range(0, rows, block):
         hi = min(rows, lo + block)
-        dist = (sq_a[lo:hi, None] + sq_b[None] - 2.0 * da[lo:hi] @ db.T).clamp(min=0).sqrt()
+        dist = _squared_distances(da[lo:hi], db, sq_a[lo:hi], sq_b)
         two = dist.topk(2, dim=1, largest=False)
         best[lo:hi] = two.indices[:, 0]
-        keep[lo:hi] = two.values[:, 0] < ratio * two.values[:, 1]
+        keep[lo:hi] = two.values[:, 0] < ratio * ratio * two.values[:, 1]
         m, arg = dist.min(0)
         better = m < col_min
         col_min = torch.where(better, m, col_min)
@@ -165,10 +175,10 @@ def match_guided(
     block = 1024
     for lo in range(0, rows, block):
         hi = min(rows, lo + block)
-        num = (na[lo:hi] @ bb.T).abs()
-        sin_err = torch.maximum(num * inv_na[lo:hi, None], num * inv_nb[None])
-        dist = (sq_a[lo:hi, None] + sq_b[None] - 2.0 * da[lo:hi] @ db.T).clamp(min=0).sqrt()
-        dist[sin_err > limit] = math.inf
+        num = (na[lo:hi] @ bb.T).abs_()
+        sin_err = torch.maximum(num * inv_na[lo:hi, None], num.mul_(inv_nb[None]))
+        dist = _squared_distances(da[lo:hi], db, sq_a[lo:hi], sq_b)
+        dist.masked_fill_(sin_err > limit, math.inf)
         two = dist.topk(2, dim=1, largest=False)
         best[lo:hi], d1[lo:hi], d2[lo:hi] = two.indices[:, 0], two.values[:, 0], two.values[:, 1]
         m, arg = dist.min(0)
@@ -176,5 +186,5 @@ def match_guided(
         col_min = torch.where(better, m, col_min)
         col_arg = torch.where(better, arg + lo, col_arg)
     index = torch.arange(rows)
-    keep = torch.isfinite(d1) & (d1 < ratio * d2) & (col_arg[best] == index)
+    keep = torch.isfinite(d1) & (d1 < ratio * ratio * d2) & (col_arg[best] == index)
     return torch.stack((index[keep], best[keep]), 1).numpy().astype(int)

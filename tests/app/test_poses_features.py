@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from panogrf.app.poses.features import Features, match_guided
+from panogrf.app.poses.features import Features, match, match_guided
 
 
 def _dense(a: Features, b: Features, e: np.ndarray, threshold: float, ratio: float) -> set:
@@ -47,3 +47,21 @@ def test_blocks_match_the_whole_matrix():
     assert {tuple(m) for m in got.tolist()} == want
     assert len(want) > 600  # the true pairs are found
     assert all(i == j for i, j in want if i < 800)
+
+
+def test_pooled_matching_is_the_plain_definition():
+    """Mutual nearest neighbours passing the ratio test on the (square-rooted) distances, in
+    blocks of rows and on squared distances."""
+    rng = np.random.default_rng(1)
+    a, b = _features(rng, 2500), _features(rng, 1900)  # more rows than one block
+    b.descriptors[:900] = a.descriptors[:900] + rng.normal(0, 3, (900, 128)).astype(np.float32)
+    da, db = a.descriptors.astype(np.float64), b.descriptors.astype(np.float64)
+    dist = np.sqrt(np.maximum((da**2).sum(1)[:, None] + (db**2).sum(1)[None] - 2 * da @ db.T, 0))
+    order = np.argsort(dist, axis=1)[:, :2]
+    rows = np.arange(len(dist))
+    d1, d2 = dist[rows, order[:, 0]], dist[rows, order[:, 1]]
+    keep = (d1 < 0.8 * d2) & (dist.argmin(0)[order[:, 0]] == rows)
+    want = {(int(i), int(order[i, 0])) for i in rows[keep]}
+    got = {tuple(m) for m in match(a, b, 0.8).tolist()}
+    assert got == want
+    assert len(want) > 800 and all(i == j for i, j in want if i < 900)
