@@ -64,6 +64,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 
 def main(argv: list[str] | None = None) -> int:
+    # A file name that is not valid text (a lone surrogate from the file system or a JSON
+    # escape) prints escaped rather than failing in the middle of a report.
+    for stream in (sys.stdout, sys.stderr):
+        if hasattr(stream, "reconfigure"):
+            stream.reconfigure(errors="backslashreplace")
     try:  # the commands' modules import torch and OpenCV: a second or more
         args = parse_args(argv)
     except KeyboardInterrupt:

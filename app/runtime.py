@@ -127,6 +127,14 @@ class ThreadOptions:
             torch.set_num_threads(self.threads)
 
 
+def folder_path(text: str) -> Path:
+    """argparse type of a folder option: a path, not an empty string (which would be the
+    current folder without a word)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("expected a folder, got an empty string")
+    return Path(text)
+
+
 def number(kind=float, low=None, high=None, low_open: bool = False):
     """argparse type of a numeric option: ``kind`` (float or int), finite, at least ``low``
     (above it when ``low_open``) and at most ``high`` (None: no bound). One line when not."""
@@ -200,6 +208,7 @@ class PrepareOptions:
         None,
         "the prepared scenes' cache folder, shared by view, render, eval, bench, demo, "
         "depth and scene prepare (default: $XDG_CACHE_HOME/panogrf or ~/.cache/panogrf)",
+        parse=folder_path,
     )
     """The cache folder (None: the user's cache folder)."""
     quiet: bool = option(False, "no progress of the preparation's stages on stderr")

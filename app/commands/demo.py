@@ -58,6 +58,10 @@ def run(args: argparse.Namespace) -> int:
     print(f"scene: {root} ({scene.num_views} views, {scene.width}x{scene.height})")
     if data.depths is None:
         raise UserError(f"{root}: the demo needs a scene with depth maps")
+    if scene.num_views < 2:
+        raise UserError(f"{root}: the demo renders a view from the others: it needs two or more")
+    if cfg.out.exists() and not cfg.out.is_dir():  # before the work, not after it
+        raise UserError(f"--out {cfg.out}: is a file; the demo writes a folder")
     target = scene.num_views // 2
     for source in (i for i in range(scene.num_views) if i != target):
         r = reprojection_check(data.images, data.c2w, data.depths, source, target)

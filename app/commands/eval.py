@@ -61,6 +61,8 @@ def parse_methods(text: str) -> list[tuple[str, str]]:
             raise UserError(f"--methods: unknown sampling {quality!r} in {item!r}")
         if quality != "fast" and METHODS[name].kind is not Kind.NEURAL:
             raise UserError(f"--methods: {name} has no sampling choice ({item!r})")
+        if (name, quality) in out:
+            raise UserError(f"--methods lists {item!r} twice")
         out.append((name, quality))
     if not out:
         raise UserError("--methods lists no method")
@@ -138,8 +140,12 @@ class EvalConfig:
             raise UserError(f"--baselines: expected metres, got {self.baselines!r}") from None
 
     def subset_names(self) -> set[str]:
-        """The methods ``subset`` names."""
-        return {x.strip() for x in self.subset.split(",") if x.strip()}
+        """The methods ``subset`` names (each one of ``methods``, by label or name)."""
+        names = {x.strip() for x in self.subset.split(",") if x.strip()}
+        known = {label(*m) for m in self.method_list()} | {m for m, _ in self.method_list()}
+        if unknown := sorted(names - known):
+            raise UserError(f"--subset {','.join(unknown)}: not among --methods {self.methods}")
+        return names
 
 
 def register(subparsers) -> None:
@@ -165,6 +171,9 @@ def run(args: argparse.Namespace) -> int:
     methods, subset = cfg.method_list(), cfg.subset_names()
     from_args(ThreadOptions, args).apply()
     check_output(cfg.out)  # before the work: an hour of rendering must not end unwritable
+    index = Path(cfg.dataset) / "dataset.json"
+    if Path(cfg.out).resolve() == index.resolve():
+        raise UserError(f"--out {cfg.out}: is the dataset's own index; choose another file")
     skipped: list[dict] = []  # broken scenes: reported, the others scored
     scenes, baselines = triplets_by_baseline(cfg.dataset, cfg.baseline_list(), cfg.limit, skipped)
     for broken in skipped:

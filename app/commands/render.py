@@ -171,14 +171,14 @@ def run(args: argparse.Namespace) -> int:
 
 def _source_frames(cfg: RenderConfig, frames: int) -> list[int]:
     """The source frames of a scene of ``frames`` views: ``cfg.sources``, else every frame
-    but the target; refused in one line where they are out of range, hold the target frame or
-    repeat one."""
+    but the target (none: refused); refused in one line where out of range, holding the target
+    frame or repeating one."""
     v, target = frames, cfg.target_frame
     if target is not None and not 0 <= target < v:
         raise UserError(f"--target-frame {target}: the scene has frames 0..{v - 1}")
-    sources = cfg.sources
-    if sources is None:
-        sources = [i for i in range(v) if i != target]
+    sources = cfg.sources if cfg.sources is not None else [i for i in range(v) if i != target]
+    if not sources and cfg.sources is None:
+        raise UserError(f"the scene has only {v} view: nothing to render frame {target} from")
     bad = [i for i in sources if not 0 <= i < v]
     if bad:
         raise UserError(f"--sources {bad}: the scene has frames 0..{v - 1}")

@@ -130,6 +130,14 @@ def _match_images(fmt: str, pose_file: Path, names: list[str] | None, given: lis
     return given, order
 
 
+def _refuse_repeats(files: list[Path], images: np.ndarray) -> None:
+    """One photograph at two poses is refused, naming both (pixel for pixel the same)."""
+    for a in range(len(files)):
+        for b in range(a + 1, len(files)):
+            if np.array_equal(images[a], images[b]):
+                raise UserError(f"{files[b]}: the same image as {files[a]} (no parallax)")
+
+
 def run_import(parsed: argparse.Namespace) -> int:
     from panogrf.app.poses.importers import read_poses
     from panogrf.app.scene.folder import write_new_scene
@@ -147,6 +155,7 @@ def run_import(parsed: argparse.Namespace) -> int:
         raise UserError(f"{args.pose_file}: a scene needs at least two panoramas")
     read = read_panoramas(files)
     images = read.images
+    _refuse_repeats(files, images)
     c2w = poses.c2w[order]
     lines = [f"imported {len(files)} poses from {args.pose_file} ({args.format})"]
     if note := read.note(files):
@@ -252,10 +261,7 @@ def run_from_panoramas(parsed: argparse.Namespace) -> int:
     _check_out(args.out)
     read = read_panoramas(files)
     images = read.images
-    for a in range(len(files)):
-        for b in range(a + 1, len(files)):
-            if np.array_equal(images[a], images[b]):
-                raise UserError(f"{files[b]}: the same image as {files[a]} (no parallax)")
+    _refuse_repeats(files, images)
     n = len(files)
     heights = sc.parse_heights(args.camera_height, n) if args.camera_height else None
     distance = sc.parse_distance(args.distance, n) if args.distance else None

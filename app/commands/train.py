@@ -10,6 +10,7 @@ import argparse
 from contextlib import contextmanager
 from pathlib import Path
 
+from panogrf.app.errors import UserError
 from panogrf.app.options import add_options, from_args
 from panogrf.app.train.configs import (
     RunOptions,
@@ -17,6 +18,7 @@ from panogrf.app.train.configs import (
     TrainDepthConfig,
     TrainRendererConfig,
     TrainSelectConfig,
+    refuse_training_inputs,
 )
 
 
@@ -89,6 +91,10 @@ def _training(config: type, args: argparse.Namespace, **fields):
     a function that prints a log line and appends it to ``--log``; torch's threads set."""
     cfg = from_args(config, args, **fields)
     run = from_args(RunOptions, args)
+    if run.log is not None:
+        refuse_training_inputs(run.log, cfg, "--log")
+        if run.log.resolve() == cfg.out.resolve():
+            raise UserError(f"--log {run.log}: is the --out weights; log elsewhere")
     if run.threads:
         import torch
 

@@ -125,6 +125,8 @@ class ViewConfig:
             raise UserError("--live on shows the neural view: it cannot go with --no-refine")
         if self.frames is not None and self.frames < 1:
             raise UserError("--frames must be at least 1")
+        if self.path_out.suffix.lower() != ".json":  # O would replace an image, a video...
+            raise UserError(f"--path-out must end in .json (a camera path), got {self.path_out}")
         if self.moving_rows is not None and not 16 <= self.moving_rows <= 512:
             raise UserError("--moving-rows must be between 16 and 512")
         self.script_keys()

@@ -35,6 +35,12 @@ def scene_folders(root: Path) -> tuple[list[Path], bool]:
 
 def read_index(index_path: Path) -> list[Path]:
     """The scene folders a ``dataset.json`` lists: {"scenes": [{"folder": NAME, ...}, ...]}."""
+    return [index_path.parent / e["folder"] for e in read_index_data(index_path)["scenes"]]
+
+
+def read_index_data(index_path: Path) -> dict:
+    """A ``dataset.json`` as a dict whose "scenes" is a list of {"folder": NAME, ...}, each
+    folder once; a `UserError` naming the file and the problem otherwise."""
     try:
         data = parse_json(index_path.read_text(encoding="utf-8"))
     except OSError as exc:
@@ -46,7 +52,7 @@ def read_index(index_path: Path) -> list[Path]:
     scenes = data.get("scenes") if isinstance(data, dict) else None
     if not isinstance(scenes, list):
         raise UserError(f'{index_path}: not a dataset index (expected {{"scenes": [...]}})')
-    folders = []
+    names: set[str] = set()
     for i, entry in enumerate(scenes):
         name = entry.get("folder") if isinstance(entry, dict) else None
         if not isinstance(name, str) or not name.strip():
@@ -55,10 +61,10 @@ def read_index(index_path: Path) -> list[Path]:
                 f'{index_path}: scenes[{i}]: expected {{"folder": NAME, ...}}, got '
                 f"{got if len(got) <= 60 else got[:57] + '...'}"
             )
-        if index_path.parent / name in folders:
+        if name in names:
             raise UserError(f"{index_path}: scenes[{i}]: folder {name!r} is listed twice")
-        folders.append(index_path.parent / name)
-    return folders
+        names.add(name)
+    return data
 
 
 def triplets_by_baseline(

@@ -90,7 +90,7 @@ class Entry:
 @dataclass(frozen=True)
 class Fetched:
     """An entry as `get_or_compute` gave it, with where it lives and what happened: "loaded",
-    "built" or "rebuilt: <why the stored one was not trusted>", and " (not saved: <why>)" when
+    "built" or "rebuilt: <why the stored one was not trusted>", and " (not saved in <where>: <why>)" when
     it could not be put."""
 
     entry: Entry
@@ -141,7 +141,7 @@ def get_or_compute(
     # A read-only or full disk (safetensors reports it as its own error) costs the entry only.
     except (OSError, SafetensorError) as exc:
         reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc
-        status += f" (not saved: {reason})"
+        status += f" (not saved in {store.where(key)}: {reason})"
     return Fetched(entry, status, store.where(key))
 
 

@@ -29,6 +29,7 @@ from tqdm import tqdm
 from panogrf.app.errors import UserError
 from panogrf.app.files.atomic import write_text_atomic
 from panogrf.app.files.images import write_depth, write_rgb
+from panogrf.app.scene.datasets import read_index_data
 from panogrf.app.synth.gl_render import PanoramaRenderer
 from panogrf.app.synth.layout import LayoutConfig, SynthScene, generate_layout
 from panogrf.app.synth.textures import texture_bank
@@ -296,6 +297,23 @@ def _make_gl(cfg: MakeConfig, progress: bool) -> tuple[list[dict], float]:
     return entries, render_s
 
 
+def _check_joins(index: dict, index_path: Path, cfg: MakeConfig) -> None:
+    """Refuse scenes that would join a dataset of another size, world, renderer or split: its
+    index describes all of its scenes with one of each (train and test stay disjoint)."""
+    for key, value in (("height", cfg.height), ("world", cfg.world), ("renderer", cfg.renderer)):
+        if key in index and index[key] != value:
+            raise UserError(
+                f"{index_path}: its scenes have {key} {index[key]}, not {value}; "
+                "write these to another --out (`panogrf dataset merge` joins datasets)"
+            )
+    other = [e["folder"] for e in index["scenes"] if not e["folder"].startswith(cfg.split + "_")]
+    if other:
+        raise UserError(
+            f"{index_path}: holds {other[0]}, not of the {cfg.split} split; train and test "
+            "scenes go to different folders"
+        )
+
+
 def make_dataset(cfg: MakeConfig, progress: bool = True) -> dict:
     """Render ``cfg.count`` scenes into ``cfg.out``; returns a summary with timings."""
     if cfg.split not in SPLITS:
@@ -311,14 +329,16 @@ def make_dataset(cfg: MakeConfig, progress: bool = True) -> dict:
         if not 0.0 <= p <= 1.0 or (p > 0 and cfg.world != "home"):
             raise ValueError(f"{name} must be in [0, 1] and needs the home world, got {p}")
     out = Path(cfg.out)
+    index_path = out / "dataset.json"
+    if index_path.exists():  # before the rendering: scenes added must match those there
+        _check_joins(read_index_data(index_path), index_path, cfg)
     out.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
     make = _make_pyrender if cfg.renderer == "pyrender" else _make_gl
     entries, render_s = make(cfg, progress)
     triangles = [e["triangles"] for e in entries]
     elapsed = time.perf_counter() - start
-    index_path = out / "dataset.json"
-    index = json.loads(index_path.read_text()) if index_path.exists() else {"scenes": []}
+    index = read_index_data(index_path) if index_path.exists() else {"scenes": []}
     known = {e["folder"] for e in entries}
     index["scenes"] = [e for e in index.get("scenes", []) if e["folder"] not in known] + entries
     index["scenes"].sort(key=lambda e: e["folder"])
@@ -359,7 +379,7 @@ def merge_datasets(out: Path, sources: list[Path]) -> dict:
         index_path = source / "dataset.json"
         if not index_path.exists():
             raise UserError(f"{source}: no dataset.json (make one with `panogrf dataset make`)")
-        for entry in json.loads(index_path.read_text()).get("scenes", []):
+        for entry in read_index_data(index_path)["scenes"]:
             name = entry["folder"]
             if name in links:
                 raise UserError(

@@ -62,6 +62,7 @@ class TrainRun:
 
         if self.out.suffix != ".safetensors":
             raise UserError(f"--out must end in .safetensors, got {self.out}")
+        refuse_training_inputs(self.out, self, "--out")
         check_writable(self.out)
 
     def _fractions(self, names: tuple[str, ...], of: str) -> None:
@@ -71,6 +72,22 @@ class TrainRun:
             if not 0 <= value <= 1:
                 flag = flag_of(type(self), name)
                 raise UserError(f"{flag} is a fraction of the {of} (0-1), got {value}")
+
+
+def refuse_training_inputs(path: Path, cfg: object, option: str) -> None:
+    """Refuse an output ``path`` that is the training data (a pack file, or inside a data
+    folder, where packs and the dataset's index live) or the weights it starts from
+    (``init``): the run would replace what it reads."""
+    target = path.resolve()
+    data = Path(cfg.data).resolve()
+    if target == data or data in target.parents:
+        raise UserError(
+            f"{option} {path}: is in the training data {cfg.data}; refusing to "
+            "write over it, choose a path outside"
+        )
+    init = getattr(cfg, "init", None)
+    if init is not None and Path(init).resolve() == target:
+        raise UserError(f"{option} {path}: is the --init weights; write the new ones elsewhere")
 
 
 def _check_device(device: str) -> None:

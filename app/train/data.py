@@ -20,6 +20,7 @@ from tqdm import tqdm
 
 from panogrf.app.errors import UserError
 from panogrf.app.files.images import read_depth, read_rgb
+from panogrf.app.scene.datasets import read_index_data
 from panogrf.app.train.pack import is_pack, read_packs
 
 
@@ -79,13 +80,13 @@ def load_triplets(
     index_path = root / "dataset.json"
     if not index_path.exists():
         raise UserError(f"{root}: no dataset.json (make one with `panogrf dataset make`)")
-    entries = json.loads(index_path.read_text())["scenes"][start:][:limit]
+    entries = read_index_data(index_path)["scenes"][start:][:limit]
     if not entries:
         raise UserError(f"{index_path}: lists no scenes")
     imgs, deps, poses, base, names = [], [], [], [], []
     for entry in tqdm(entries, desc=f"loading {root.name}", unit="scene", leave=False):
         folder = root / entry["folder"]
-        meta = json.loads((folder / "transforms.json").read_text())
+        meta = _transforms(folder / "transforms.json")
         frames = meta["frames"]
         if len(frames) != 3:
             raise UserError(f"{folder}: expected three views, found {len(frames)}")
@@ -129,3 +130,13 @@ def yaw_roll(images: Tensor, depths: Tensor, c2w: Tensor, shift: int) -> tuple:
     new = c2w.clone()
     new[..., :3, :3] = c2w[..., :3, :3] @ rot
     return torch.roll(images, shift, -1), torch.roll(depths, shift, -1), new
+
+
+def _transforms(path: Path) -> dict:
+    """A training scene's transforms.json; a `UserError` naming it when it cannot be read."""
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise UserError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise UserError(f"{path}: not JSON ({exc})") from None

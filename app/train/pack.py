@@ -29,6 +29,7 @@ from safetensors import SafetensorError, safe_open
 
 from panogrf.app.errors import UserError
 from panogrf.app.files.atomic import save_tensors_atomic
+from panogrf.app.scene.datasets import read_index_data
 
 JPEG_QUALITY = 90
 DEPTH_STEP_M = 0.005
@@ -66,7 +67,7 @@ def pack_scenes(
         index = Path(folder) / "dataset.json"
         if not index.exists():
             raise UserError(f"{folder}: no dataset.json (make one with `panogrf dataset make`)")
-        entries = json.loads(index.read_text())["scenes"]
+        entries = read_index_data(index)["scenes"]
         stop = len(entries) if count < 0 else first + count
         if first < 0 or stop > len(entries) or first >= stop:
             raise UserError(f"{folder}: has {len(entries)} scenes; cannot take [{first}, {stop})")
