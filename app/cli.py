@@ -75,6 +75,8 @@ def main(argv: list[str] | None = None) -> int:
         print("panogrf: interrupted", file=sys.stderr)
         return 130
     keep_freed_memory()
+    # Errors name the command as typed: "panogrf scene check", not "panogrf scene".
+    name = " ".join(filter(None, (args.command, getattr(args, f"{args.command}_command", None))))
     try:
         if hasattr(args, "quiet"):  # a command that prepares scenes: its stages on stderr
             from panogrf.app.progress import terminal_progress
@@ -91,10 +93,10 @@ def main(argv: list[str] | None = None) -> int:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 141  # 128 + SIGPIPE, what a shell reports for a tool killed by a closed pipe
     except UserError as exc:
-        print(f"panogrf {args.command}: error: {exc}", file=sys.stderr)
+        print(f"panogrf {name}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print(f"panogrf {args.command}: interrupted", file=sys.stderr)
+        print(f"panogrf {name}: interrupted", file=sys.stderr)
         return 130
 
 

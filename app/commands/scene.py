@@ -165,6 +165,10 @@ def run_reproject(args: argparse.Namespace) -> int:
     for i in sources:
         if not 0 <= i < n or i == target:
             raise UserError(f"--sources: {i} is not another view of the {n}-view scene")
+    if len(set(sources)) != len(sources):
+        raise UserError(f"--sources must list distinct views, got {sources}")
+    if not sources:
+        raise UserError(f"{cfg.dir}: one view; reprojection needs another to warp from")
     name = scene.frames[target].name
     print(f"reprojection into view {target} ({name}), {scene.width}x{scene.height}:")
     print(

@@ -90,8 +90,8 @@ class Entry:
 @dataclass(frozen=True)
 class Fetched:
     """An entry as `get_or_compute` gave it, with where it lives and what happened: "loaded",
-    "built" or "rebuilt: <why the stored one was not trusted>", and " (not saved in <where>: <why>)" when
-    it could not be put."""
+    "built" or "rebuilt: <why the stored one was not trusted>", and " (not saved in <where>:
+    <why>)" when it could not be put."""
 
     entry: Entry
     status: str

@@ -75,15 +75,18 @@ class TrainRun:
 
 
 def refuse_training_inputs(path: Path, cfg: object, option: str) -> None:
-    """Refuse an output ``path`` that is the training data (a pack file, or inside a data
-    folder, where packs and the dataset's index live) or the weights it starts from
-    (``init``): the run would replace what it reads."""
+    """Refuse an output ``path`` that is the training data (a pack file or the data folder),
+    a file of the data folder the training reads (its index, a pack) or the weights it starts
+    from (``init``): the run would replace or append to what it reads."""
+    from panogrf.app.train.pack import is_pack
+
     target = path.resolve()
     data = Path(cfg.data).resolve()
-    if target == data or data in target.parents:
+    read = target.exists() and (target.suffix != ".safetensors" or is_pack(target))
+    if target == data or (data in target.parents and read):
         raise UserError(
-            f"{option} {path}: is in the training data {cfg.data}; refusing to "
-            "write over it, choose a path outside"
+            f"{option} {path}: is the training data ({cfg.data}); refusing to "
+            "write over it, choose another path"
         )
     init = getattr(cfg, "init", None)
     if init is not None and Path(init).resolve() == target:

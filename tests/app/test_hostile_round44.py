@@ -43,15 +43,23 @@ def _copy(dataset: Path, tmp_path: Path) -> Path:
     return Path(shutil.copytree(dataset, tmp_path / "ds"))
 
 
-def test_training_refuses_to_write_into_its_data(dataset, tmp_path, capsys):
+def test_training_refuses_to_write_over_its_data(dataset, tmp_path, capsys):
     ds = _copy(dataset, tmp_path)
     before = (ds / "dataset.json").read_bytes()
-    args = ["train", "depth", "--data", str(ds), "--stage", "mono", "--steps", "1"]
-    code, line = _run([*args, "--out", str(ds / "w.safetensors")], capsys)
-    assert code == 2 and "is in the training data" in line
-    code, line = _run([*args, "--out", str(tmp_path / "w.safetensors"), "--log", str(ds)], capsys)
+    pack = tmp_path / "pk.safetensors"
+    assert main(["dataset", "pack", str(ds), "--out", str(pack), "--height", "32"]) == 0
+    packed = pack.read_bytes()
+    args = ["train", "depth", "--stage", "mono", "--steps", "1", "--height", "32"]
+    code, line = _run([*args, "--data", str(pack), "--out", str(pack)], capsys)
+    assert code == 2 and "is the training data" in line
+    weights = str(tmp_path / "w.safetensors")
+    code, line = _run([*args, "--data", str(ds), "--out", weights, "--log", str(ds)], capsys)
     assert code == 2 and "--log" in line
-    assert (ds / "dataset.json").read_bytes() == before and not (ds / "w.safetensors").exists()
+    index = str(ds / "dataset.json")
+    code, line = _run([*args, "--data", str(ds), "--out", weights, "--log", index], capsys)
+    assert code == 2 and "--log" in line
+    assert (ds / "dataset.json").read_bytes() == before and pack.read_bytes() == packed
+    assert not Path(weights).exists()
 
 
 def test_eval_refuses_the_dataset_index_as_its_report(dataset, tmp_path, capsys):
@@ -174,3 +182,11 @@ def test_a_file_name_that_is_not_text_is_printed_escaped(tmp_path):
     run = subprocess.run(argv, capture_output=True, env=os.environ | {"PYTHONIOENCODING": "utf-8"})
     assert run.returncode == 1 and b"Traceback" not in run.stderr
     assert b"images/\\ud800.png" in run.stdout and b"file not found" in run.stdout
+
+
+def test_reproject_needs_another_view_and_distinct_sources(tmp_path, capsys):
+    code, line = _run(["scene", "reproject", str(_demo(tmp_path / "a", frames=1))], capsys)
+    assert code == 2 and "one view" in line and line.startswith("panogrf scene reproject:")
+    scene = _demo(tmp_path / "b")
+    code, line = _run(["scene", "reproject", str(scene), "--sources", "0,0"], capsys)
+    assert code == 2 and "distinct" in line

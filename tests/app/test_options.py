@@ -115,7 +115,7 @@ def test_a_training_refuses_its_settings_in_one_line(tmp_path, capsys):
     assert main([*argv, "--mono-shift", "2"]) == 2
     err = capsys.readouterr().err
     assert err.strip().splitlines() == [
-        "panogrf train: error: --mono-shift is a fraction of the scenes (0-1), got 2.0"
+        "panogrf train select: error: --mono-shift is a fraction of the scenes (0-1), got 2.0"
     ]
 
 

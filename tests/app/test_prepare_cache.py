@@ -282,7 +282,7 @@ def test_depth_reads_its_cached_estimate_the_second_time(small_demo, tmp_path, c
 def test_scene_prepare_bad_input_is_one_line(tmp_path, capsys):
     assert cli.main(["scene", "prepare", str(tmp_path / "nope")]) == 2
     err = capsys.readouterr().err
-    assert err.startswith("panogrf scene: error:") and "not found" in err
+    assert err.startswith("panogrf scene prepare: error:") and "not found" in err
     assert "Traceback" not in err and "preparing" not in err  # no stage before the error
     assert cli.main(["scene", "prepare", str(DEMO), "--sources", "0,7"]) == 2
     err = capsys.readouterr().err
