@@ -57,9 +57,12 @@ VIEWER_DEFAULTS = ("gl:64", "panogrf:draft", "panogrf:fast")
 
 def select(names: str | None, skip: str = "") -> list[Setting]:
     """The settings named in a comma-separated list (all: None), less those in ``skip``."""
-    chosen = list(SETTINGS) if not names else [_get(n) for n in names.split(",") if n.strip()]
+    chosen = list(SETTINGS) if names is None else [_get(n) for n in names.split(",") if n.strip()]
     dropped = {_get(n).name for n in skip.split(",") if n.strip()}
-    return [s for s in chosen if s.name not in dropped]
+    out = [s for s in chosen if s.name not in dropped]
+    if not out:  # an empty --settings is a slip, not "all of them" (and nothing to measure)
+        raise ValueError("no setting left to run")
+    return out
 
 
 def _get(name: str) -> Setting:

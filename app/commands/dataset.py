@@ -172,7 +172,7 @@ class PackOptions:
 
 @dataclass(frozen=True, kw_only=True)
 class MergeOptions:
-    """The options of `panogrf dataset merge` (`panogrf.app.synth.make.merge_datasets`)."""
+    """The options of `panogrf dataset merge` (`panogrf.app.synth.merge.merge_datasets`)."""
 
     out: Path = option(help="the merged dataset folder")
     """The merged dataset folder."""
@@ -268,7 +268,7 @@ def run_pack(args: argparse.Namespace) -> int:
 
 
 def run_merge(args: argparse.Namespace) -> int:
-    from panogrf.app.synth.make import merge_datasets
+    from panogrf.app.synth.merge import merge_datasets
 
     options = from_args(MergeOptions, args)
     summary = merge_datasets(options.out, options.sources)

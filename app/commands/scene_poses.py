@@ -95,6 +95,12 @@ def _check_out(out: Path) -> None:
         raise UserError(f"{out}: exists and is not a folder")
     if out.is_dir() and any(out.iterdir()):  # its files could be overwritten
         raise UserError(f"{out}: a folder that is not empty; choose a new or empty --out")
+    if not out.exists() and out.parent.is_dir():  # before the posing, not after it
+        try:
+            out.mkdir()
+            out.rmdir()
+        except OSError as exc:
+            raise UserError(f"{out}: cannot make this folder ({exc.strerror or exc})") from None
 
 
 def _baselines(c2w: np.ndarray) -> str:

@@ -265,7 +265,8 @@ def _background(cfg: ViewConfig, prepared, threads: int) -> tuple:
 
 def _closed(config, worker, start: float) -> int:
     """Print how a viewer session that began at ``start`` (`time.perf_counter`) went: its
-    frame times and, with a render ``worker``, its refinements; 1 where the worker failed."""
+    frame times and, with a render ``worker``, its refinements; 1 where the worker or a
+    write (a screenshot, the camera path) failed."""
     import numpy as np
 
     from panogrf.app.viewer.screen import refine_summary
@@ -286,6 +287,10 @@ def _closed(config, worker, start: float) -> int:
         )
     if worker is not None and worker.error:  # the session went on without refinement
         print(f"panogrf view: error: refinement stopped: {worker.error}", file=sys.stderr)
+        return 1
+    if config.failed_writes:  # said when they failed; a script must see it in the status
+        n = config.failed_writes
+        print(f"panogrf view: error: {n} write{'s' if n > 1 else ''} failed", file=sys.stderr)
         return 1
     return 0
 

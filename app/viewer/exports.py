@@ -1,6 +1,7 @@
 """What the viewer writes on a key press: the camera path (O), a screenshot of the window (X)
 and the clean panorama on screen (F). A failed write is said on screen and in the terminal;
-the session and its keyframes carry on. Mixed into `PanoViewer`, whose state it reads."""
+the session and its keyframes carry on, and its exit status is 1 at the end (a script sees
+it). Mixed into `PanoViewer`, whose state it reads."""
 
 from __future__ import annotations
 
@@ -16,6 +17,9 @@ from panogrf.app.viewer.camera import FlyCamera
 
 
 class ExportsMixin:
+    failed_writes = 0
+    """Writes of this session that failed (the session's exit status says so at the end)."""
+
     def save_path(self) -> None:
         """O: the keyframes' path to ``--path-out``; a failed write is reported, never fatal."""
         from panogrf.app.scene.coverage import path_warning
@@ -30,9 +34,11 @@ class ExportsMixin:
                 keys, self.perspective, self.setup.preview_height, self.setup.fps, w / h
             )
         except (ValueError, MemoryError, OverflowError) as exc:
+            self.failed_writes += 1
             self.say(f"cannot save the camera path: {exc}")
             return
         ok, message = recording.save_path_file(self.setup.path_out, path)
+        self.failed_writes += not ok
         self.say(message)
         sources = np.stack([self.setup.world(c) for c in self.setup.c2w])
         warning = path_warning(path.poses, sources) if ok else None
@@ -51,6 +57,7 @@ class ExportsMixin:
         out = self._image_name("")
         ok, problem = recording.save_image_file(out, img)
         if not ok:
+            self.failed_writes += 1
             self.say(f"cannot save the screenshot {out}: {problem}")
             return
         c = FlyCamera.from_c2w(self.setup.world(self.view_pose()))
@@ -78,6 +85,7 @@ class ExportsMixin:
         out = self._image_name("pano_")
         ok, problem = recording.save_image_file(out, rgb)
         if not ok:
+            self.failed_writes += 1
             self.say(f"cannot save the panorama {out}: {problem}")
         else:
             self.say(f"panorama {out} ({rgb.shape[1]}x{rgb.shape[0]}, {what}, no overlay)")

@@ -163,6 +163,9 @@ def test_bench_refuses_an_unknown_setting(tmp_path, capsys):
     args = ["bench", str(tmp_path), "--out", str(tmp_path / "o"), "--settings", "nope"]
     assert cli.main(args) == 2
     assert "unknown setting 'nope'" in capsys.readouterr().err
+    for empty in (["--settings", ""], ["--settings", "no_mono", "--skip", "no_mono"]):
+        assert cli.main([*args[:4], *empty]) == 2  # nothing to run is a slip, not "all"
+        assert "no setting left to run" in capsys.readouterr().err
 
 
 def test_peak_memory_counts_what_a_block_holds_at_once_even_in_reused_memory():

@@ -190,3 +190,10 @@ def test_reproject_needs_another_view_and_distinct_sources(tmp_path, capsys):
     scene = _demo(tmp_path / "b")
     code, line = _run(["scene", "reproject", str(scene), "--sources", "0,0"], capsys)
     assert code == 2 and "distinct" in line
+
+
+def test_an_output_folder_that_cannot_be_made_is_refused_before_posing(tmp_path, capsys):
+    scene = _demo(tmp_path)
+    photos = sorted(str(p) for p in (scene / "images").iterdir())
+    code, line = _run(["scene", "from-panoramas", *photos, "--out", "/proc/panogrf"], capsys)
+    assert code == 2 and "cannot make this folder" in line

@@ -189,7 +189,7 @@ def test_no_cracks_where_clipped_triangles_meet():
 @pytest.mark.gl
 def test_merge_datasets_links_every_scene(tmp_path):
     from panogrf.app.errors import UserError
-    from panogrf.app.synth.make import merge_datasets
+    from panogrf.app.synth.merge import merge_datasets
     from panogrf.app.train.data import load_triplets
 
     make_dataset(MakeConfig(out=tmp_path / "a", count=2, height=16), progress=False)
