@@ -52,7 +52,7 @@ def read_index_data(index_path: Path) -> dict:
     scenes = data.get("scenes") if isinstance(data, dict) else None
     if not isinstance(scenes, list):
         raise UserError(f'{index_path}: not a dataset index (expected {{"scenes": [...]}})')
-    names: set[str] = set()
+    names: set[Path] = set()  # "a" and "./a" are one folder
     for i, entry in enumerate(scenes):
         name = entry.get("folder") if isinstance(entry, dict) else None
         if not isinstance(name, str) or not name.strip():
@@ -61,9 +61,9 @@ def read_index_data(index_path: Path) -> dict:
                 f'{index_path}: scenes[{i}]: expected {{"folder": NAME, ...}}, got '
                 f"{got if len(got) <= 60 else got[:57] + '...'}"
             )
-        if name in names:
+        if Path(name) in names:
             raise UserError(f"{index_path}: scenes[{i}]: folder {name!r} is listed twice")
-        names.add(name)
+        names.add(Path(name))
     return data
 
 

@@ -74,7 +74,7 @@ class TrainRun:
                 raise UserError(f"{flag} is a fraction of the {of} (0-1), got {value}")
 
 
-def refuse_training_inputs(path: Path, cfg: object, option: str) -> None:
+def refuse_training_inputs(path: Path, cfg: TrainRun, option: str) -> None:
     """Refuse an output ``path`` that is the training data (a pack file or the data folder),
     a file of the data folder the training reads (its index, a pack) or the weights it starts
     from (``init``): the run would replace or append to what it reads."""
