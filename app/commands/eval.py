@@ -179,7 +179,8 @@ def run(args: argparse.Namespace) -> int:
     for broken in skipped:
         print(f"skipping {broken['why']}", flush=True)
     if not scenes:
-        raise UserError(f"{cfg.dataset}: no scene can be scored")
+        why = skipped[0]["why"] if len(skipped) == 1 else f"{len(skipped)} skipped, see above"
+        raise UserError(f"{cfg.dataset}: no scene can be scored" + (f" ({why})" if skipped else ""))
     for _, folder in scenes:  # the report must not replace a scene's own file
         refuse_scene_inputs(cfg.out, load_scene(folder))
     models = session.default_models(resolve_device(args.device))

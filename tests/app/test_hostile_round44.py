@@ -197,3 +197,10 @@ def test_an_output_folder_that_cannot_be_made_is_refused_before_posing(tmp_path,
     photos = sorted(str(p) for p in (scene / "images").iterdir())
     code, line = _run(["scene", "from-panoramas", *photos, "--out", "/proc/panogrf"], capsys)
     assert code == 2 and "cannot make this folder" in line
+
+
+def test_eval_says_why_no_scene_can_be_scored(tmp_path, capsys):
+    scenes = tmp_path / "scenes"
+    _demo(scenes, frames=2)
+    code, line = _run(["eval", str(scenes), "--out", str(tmp_path / "r.json")], capsys)
+    assert code == 2 and "no scene can be scored" in line and "expected three views" in line
