@@ -20,7 +20,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from panogrf.model.erp import direction_to_pixel, pad_seam
+from panogrf.model.erp import direction_to_pixel, pad_seam, padded_grid
 
 
 def warp_from(
@@ -63,11 +63,7 @@ def _grid(padded: Tensor, q: Tensor) -> Tensor:
     """Points [P, N, 3] in the sources' frames -> grid_sample's grid [P, 1, N, 2] on the padded
     sources (as `panogrf.model.erp.sample_padded` with one padded column)."""
     height, width = padded.shape[-2], padded.shape[-1] - 2
-    uv = direction_to_pixel(q, height, width)
-    u = torch.remainder(uv[..., 0] + 0.5, width) - 0.5  # in [-0.5, W - 0.5)
-    x = (u + 1.5).mul_(2.0 / (width + 2)).sub_(1.0)
-    y = (uv[..., 1] + 0.5).mul_(2.0 / height).sub_(1.0)
-    return torch.stack((x, y), -1)[:, None]
+    return padded_grid(direction_to_pixel(q, height, width), height, width)
 
 
 def _pixel_rate(q: Tensor, rays: Tensor, height: int, width: int) -> tuple[Tensor, Tensor]:

@@ -178,12 +178,18 @@ def sample_padded(padded: Tensor, uv: Tensor, mode: str = "bilinear", pad: int =
     """`sample_erp` on a panorama already padded by `pad_seam` with ``pad`` columns:
     [B, C, H, W + 2 pad] -> [B, C, N]. ``mode``: "bilinear", "nearest" or "bicubic" (pad 2)."""
     height, width = padded.shape[-2], padded.shape[-1] - 2 * pad
+    grid = padded_grid(uv, height, width, pad)
+    out = F.grid_sample(padded, grid, mode=mode, padding_mode="border", align_corners=False)
+    return out[:, :, 0]
+
+
+def padded_grid(uv: Tensor, height: int, width: int, pad: int = 1) -> Tensor:
+    """Pixel coordinates [B, N, 2] of an H x W panorama -> ``F.grid_sample``'s grid [B, 1, N, 2]
+    on it padded by `pad_seam` with ``pad`` columns (u wrapped into the image first)."""
     u = torch.remainder(uv[..., 0] + 0.5, width) - 0.5  # in [-0.5, W - 0.5)
     x = (u + 0.5 + pad) / (width + 2 * pad) * 2.0 - 1.0
     y = (uv[..., 1] + 0.5) / height * 2.0 - 1.0
-    grid = torch.stack((x, y), -1)[:, None]  # [B, 1, N, 2]
-    out = F.grid_sample(padded, grid, mode=mode, padding_mode="border", align_corners=False)
-    return out[:, :, 0]
+    return torch.stack((x, y), -1)[:, None]
 
 
 def sample_erp(image: Tensor, uv: Tensor, mode: str = "bilinear") -> Tensor:
