@@ -8,8 +8,11 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import statistics
 import time
+import warnings
+from collections import Counter
 from dataclasses import replace
 from pathlib import Path
 
@@ -29,6 +32,40 @@ def timed(fn, device, repeats=20, warm=3) -> float:
             torch.cuda.synchronize(device)
         secs.append(time.perf_counter() - t)
     return statistics.median(secs) * 1e3
+
+
+def _syncs(fn) -> list[str]:
+    """Where (file:line) ``fn`` made the host wait for the GPU (torch's sync debug mode)."""
+    torch.cuda.synchronize()
+    torch.cuda.set_sync_debug_mode("warn")
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            fn()
+    finally:
+        torch.cuda.set_sync_debug_mode(0)
+    return [f"{Path(w.filename).name}:{w.lineno}" for w in caught]
+
+
+def _variants(fn) -> dict:
+    """The fast 512 render with TF32 matrix products, and under bf16 autocast: time and the
+    difference from float32 (PSNR between the two images, max abs)."""
+    ref = fn().rgb.float()
+    out = {}
+    for name in ("tf32", "bf16"):
+        torch.backends.cuda.matmul.allow_tf32 = name == "tf32"
+        with torch.autocast("cuda", dtype=torch.bfloat16, enabled=name == "bf16"):
+            ms = timed(fn, torch.device("cuda"))
+            rgb = fn().rgb.float()
+        torch.backends.cuda.matmul.allow_tf32 = False
+        mse = float(((rgb - ref) ** 2).mean())
+        out[name] = {
+            "ms": ms,
+            "psnr_vs_fp32": -10 * math.log10(max(mse, 1e-20)),
+            "max_abs": float((rgb - ref).abs().max()),
+        }
+        print(f"variant {name}: {out[name]}", flush=True)
+    return out
 
 
 def main() -> None:
@@ -89,6 +126,14 @@ def main() -> None:
         for name, fn in parts.items():
             out[name] = timed(fn, device)
             print(f"{name:55s} {out[name]:8.2f} ms", flush=True)
+        if device.type == "cuda":  # where the device is waited for, per render
+            out["syncs"] = {
+                "fast_512": _syncs(lambda: render_detailed(net, cache, c2w, 512, "fast")),
+                "live": _syncs(lambda: render_detailed(net, cache, c2w, 512, "fast", live)),
+            }
+            for name, where in out["syncs"].items():
+                print(f"{name}: {len(where)} waits for the device: {Counter(where)}", flush=True)
+            out["variants"] = _variants(lambda: render_detailed(net, cache, c2w, 512, "fast"))
         from torch.profiler import ProfilerActivity, profile
 
         acts = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if device.type == "cuda" else [])

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import pytest
 import torch
 
 from panogrf.model.depth_warp import warp_along, warp_rays
@@ -50,3 +51,21 @@ def test_one_set_of_rays_serves_a_batch_of_depths():
     for k in range(3):
         one = warp_along(padded, depths[k : k + 1], rays, shift)
         torch.testing.assert_close(batched[k : k + 1], one, rtol=0, atol=1e-12)
+
+
+@pytest.mark.gpu
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
+def test_on_cuda_the_warp_and_its_gradient_match_autograd_and_the_cpu():
+    padded, depth, rays, shift = _setup()
+    weights = torch.rand(2, 3, 12, 24, dtype=torch.float64)
+    grads = {}
+    for device in ("cpu", "cuda"):
+        d = depth.to(device).requires_grad_(True)
+        args = (padded.to(device), d, rays.to(device), shift.to(device))
+        got, want = warp_along(*args), _plain(*args)
+        torch.testing.assert_close(got, want, rtol=0, atol=1e-12)
+        (g_got,) = torch.autograd.grad((got * weights.to(device)).sum(), d)
+        (g_want,) = torch.autograd.grad((want * weights.to(device)).sum(), d)
+        torch.testing.assert_close(g_got, g_want, rtol=1e-9, atol=1e-9)
+        grads[device] = g_got.cpu()
+    torch.testing.assert_close(grads["cuda"], grads["cpu"], rtol=1e-9, atol=1e-9)

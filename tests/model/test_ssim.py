@@ -3,6 +3,7 @@ autograd."""
 
 from __future__ import annotations
 
+import pytest
 import torch
 from helpers.photometric import plain_photometric
 
@@ -72,3 +73,20 @@ def test_one_channel_images_take_their_own_gradient():
     (g_got,) = torch.autograd.grad(got.sum(), a)
     (g_want,) = torch.autograd.grad(want.sum(), a)
     torch.testing.assert_close(g_got, g_want, rtol=0, atol=1e-12)
+
+
+@pytest.mark.gpu
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
+def test_on_cuda_the_error_and_its_gradient_match_the_plain_formula_and_the_cpu():
+    a, b = _pair(3)
+    weights = torch.rand(3, 7, 12, dtype=torch.float64)
+    grads = {}
+    for device in ("cpu", "cuda"):
+        x = a.to(device).requires_grad_(True)
+        got, want = photometric_error(x, b.to(device)), plain_photometric(x, b.to(device))
+        torch.testing.assert_close(got, want, rtol=0, atol=1e-12)
+        (g_got,) = torch.autograd.grad((got * weights.to(device)).sum(), x)
+        (g_want,) = torch.autograd.grad((want * weights.to(device)).sum(), x)
+        torch.testing.assert_close(g_got, g_want, rtol=0, atol=1e-12)
+        grads[device] = g_got.cpu()
+    torch.testing.assert_close(grads["cuda"], grads["cpu"], rtol=0, atol=1e-12)
