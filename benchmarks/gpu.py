@@ -336,6 +336,12 @@ def main() -> int:
         help="GPU chunks to time the renders with (default: none)",
     )
     parser.add_argument("--graphs", action="store_true", help="refinement with/without graphs")
+    parser.add_argument(
+        "--render-graphs",
+        choices=("on", "off"),
+        default="on",
+        help="renders asked for again replayed from a CUDA graph (panogrf.renderer.graphs)",
+    )
     parser.add_argument("--live", action="store_true", help="the viewer's live worker's rate")
     parser.add_argument("--sweep", action="store_true", help="the sweep batched and not")
     parser.add_argument(
@@ -352,6 +358,9 @@ def main() -> int:
     from panogrf.app.scoring import image_scores
 
     device = resolve_device(args.device)
+    from panogrf.renderer import graphs as render_graphs
+
+    render_graphs.ENABLED = args.render_graphs == "on"
     torch.backends.cudnn.allow_tf32 = args.tf32 == "on"
     torch.backends.cuda.matmul.allow_tf32 = args.tf32 == "on"
     if args.parity:

@@ -141,7 +141,7 @@ def invert_rigid(c2w: Tensor) -> Tensor:
     out = torch.zeros_like(c2w)
     out[..., :3, :3] = rot_t
     out[..., :3, 3] = -(rot_t @ c2w[..., :3, 3:4])[..., 0]
-    out[..., 3, 3] = 1.0
+    out[..., 3, 3].fill_(1.0)  # a kernel's argument, not a copy from the host
     return out
 
 

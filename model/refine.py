@@ -81,10 +81,18 @@ class RefineConfig:
     ``lr`` to 0 (a half cosine); 0: constant. At a constant rate Adam ends hovering about a
     minimum by up to ``lr`` per pixel, where rounding decides the side: a depth moved by one
     part in a million came out 7 mm away (mean; 19 % of the pixels more than 1 cm)."""
+    damping: float = 0.0
+    """Adam's epsilon for the loss summed over the correction's pixels (the loss is their mean:
+    epsilon = damping / pixels, the same at any resolution). Adam moves every pixel by about
+    the rate, however small its gradient; a pixel whose gradient is well under the damping
+    moves little instead, so where the photometry says almost nothing, rounding does not
+    decide millimetre steps. 0: torch's 1e-8."""
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.settle <= 1.0:
             raise ValueError(f"settle must be in [0, 1], got {self.settle}")
+        if not self.damping >= 0.0:
+            raise ValueError(f"damping must be >= 0, got {self.damping}")
 
 
 #: The refinement of a scene's cached depth at preparation (`SourceViews.refine`; on by
@@ -95,9 +103,17 @@ class RefineConfig:
 #: stage at twice the rows, the free-space term at weight 1.0 and half the rows, the rate
 #: settling over the last half (the depth 3x less sensitive to rounding: a GPU's 1.8 mm from
 #: the CPU's instead of 5.5), then 20 + 20 steps instead of 30 + 30 (18 scenes, WS-PSNR /
-#: LPIPS / depth L1: 26.46 / 0.1058 / 0.0793 against 26.45 / 0.1049 / 0.0791, 0.58x the time).
+#: LPIPS / depth L1: 26.46 / 0.1058 / 0.0793 against 26.45 / 0.1049 / 0.0791, 0.58x the time),
+#: then Adam damped by 3 (the largest of 3, 8, 25 within the rule; 26.46 / 0.1048 / 0.0770,
+#: the depth 3x less sensitive to rounding: 1.94 -> 0.65 mm; `lab/analysis.md`, round 45).
 PREPARE_REFINE = RefineConfig(
-    smooth=1.0, coarse=20, iterations=20, free_space=1.0, free_space_shrink=2, settle=0.5
+    smooth=1.0,
+    coarse=20,
+    iterations=20,
+    free_space=1.0,
+    free_space_shrink=2,
+    settle=0.5,
+    damping=3.0,
 )
 
 
@@ -203,7 +219,8 @@ def refine_depth(
         _spans([len(sources[r]) for r in refs]),
         config,
     )
-    opt = adam([problem.delta], config.lr)
+    eps = config.damping / problem.delta.numel() if config.damping > 0 else 1e-8
+    opt = adam([problem.delta], config.lr, eps)
     # On a GPU the rate is a tensor the graphs read, and the launches do the same arithmetic.
     graphs = CUDA_GRAPHS and depth.device.type == "cuda"
     rows = (config.height // 2, config.height, min(2 * config.height, images.shape[-2]))

@@ -20,8 +20,8 @@ LAST_DELTA = 1e3
 def inverse_depth_samples(
     n_rays: int,
     n_samples: int,
-    near: float,
-    far: float,
+    near: float | Tensor,
+    far: float | Tensor,
     *,
     generator: torch.Generator | None = None,
     device: torch.device | str | None = None,
@@ -30,9 +30,11 @@ def inverse_depth_samples(
     """``n_samples`` per ray uniform in inverse depth over [near, far] metres: [R, S] ascending.
 
     With a ``generator`` each sample is jittered inside its bin (stratified, for training);
-    without, samples sit at the bin centres (deterministic, for rendering).
+    without, samples sit at the bin centres (deterministic, for rendering). ``near`` and
+    ``far`` may be 0-dim float64 tensors on the device (a replayed CUDA graph reads them; the
+    same arithmetic as with floats), checked where they are made.
     """
-    if not 0 < near < far:
+    if not isinstance(near, Tensor) and not isinstance(far, Tensor) and not 0 < near < far:
         raise ValueError(f"need 0 < near < far, got near={near}, far={far}")
     edges = torch.linspace(0.0, 1.0, n_samples + 1, device=device, dtype=dtype)
     if generator is None:

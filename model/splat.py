@@ -83,20 +83,34 @@ def fill_holes(depth: Tensor, iterations: int = 16, look: int | None = None) -> 
     are mostly disocclusions, whose true surface is the background behind the edge. Pixels
     still empty after that take the median depth (any finite guess beats none). ``look``:
     passes between two looks for holes left (None: 1 on a CPU, `GPU_PASSES_PER_LOOK`
-    elsewhere); the result is the same for any."""
+    elsewhere, 0 while a CUDA graph is captured; 0: never look, all ``iterations`` passes and
+    the median made without waiting for the device); the result is the same for any."""
     if look is None:
         look = 1 if depth.device.type == "cpu" else GPU_PASSES_PER_LOOK
+        if depth.is_cuda and torch.cuda.is_current_stream_capturing():
+            look = 0
     out = depth.clone()
     for done in range(iterations):
-        if done % look == 0 and not bool((out <= 0).any()):
+        if look and done % look == 0 and not bool((out <= 0).any()):
             return out
         empty = out <= 0
         out = torch.where(empty, _filter(out, "max"), out)
     empty = out <= 0
+    if not look:
+        return torch.where(empty, _lower_median(out, ~empty), out)
     if bool(empty.any()):
         fallback = out[~empty].median() if bool((~empty).any()) else out.new_tensor(2.0)
         out = torch.where(empty, fallback, out)
     return out
+
+
+def _lower_median(x: Tensor, valid: Tensor) -> Tensor:
+    """`torch.median` of ``x`` where ``valid`` (the lower of the two middle values), 2.0 where
+    nothing is; a 0-dim tensor made without a boolean selection, so without waiting."""
+    values = torch.sort(torch.where(valid, x, torch.inf).reshape(-1)).values
+    count = valid.sum()
+    mid = values.gather(0, ((count - 1) // 2).clamp(min=0).reshape(1))[0]
+    return torch.where(count > 0, mid, torch.full_like(mid, 2.0))
 
 
 def proxy_depth(

@@ -61,13 +61,13 @@ class PlainAdam:
             p.addcdiv_(avg, denom, value=-step_size)
 
 
-def adam(params: list[Tensor], lr: float) -> Optimiser:
+def adam(params: list[Tensor], lr: float, eps: float = 1e-8) -> Optimiser:
     """Adam for ``params``: on a CUDA device torch's, capturable, its rate a tensor (CUDA
     graphs read it); elsewhere `PlainAdam`."""
     if params[0].device.type != "cuda":
-        return PlainAdam(params, lr)
+        return PlainAdam(params, lr, eps=eps)
     rate = torch.tensor(lr, device=params[0].device)
-    return torch.optim.Adam(params, lr=rate, capturable=True)
+    return torch.optim.Adam(params, lr=rate, eps=eps, capturable=True)
 
 
 class OptimisationSteps:

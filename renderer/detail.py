@@ -43,6 +43,7 @@ from panogrf.model.render_net import RendererNet
 from panogrf.model.splat import proxy_depth
 from panogrf.model.sweep import median_filter
 from panogrf.renderer.cache import SceneCache, resize_erp, source_rows
+from panogrf.renderer.graphs import replayed
 from panogrf.renderer.nadir import mask_factor
 from panogrf.renderer.render import RenderOutput, Sampling, render_panorama
 
@@ -247,7 +248,28 @@ def render_detailed(
 ) -> RenderOutput | None:
     """`render_panorama` at ``height`` rows with the network at ``config.net_height`` (when
     ``height`` is larger; otherwise at ``height``), the sources giving the colour above
-    ``config.cutoff`` rows; None if ``should_stop`` said so."""
+    ``config.cutoff`` rows; None if ``should_stop`` said so. On a GPU the same render asked for
+    again is replayed from a CUDA graph (`panogrf.renderer.graphs`)."""
+    if should_stop is not None and should_stop():
+        return None
+    out = replayed(_render_detailed, net, cache, c2w, height, quality, config)
+    if out is not None:
+        if progress is not None:
+            progress(1.0)
+        return out
+    return _render_detailed(net, cache, c2w, height, quality, config, progress, should_stop)
+
+
+def _render_detailed(
+    net: RendererNet,
+    cache: SceneCache,
+    c2w: Tensor,
+    height: int,
+    quality: str | Sampling,
+    config: DetailConfig,
+    progress: Callable[[float], None] | None = None,
+    should_stop: Callable[[], bool] | None = None,
+) -> RenderOutput | None:
     if height <= config.net_height:
         out = render_panorama(
             net, cache, c2w, height, quality, progress=progress, should_stop=should_stop

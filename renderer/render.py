@@ -57,10 +57,11 @@ class Sampling:
     """Importance samples from the coarse weights."""
     n_guided: int = 0
     """Samples around the splatted proxy depths (needs a proxy)."""
-    near: float | None = None
+    near: float | Tensor | None = None
     """Nearest sample of the uniform sampling (metres); None: from the scene's cached depth
-    (`sample_range`)."""
-    far: float | None = None
+    (`sample_range`); a 0-dim tensor in a render replayed from a CUDA graph
+    (`panogrf.renderer.graphs`)."""
+    far: float | Tensor | None = None
     """Farthest sample of the uniform sampling (metres); None: from the scene's cached depth."""
     band: float = 0.2
     """Half-width of the guided band in relative inverse depth (log scale). Estimated depth

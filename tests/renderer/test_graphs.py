@@ -1,0 +1,93 @@
+"""Renders replayed from a CUDA graph: the parts made not to wait for the device compute what
+the eager render computes (on the CPU here), and on a GPU the replay gives the eager pixels."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import pytest
+import torch
+
+from panogrf.app.scene.folder import load_scene
+from panogrf.app.scene.session import default_models
+from panogrf.assets import path as asset_path
+from panogrf.model.sampling import inverse_depth_samples
+from panogrf.model.splat import fill_holes
+from panogrf.renderer import graphs
+from panogrf.renderer.cache import build_cache, resize_erp
+from panogrf.renderer.render import QUALITY, render_panorama, sample_range
+
+
+@pytest.fixture(scope="module")
+def demo_cache():
+    """The shipped renderer and a cache of the demo's outer views at 64 rows (true depth)."""
+    data = load_scene(asset_path("demo"), load_images=True).images
+    assert data.depths is not None  # the demo carries its true depth
+    net = default_models().renderer("panogrf")
+    images, depth = resize_erp(data.images[[0, 2]], 64), data.depths[[0, 2]]
+    depth = torch.nn.functional.interpolate(depth, size=(32, 64), mode="nearest")
+    with torch.no_grad():
+        cache = build_cache(net, images, data.c2w[[0, 2]], depth)
+    return net, cache, data.c2w[1].clone()
+
+
+@pytest.mark.parametrize("empty", [0.3, 0.97, 1.0])
+def test_holes_filled_without_looking_are_filled_alike(empty):
+    g = torch.Generator().manual_seed(int(empty * 100))
+    depth = 1 + 4 * torch.rand(24, 48, generator=g)
+    depth[torch.rand(24, 48, generator=g) < empty] = 0.0
+    for iterations in (16, 2):  # 2: holes left for the median
+        looked = fill_holes(depth, iterations)
+        assert torch.equal(fill_holes(depth, iterations, look=0), looked)
+        assert bool((looked > 0).all())
+
+
+def test_samples_from_a_range_held_in_tensors_are_those_from_floats():
+    near = torch.tensor(0.731, dtype=torch.float64)
+    far = torch.tensor(9.37, dtype=torch.float64)
+    want = inverse_depth_samples(5, 4, float(near), float(far))
+    assert torch.equal(inverse_depth_samples(5, 4, near, far), want)
+
+
+def test_a_render_reading_its_range_from_tensors_is_the_render(demo_cache):
+    net, cache, c2w = demo_cache
+    near, far = sample_range(cache, c2w[:3, 3])
+    span = torch.tensor([near, far], dtype=torch.float64)
+    sampling = replace(QUALITY["fast"], near=span[0], far=span[1])
+    want = render_panorama(net, cache, c2w, 16, "fast")
+    got = render_panorama(net, cache, c2w, 16, sampling)
+    assert want is not None and got is not None
+    assert torch.equal(got.rgb, want.rgb) and torch.equal(got.depth, want.depth)
+
+
+def test_on_a_cpu_nothing_is_replayed(demo_cache):
+    net, cache, c2w = demo_cache
+    calls = []
+    render = lambda *args: calls.append(args)  # noqa: E731
+    for _ in range(3):
+        assert graphs.replayed(render, net, cache, c2w, 32, "fast", None) is None
+    assert not calls
+
+
+@pytest.mark.gpu
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
+def test_on_cuda_the_replayed_render_is_the_eager_render_at_every_pose(demo_cache, monkeypatch):
+    from panogrf.renderer.detail import render_detailed
+
+    net, cache, c2w = demo_cache
+    net, cache = net.cuda(), cache.to("cuda")
+    poses = [c2w.cuda()]
+    poses.append(poses[0].clone())
+    poses[1][:3, 3] += torch.tensor([0.2, 0.0, 0.1], device="cuda")
+    monkeypatch.setattr(graphs, "ENABLED", False)
+    eager = [render_detailed(net, cache, p, 64, "fast") for p in poses]
+    monkeypatch.setattr(graphs, "ENABLED", True)
+    monkeypatch.setattr(graphs, "_current", None)
+    replays = [render_detailed(net, cache, poses[k % 2], 64, "fast") for k in range(4)]
+    assert graphs._current is not None and graphs._current.graph is not None  # replayed
+    for k, out in enumerate(replays):
+        want = eager[k % 2]
+        assert out is not None and want is not None
+        torch.testing.assert_close(out.rgb, want.rgb, rtol=0, atol=1e-5)
+        torch.testing.assert_close(out.depth, want.depth, rtol=0, atol=1e-4)
+    assert float((replays[2].rgb - replays[3].rgb).abs().mean()) > 1e-3  # the pose is read
