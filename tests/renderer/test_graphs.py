@@ -3,6 +3,7 @@ the eager render computes (on the CPU here), and on a GPU the replay gives the e
 
 from __future__ import annotations
 
+import copy
 from dataclasses import replace
 
 import pytest
@@ -75,7 +76,7 @@ def test_on_cuda_the_replayed_render_is_the_eager_render_at_every_pose(demo_cach
     from panogrf.renderer.detail import render_detailed
 
     net, cache, c2w = demo_cache
-    net, cache = net.cuda(), cache.to("cuda")
+    net, cache = copy.deepcopy(net).cuda(), cache.to("cuda")  # the shared models stay
     poses = [c2w.cuda()]
     poses.append(poses[0].clone())
     poses[1][:3, 3] += torch.tensor([0.2, 0.0, 0.1], device="cuda")
