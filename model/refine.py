@@ -105,7 +105,8 @@ class RefineConfig:
 #: the CPU's instead of 5.5), then 20 + 20 steps instead of 30 + 30 (18 scenes, WS-PSNR /
 #: LPIPS / depth L1: 26.46 / 0.1058 / 0.0793 against 26.45 / 0.1049 / 0.0791, 0.58x the time),
 #: then Adam damped by 3 (the largest of 3, 8, 25 within the rule; 26.46 / 0.1048 / 0.0770,
-#: the depth 3x less sensitive to rounding: 1.94 -> 0.65 mm; `lab/analysis.md`, round 45).
+#: the depth 3x less sensitive to rounding: 1.94 -> 0.65 mm; `lab/analysis.md`, "a refinement
+#: that rounding does not steer").
 PREPARE_REFINE = RefineConfig(
     smooth=1.0,
     coarse=20,
