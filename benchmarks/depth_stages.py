@@ -81,7 +81,14 @@ def _cheaper_variants() -> dict[str, tuple[str, dict, dict, str]]:
         (c, f): {"refine": dataclasses.replace(PREPARE_REFINE, coarse=c, iterations=f)}
         for c, f in ((30, 10), (20, 10))
     }
-    out = {}
+    out = {
+        "undamped": (
+            "full",
+            {},
+            {"refine": dataclasses.replace(PREPARE_REFINE, damping=0.0)},
+            "the refinement's Adam damping (torch's epsilon instead)",
+        )
+    }
     for n, attrs in sweeps.items():
         out[f"sweep{n}"] = ("full", attrs, {}, f"the sweep with {n} candidates")
     for (c, f), kw in refines.items():

@@ -394,14 +394,18 @@ def test_a_reference_compared_many_times_gives_the_same_error_from_its_windows_o
     assert torch.equal(photometric_error(b, b, stats), torch.zeros(1, 16, 32))
 
 
-def test_the_plain_adam_steps_as_torchs_adam_to_the_last_bit():
+@pytest.mark.parametrize("eps", [1e-8, 3e-3])
+def test_the_plain_adam_steps_as_torchs_adam_to_the_last_bit(eps):
     from panogrf.model.steps import PlainAdam
 
     g = torch.Generator().manual_seed(5)
     start = torch.randn(3, 1, 8, 16, generator=g)
     targets = [torch.randn(3, 1, 8, 16, generator=g) for _ in range(6)]
     results = []
-    for make in (lambda p: torch.optim.Adam([p], lr=0.02), lambda p: PlainAdam([p], 0.02)):
+    for make in (
+        lambda p: torch.optim.Adam([p], lr=0.02, eps=eps),
+        lambda p: PlainAdam([p], 0.02, eps=eps),
+    ):
         p = start.clone().requires_grad_(True)
         opt = make(p)
         for i, target in enumerate(targets):
@@ -411,3 +415,24 @@ def test_the_plain_adam_steps_as_torchs_adam_to_the_last_bit():
             opt.step()
         results.append(p.detach())
     assert torch.equal(results[0], results[1])
+
+
+def test_the_damping_keeps_pixels_with_almost_no_gradient_still():
+    """Adam moves a pixel by about the rate however small its gradient; damped, a pixel whose
+    gradient is far under the damping barely moves, one far over it as before."""
+    from panogrf.model.steps import adam
+
+    pull = torch.tensor([1.0, 1e-7])  # a strong and a nearly flat slope
+    moved = {}
+    for eps in (1e-8, 1e-4):
+        p = torch.zeros(2, requires_grad=True)
+        opt = adam([p], 0.02, eps)
+        for _ in range(5):
+            opt.zero_grad()
+            (pull * p).sum().backward()
+            opt.step()
+        moved[eps] = p.detach().abs()
+    assert moved[1e-8][1] > 0.09 and moved[1e-4][1] < 1e-3  # 5 steps of 0.02 undamped
+    torch.testing.assert_close(moved[1e-4][0], moved[1e-8][0], rtol=1e-3, atol=0)
+    with pytest.raises(ValueError, match="damping"):
+        RefineConfig(damping=-1.0)
