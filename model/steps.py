@@ -121,7 +121,8 @@ class OptimisationSteps:
             return True
         graph = torch.cuda.CUDAGraph()
         self.opt.zero_grad(set_to_none=True)
-        with torch.cuda.graph(graph):
+        # thread_local: the viewer's render thread may use the device while this captures.
+        with torch.cuda.graph(graph, capture_error_mode="thread_local"):
             self.step()  # captured, not run: the gradients it makes stay in the graph's pool
         for i in range(warm, steps):
             if should_stop is not None and should_stop():

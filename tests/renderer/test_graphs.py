@@ -92,3 +92,42 @@ def test_on_cuda_the_replayed_render_is_the_eager_render_at_every_pose(demo_cach
         torch.testing.assert_close(out.rgb, want.rgb, rtol=0, atol=1e-5)
         torch.testing.assert_close(out.depth, want.depth, rtol=0, atol=1e-4)
     assert float((replays[2].rgb - replays[3].rgb).abs().mean()) > 1e-3  # the pose is read
+
+
+@pytest.mark.gpu
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
+def test_on_cuda_renders_replay_while_another_thread_captures_the_refinement(
+    demo_cache, monkeypatch
+):
+    """The viewer's case: its render thread captures and replays while the scene's depth is
+    refined (its steps captured into graphs too) in a thread of its own."""
+    import threading
+
+    from panogrf.model.refine import PREPARE_REFINE, refine_depth
+    from panogrf.renderer.detail import render_detailed
+
+    net, cache, c2w = demo_cache
+    net, cache, pose = copy.deepcopy(net).cuda(), cache.to("cuda"), c2w.cuda()
+    monkeypatch.setattr(graphs, "ENABLED", False)
+    want = render_detailed(net, cache, pose, 64, "fast")
+    monkeypatch.setattr(graphs, "ENABLED", True)
+    monkeypatch.setattr(graphs, "_current", None)
+    errors: list[BaseException] = []
+
+    def refine() -> None:
+        try:
+            for _ in range(3):
+                depth = cache.depth * 1.1
+                refine_depth(cache.images, cache.c2w, depth, [[1], [0]], PREPARE_REFINE)
+        except BaseException as exc:  # noqa: BLE001 (reported below)
+            errors.append(exc)
+
+    worker = threading.Thread(target=refine)
+    worker.start()
+    outs = [render_detailed(net, cache, pose, 64, "fast") for _ in range(12)]
+    worker.join()
+    assert not errors, errors
+    assert want is not None
+    for out in outs:
+        assert out is not None
+        torch.testing.assert_close(out.rgb, want.rgb, rtol=0, atol=1e-5)
