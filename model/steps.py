@@ -8,11 +8,18 @@ once into a CUDA graph (`torch.cuda.CUDAGraph`) and replayed, a step is one laun
 from __future__ import annotations
 
 import contextlib
+import threading
 from collections.abc import Callable
 from typing import Any, Protocol
 
 import torch
 from torch import Tensor
+
+#: Held while a CUDA graph is captured, and by GPU work of another thread that must not run
+#: meanwhile: the viewer renders while the scene's refinement captures its steps, and on an
+#: H200 renders in one thread broke the other's capture ("operation not permitted when stream
+#: is capturing") in 2 runs of 5 of `tests/renderer/test_graphs.py`'s threaded test.
+CAPTURE_LOCK = threading.RLock()
 
 
 class Optimiser(Protocol):
@@ -121,8 +128,7 @@ class OptimisationSteps:
             return True
         graph = torch.cuda.CUDAGraph()
         self.opt.zero_grad(set_to_none=True)
-        # thread_local: the viewer's render thread may use the device while this captures.
-        with torch.cuda.graph(graph, capture_error_mode="thread_local"):
+        with CAPTURE_LOCK, torch.cuda.graph(graph, capture_error_mode="thread_local"):
             self.step()  # captured, not run: the gradients it makes stay in the graph's pool
         for i in range(warm, steps):
             if should_stop is not None and should_stop():

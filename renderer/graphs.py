@@ -22,6 +22,7 @@ import torch
 from torch import Tensor
 
 from panogrf.model.render_net import RendererNet
+from panogrf.model.steps import CAPTURE_LOCK
 from panogrf.renderer.cache import SceneCache
 from panogrf.renderer.render import QUALITY, RenderOutput, sample_range
 
@@ -98,7 +99,7 @@ def _replayed(
         sampling = replace(QUALITY[quality], near=entry.span[0], far=entry.span[1])
         try:
             entry.graph = torch.cuda.CUDAGraph()
-            with torch.cuda.graph(entry.graph, capture_error_mode="thread_local"):
+            with CAPTURE_LOCK, torch.cuda.graph(entry.graph, capture_error_mode="thread_local"):
                 entry.out = render(net, cache, entry.pose, height, sampling, config)
         except RuntimeError:
             entry.graph, entry.failed = None, True
