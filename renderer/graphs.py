@@ -7,8 +7,9 @@ captured into a CUDA graph (`torch.cuda.CUDAGraph`) and every later one replays 
 copied into the graph's input first. The graph runs the eager render's operations (the parts
 that would wait for the device are made not to while capturing: `fill_holes` does all its
 passes; the sample range is computed outside the graph each time and read from a tensor); its
-outputs are copied out. One graph is kept (its memory is that of one eager render); a
-capture that fails falls back to the eager render for good.
+outputs are copied out. One graph is kept (its memory is that of one eager render; it holds
+its scene until a render of another replaces it); a capture that fails falls back to the eager
+render for good.
 """
 
 from __future__ import annotations
@@ -90,12 +91,12 @@ def _replayed(
         span = c2w.new_zeros(2, dtype=torch.float64)
         _current = _Graph(key, net, cache, None, c2w.clone(), span, None)
         return None  # the first render runs eagerly: it makes what the scene memoises
+    if entry.failed:
+        return None  # its capture failed
     pose = c2w.to(cache.images.dtype)
     entry.span.copy_(torch.tensor(sample_range(cache, pose[:3, 3]), dtype=torch.float64))
     entry.pose.copy_(c2w)
     if entry.graph is None:
-        if entry.failed:
-            return None  # a capture failed
         sampling = replace(QUALITY[quality], near=entry.span[0], far=entry.span[1])
         try:
             entry.graph = torch.cuda.CUDAGraph()
