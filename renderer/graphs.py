@@ -49,6 +49,11 @@ _current: _Graph | None = None
 _lock = threading.Lock()  # the viewer renders from its worker thread
 
 
+def _captures(device: torch.device) -> bool:
+    """Whether renders on ``device`` are captured (CUDA graphs exist on CUDA devices only)."""
+    return device.type == "cuda"
+
+
 #: What is replayed: `panogrf.renderer.detail`'s render (net, cache, pose, rows, sampling,
 #: detail settings).
 Render = Callable[[RendererNet, SceneCache, Tensor, int, Any, Any], "RenderOutput | None"]
@@ -81,7 +86,7 @@ def _replayed(
     config: object,
 ) -> RenderOutput | None:
     global _current
-    if not (ENABLED and cache.images.is_cuda and isinstance(quality, str)):
+    if not (ENABLED and _captures(cache.images.device) and isinstance(quality, str)):
         return None
     if quality not in GRAPHED:
         return None

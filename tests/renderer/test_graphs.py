@@ -131,3 +131,51 @@ def test_on_cuda_renders_replay_while_another_thread_captures_the_refinement(
     for out in outs:
         assert out is not None
         torch.testing.assert_close(out.rgb, want.rgb, rtol=0, atol=1e-5)
+
+
+class _FakeGraph:
+    """Stands in for `torch.cuda.CUDAGraph` on a CPU: counts replays."""
+
+    replays = 0
+
+    def replay(self) -> None:
+        type(self).replays += 1
+
+
+def test_the_graphs_bookkeeping_with_a_stand_in_for_cuda(demo_cache, monkeypatch):
+    """On a CPU, with CUDA's graph replaced by a stand-in: the first render of a key is
+    launched, the second captured (the render called once, reading its range from tensors) and
+    replayed, later ones replayed without calling it, each answer a copy; another key starts
+    over; a capture that fails leaves that key launched for good."""
+    from contextlib import nullcontext
+
+    net, cache, c2w = demo_cache
+    monkeypatch.setattr(graphs, "_captures", lambda device: True)
+    monkeypatch.setattr(graphs, "_current", None)
+    monkeypatch.setattr(torch.cuda, "CUDAGraph", _FakeGraph)
+    monkeypatch.setattr(torch.cuda, "graph", lambda *a, **k: nullcontext())
+    calls = []
+
+    def render(net_, cache_, pose, height, sampling, config):
+        calls.append(sampling)
+        return render_panorama(net_, cache_, pose, height, sampling)
+
+    assert graphs.replayed(render, net, cache, c2w, 16, "fast", None) is None  # launched
+    first = graphs.replayed(render, net, cache, c2w, 16, "fast", None)  # captured, replayed
+    assert first is not None and len(calls) == 1 and _FakeGraph.replays == 1
+    assert isinstance(calls[0].near, torch.Tensor) and isinstance(calls[0].far, torch.Tensor)
+    want = render_panorama(net, cache, c2w, 16, "fast")
+    assert want is not None and torch.equal(first.rgb, want.rgb)
+    again = graphs.replayed(render, net, cache, c2w, 16, "fast", None)
+    assert again is not None and len(calls) == 1 and _FakeGraph.replays == 2
+    assert again.rgb.data_ptr() != first.rgb.data_ptr()  # copies, not the graph's output
+    assert graphs.replayed(render, net, cache, c2w, 32, "fast", None) is None  # another key
+    assert graphs.replayed(render, net, cache, c2w, 16, "paper", None) is None  # not graphed
+
+    def broken(*args):
+        raise RuntimeError("operation not permitted when stream is capturing")
+
+    assert graphs.replayed(broken, net, cache, c2w, 24, "fast", None) is None  # launched
+    assert graphs.replayed(broken, net, cache, c2w, 24, "fast", None) is None  # failed
+    assert graphs.replayed(render, net, cache, c2w, 24, "fast", None) is None  # for good
+    assert len(calls) == 1
