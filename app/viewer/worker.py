@@ -11,6 +11,7 @@ from __future__ import annotations
 import sys
 import threading
 import time
+from contextlib import nullcontext
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -18,6 +19,7 @@ import torch
 
 from panogrf.app.files.images import to_uint8
 from panogrf.model.render_net import RendererNet
+from panogrf.model.steps import CAPTURE_LOCK
 from panogrf.renderer.cache import SceneCache
 from panogrf.renderer.detail import DEFAULT_DETAIL, render_detailed
 from panogrf.renderer.render import render_panorama
@@ -177,15 +179,16 @@ class RenderWorker:
         otherwise pays for growing the heap and first use of the kernels (a few tenths of a
         second here). 64 rows fill whole chunks of rays, as a real render does."""
         height, quality, sources, *_ = self.levels[0]
-        pose = self.cache.c2w[0].double().cpu().numpy()
-        render_panorama(
-            self.net,
-            self._nearest(pose, sources),
-            self.cache.c2w[0],
-            min(height, 64),
-            quality,
-            should_stop=lambda: self._stop or self._pose is not None,
-        )
+        with CAPTURE_LOCK if self.cache.images.is_cuda else nullcontext():  # as `_serve`'s
+            pose = self.cache.c2w[0].double().cpu().numpy()
+            render_panorama(
+                self.net,
+                self._nearest(pose, sources),
+                self.cache.c2w[0],
+                min(height, 64),
+                quality,
+                should_stop=lambda: self._stop or self._pose is not None,
+            )
 
     @property
     def error(self) -> str | None:
@@ -224,23 +227,25 @@ class RenderWorker:
                     if self._generation == gen:
                         self._progress = f
 
-            tgt = torch.from_numpy(pose).to(self.cache.images)
+            on_gpu = self.cache.images.is_cuda
             for level, (height, quality, sources, rows, reads) in enumerate(self.levels):
                 # Above ``rows`` the network renders at ``rows`` and the sources add the detail.
                 detail = replace(DEFAULT_DETAIL, net_height=rows, sampling=reads)
-                out = render_detailed(
-                    self.net,
-                    self._nearest(pose, sources),
-                    tgt,
-                    height,
-                    quality,
-                    detail,
-                    progress=progress,
-                    should_stop=stale,
-                )
-                if out is None or stale():
+                # On a GPU none of it while the scene's refinement captures its steps.
+                with CAPTURE_LOCK if on_gpu else nullcontext():
+                    out = render_detailed(
+                        self.net,
+                        self._nearest(pose, sources),
+                        torch.from_numpy(pose).to(self.cache.images),
+                        height,
+                        quality,
+                        detail,
+                        progress=progress,
+                        should_stop=stale,
+                    )
+                    rgb = None if out is None else to_uint8(out.rgb)
+                if rgb is None or stale():
                     break
-                rgb = to_uint8(out.rgb)
                 done = Refined(rgb, pose, level, gen, time.perf_counter() - t0)
                 with self._lock:
                     if self._superseded(gen):
