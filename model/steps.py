@@ -16,9 +16,11 @@ import torch
 from torch import Tensor
 
 #: Held while a CUDA graph is captured, and by GPU work of another thread that must not run
-#: meanwhile: the viewer renders while the scene's refinement captures its steps, and on an
-#: H200 renders in one thread broke the other's capture ("operation not permitted when stream
-#: is capturing") in 2 runs of 5 of `tests/renderer/test_graphs.py`'s threaded test.
+#: meanwhile. The viewer renders (and captures its renders, `panogrf.renderer.graphs`) while
+#: the scene's refinement captures its steps in another thread; `torch.cuda.graph` synchronises
+#: the device and empties the allocator's cache as it starts, which breaks a capture under way
+#: in another thread: on an H200 `tests/renderer/test_graphs.py`'s threaded test failed so
+#: ("operation not permitted when stream is capturing") in 2 runs of 5 without this lock.
 CAPTURE_LOCK = threading.RLock()
 
 
