@@ -14,7 +14,6 @@ render for good.
 
 from __future__ import annotations
 
-import threading
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any
@@ -46,7 +45,6 @@ class _Graph:
 
 
 _current: _Graph | None = None
-_lock = threading.Lock()  # the viewer renders from its worker thread
 
 
 def _captures(device: torch.device) -> bool:
@@ -72,44 +70,33 @@ def replayed(
     was asked for just before with the same scene, size and settings; None when it is not
     replayed (not on CUDA, another quality, the first such render, a failed capture): the
     caller renders eagerly."""
-    with _lock:
-        return _replayed(render, net, cache, c2w, height, quality, config)
-
-
-def _replayed(
-    render: Render,
-    net: RendererNet,
-    cache: SceneCache,
-    c2w: Tensor,
-    height: int,
-    quality: object,
-    config: object,
-) -> RenderOutput | None:
     global _current
     if not (ENABLED and _captures(cache.images.device) and isinstance(quality, str)):
         return None
     if quality not in GRAPHED:
         return None
-    key = (id(net), id(cache), height, quality, config, c2w.dtype)
-    entry = _current
-    if entry is None or entry.key != key:
-        span = c2w.new_zeros(2, dtype=torch.float64)
-        _current = _Graph(key, net, cache, None, c2w.clone(), span, None)
-        return None  # the first render runs eagerly: it makes what the scene memoises
-    if entry.failed:
-        return None  # its capture failed
-    pose = c2w.to(cache.images.dtype)
-    entry.span.copy_(torch.tensor(sample_range(cache, pose[:3, 3]), dtype=torch.float64))
-    entry.pose.copy_(c2w)
-    if entry.graph is None:
-        sampling = replace(QUALITY[quality], near=entry.span[0], far=entry.span[1])
-        try:
-            entry.graph = torch.cuda.CUDAGraph()
-            with CAPTURE_LOCK, torch.cuda.graph(entry.graph, capture_error_mode="thread_local"):
-                entry.out = render(net, cache, entry.pose, height, sampling, config)
-        except RuntimeError:
-            entry.graph, entry.failed = None, True
-            return None
-    entry.graph.replay()
-    assert entry.out is not None  # captured with the graph
-    return RenderOutput(entry.out.rgb.clone(), entry.out.depth.clone(), entry.out.opacity.clone())
+    with CAPTURE_LOCK:  # the one graph is shared by threads; nothing else captures meanwhile
+        key = (id(net), id(cache), height, quality, config, c2w.dtype)
+        entry = _current
+        if entry is None or entry.key != key:
+            span = c2w.new_zeros(2, dtype=torch.float64)
+            _current = _Graph(key, net, cache, None, c2w.clone(), span, None)
+            return None  # the first render runs eagerly: it makes what the scene memoises
+        if entry.failed:
+            return None  # its capture failed
+        pose = c2w.to(cache.images.dtype)
+        entry.span.copy_(torch.tensor(sample_range(cache, pose[:3, 3]), dtype=torch.float64))
+        entry.pose.copy_(c2w)
+        if entry.graph is None:
+            sampling = replace(QUALITY[quality], near=entry.span[0], far=entry.span[1])
+            try:
+                entry.graph = torch.cuda.CUDAGraph()
+                with torch.cuda.graph(entry.graph, capture_error_mode="thread_local"):
+                    entry.out = render(net, cache, entry.pose, height, sampling, config)
+            except RuntimeError:
+                entry.graph, entry.failed = None, True
+                return None
+        entry.graph.replay()
+        assert entry.out is not None  # captured with the graph
+        out = entry.out
+        return RenderOutput(out.rgb.clone(), out.depth.clone(), out.opacity.clone())
