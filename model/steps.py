@@ -24,6 +24,11 @@ from torch import Tensor
 CAPTURE_LOCK = threading.RLock()
 
 
+def apart_from_captures(on: Tensor) -> contextlib.AbstractContextManager[object]:
+    """`CAPTURE_LOCK` for GPU work on ``on``'s device (a CUDA one), nothing on a CPU."""
+    return CAPTURE_LOCK if on.is_cuda else contextlib.nullcontext()
+
+
 class Optimiser(Protocol):
     """What the steps need of an optimiser (`torch.optim.Adam` and `PlainAdam` have it)."""
 

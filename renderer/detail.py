@@ -26,7 +26,6 @@ Shapes: V views, H x 2H the output, h x 2h the network's pass.
 from __future__ import annotations
 
 from collections.abc import Callable
-from contextlib import nullcontext
 from dataclasses import dataclass, replace
 
 import torch
@@ -42,7 +41,7 @@ from panogrf.model.erp import (
 from panogrf.model.layers import circular_pad
 from panogrf.model.render_net import RendererNet
 from panogrf.model.splat import proxy_depth
-from panogrf.model.steps import CAPTURE_LOCK
+from panogrf.model.steps import apart_from_captures
 from panogrf.model.sweep import median_filter
 from panogrf.renderer.cache import SceneCache, resize_erp, source_rows
 from panogrf.renderer.graphs import replayed
@@ -255,7 +254,7 @@ def render_detailed(
     if should_stop is not None and should_stop():
         return None
     # On a GPU not while another thread captures a graph (`CAPTURE_LOCK`).
-    with CAPTURE_LOCK if cache.images.is_cuda else nullcontext():
+    with apart_from_captures(cache.images):
         out = replayed(_render_detailed, net, cache, c2w, height, quality, config)
         if out is not None:
             if progress is not None:

@@ -11,7 +11,6 @@ from __future__ import annotations
 import sys
 import threading
 import time
-from contextlib import nullcontext
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -19,7 +18,7 @@ import torch
 
 from panogrf.app.files.images import to_uint8
 from panogrf.model.render_net import RendererNet
-from panogrf.model.steps import CAPTURE_LOCK
+from panogrf.model.steps import apart_from_captures
 from panogrf.renderer.cache import SceneCache
 from panogrf.renderer.detail import DEFAULT_DETAIL, render_detailed
 from panogrf.renderer.render import render_panorama
@@ -179,7 +178,7 @@ class RenderWorker:
         otherwise pays for growing the heap and first use of the kernels (a few tenths of a
         second here). 64 rows fill whole chunks of rays, as a real render does."""
         height, quality, sources, *_ = self.levels[0]
-        with CAPTURE_LOCK if self.cache.images.is_cuda else nullcontext():  # as `_serve`'s
+        with apart_from_captures(self.cache.images):  # as `_serve`'s
             pose = self.cache.c2w[0].double().cpu().numpy()
             render_panorama(
                 self.net,
@@ -227,16 +226,17 @@ class RenderWorker:
                     if self._generation == gen:
                         self._progress = f
 
-            on_gpu = self.cache.images.is_cuda
+            # On a GPU none of the worker's device work while the refinement captures its steps.
+            with apart_from_captures(self.cache.images):
+                tgt = torch.from_numpy(pose).to(self.cache.images)
             for level, (height, quality, sources, rows, reads) in enumerate(self.levels):
                 # Above ``rows`` the network renders at ``rows`` and the sources add the detail.
                 detail = replace(DEFAULT_DETAIL, net_height=rows, sampling=reads)
-                # On a GPU none of it while the scene's refinement captures its steps.
-                with CAPTURE_LOCK if on_gpu else nullcontext():
+                with apart_from_captures(self.cache.images):
                     out = render_detailed(
                         self.net,
                         self._nearest(pose, sources),
-                        torch.from_numpy(pose).to(self.cache.images),
+                        tgt,
                         height,
                         quality,
                         detail,
