@@ -1,7 +1,7 @@
 """Posing methods side by side on scene folders with true poses: success rate, errors, time.
 
     python benchmarks/poses_real.py --set zind=/data/zind_scenes --set m3d=/data/m3d_scene \
-        --methods colmap,sift-cube --out lab/results/poses_real.json
+        --methods colmap,colmap-nolevel --out lab/results/poses_real.json
 
 Every scene folder (two or more panoramas, true poses in transforms.json) is posed from its
 pixels alone by each method; errors need no alignment (`panogrf.app.poses.errors`): per pair
@@ -10,9 +10,10 @@ error of the first-to-last distance after `make_metric` with the true camera hei
 scene has a floor at y = 0 (every true height > 0.5 m), else with the true first-to-last
 distance (then the 0-1 distance is scored). A scene counts as posed when every view is.
 Methods:
-- ``colmap``: the product's path (`panogrf.app.poses.colmap`): a rig of virtual views per
-  panorama, pooled SIFT matching between panoramas, COLMAP's rig verification, mapping and
-  bundle adjustment.
+- ``colmap``: the product's path (`panogrf.app.poses.colmap`): SIFT on cube faces, pooled
+  matching between panoramas, COLMAP's verification, the level-camera search for the pairs it
+  cannot verify (`panogrf.app.poses.upright`), guided matching, mapping and bundle adjustment.
+- ``colmap-nolevel``: the same without the level-camera search.
 The home-made pipeline it replaced (SIFT cube faces, RANSAC on bearings, incremental
 registration, scipy adjustment; ``app/poses/estimate.py`` until this round) was measured side by
 side before it was removed: ``lab/results/poses_real_before.json``.
@@ -38,10 +39,13 @@ from panogrf.app.scene.folder import load_scene
 
 def pose(method: str, images: list[np.ndarray]):
     """(c2w [V, 4, 4], registered [V], points [P, 3], report lines)."""
-    if method == "colmap":
+    if method in ("colmap", "colmap-nolevel"):
         from panogrf.app.poses.colmap import ColmapConfig, estimate_poses_colmap
 
-        est = estimate_poses_colmap(images, ColmapConfig(num_threads=2))
+        cfg = ColmapConfig(num_threads=2)
+        if method == "colmap-nolevel":  # without the search for level cameras
+            cfg = ColmapConfig(num_threads=2, level_search=None)
+        est = estimate_poses_colmap(images, cfg)
         notes = [f"{p.i}-{p.j}: {p.matches} matches, {p.inliers} inliers" for p in est.pairs]
         return est.c2w, est.registered, est.points, notes
     raise SystemExit(f"unknown method {method}")

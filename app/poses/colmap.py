@@ -33,7 +33,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from panogrf.app.poses import CV_TO_GL
+from panogrf.app.poses import CV_TO_GL, upright
 from panogrf.app.poses import features as ft
 from panogrf.app.poses import geometry as geo
 from panogrf.app.poses.colmap_report import ColmapEstimate, _collect, _two_view
@@ -64,6 +64,9 @@ class ColmapConfig:
     pair alone, or a chain of pairs, has nothing to check it against)."""
     max_error_px: float = 4.0
     """COLMAP's RANSAC and reprojection thresholds, in panorama pixels at 1024 columns."""
+    level_search: upright.UprightConfig | None = upright.UprightConfig()
+    """Pairs without a verified geometry: the exhaustive search for level cameras
+    (`panogrf.app.poses.upright`) seeds their guided matching (None: not tried)."""
     num_threads: int = -1
     """COLMAP's threads (-1: all cores)."""
     seed: int = 0
@@ -205,28 +208,22 @@ def _run(images, cfg: ColmapConfig, say, work: Path) -> ColmapEstimate:
     say("verification", 0, 2)
     _verify(db_path, verify, cfg)
     guided_rad = cfg.guided_px * math.pi / 512.0  # equator pixels at 1024 columns -> radians
-    first: dict[tuple[int, int], tuple[int, int]] = {}
+    level: dict[tuple[int, int], tuple[int, int]] = {}
     with pycolmap.Database.open(db_path) as db:
         for i, j in pair_list:
             a, b = image_ids[i], image_ids[j]
-            if not db.exists_two_view_geometry(a, b):
+            e_gl = _seed(db, a, b, cfg)
+            if e_gl is None and cfg.level_search is not None:
+                m = putative[(i, j)]
+                found = upright.search(
+                    feats[i].bearings[m[:, 0]], feats[j].bearings[m[:, 1]], cfg.level_search
+                )
+                if found is not None:
+                    level[(i, j)] = (found.support, found.runner_up)
+                    e_gl = found.essential
+            if e_gl is None:
                 continue
-            tvg = db.read_two_view_geometry(a, b)
-            first[(i, j)] = (len(tvg.inlier_matches), int(tvg.config))
-            # Guided matching harvests matches along whatever epipolar planes it is given: only
-            # a calibrated geometry with a clear majority of support earns it.
-            kind = pycolmap.TwoViewGeometryConfiguration
-            if len(tvg.inlier_matches) < cfg.min_guided_inliers or tvg.config not in (
-                kind.CALIBRATED,
-                kind.PLANAR,  # a wall or the floor dominates: the pose is from the homography
-            ):
-                continue
-            pose = tvg.cam2_from_cam1
-            t_cv = np.asarray(pose.translation).reshape(3)
-            if not np.linalg.norm(t_cv) > 0:
-                continue
-            e_cv = geo.skew(t_cv / np.linalg.norm(t_cv)) @ np.asarray(pose.rotation.matrix())
-            guided = ft.match_guided(feats[i], feats[j], CV_TO_GL @ e_cv @ CV_TO_GL, guided_rad)
+            guided = ft.match_guided(feats[i], feats[j], e_gl, guided_rad)
             if len(guided) > len(putative[(i, j)]):
                 merged = np.unique(np.concatenate([putative[(i, j)], guided]), axis=0)
                 # One keypoint, one match: the pooled match wins where they disagree.
@@ -269,6 +266,29 @@ def _run(images, cfg: ColmapConfig, say, work: Path) -> ColmapEstimate:
             est = _two_view(db_path, image_ids, feats, counts, cfg, best)
     say("mapping", 1, 1)
     return est
+
+
+def _seed(db, a: int, b: int, cfg: ColmapConfig):
+    """The essential matrix (OpenGL frames) of a verified pair that earns guided matching, or
+    None. Guided matching harvests matches along whatever epipolar planes it is given: only a
+    calibrated geometry with a clear majority of support earns it."""
+    pycolmap = load_pycolmap()
+
+    if not db.exists_two_view_geometry(a, b):
+        return None
+    tvg = db.read_two_view_geometry(a, b)
+    kind = pycolmap.TwoViewGeometryConfiguration
+    if len(tvg.inlier_matches) < cfg.min_guided_inliers or tvg.config not in (
+        kind.CALIBRATED,
+        kind.PLANAR,  # a wall or the floor dominates: the pose is from the homography
+    ):
+        return None
+    pose = tvg.cam2_from_cam1
+    t_cv = np.asarray(pose.translation).reshape(3)
+    if not np.linalg.norm(t_cv) > 0:
+        return None
+    e_cv = geo.skew(t_cv / np.linalg.norm(t_cv)) @ np.asarray(pose.rotation.matrix())
+    return CV_TO_GL @ e_cv @ CV_TO_GL
 
 
 def _verify(db_path: Path, verify, cfg: ColmapConfig) -> None:
