@@ -96,6 +96,7 @@ def main() -> None:
     p.add_argument("--peaks", type=int, default=5)
     p.add_argument("--width", type=int, default=2048)
     p.add_argument("--json", type=Path, default=None)
+    p.add_argument("--ratio", type=float, default=0.8, help="Lowe's ratio of the matching")
     p.add_argument("--guided", action="store_true", help="grow each hypothesis by guided matching")
     a = p.parse_args()
     tol = math.radians(a.tol)
@@ -119,10 +120,10 @@ def main() -> None:
         for i in range(len(imgs)):
             for j in range(i + 1, len(imgs)):
                 fa, fb = feats[i], feats[j]
-                m = ft.match(fa, fb, 0.8)
+                m = ft.match(fa, fb, a.ratio)
                 yaw_t, c_t = truth(poses[i], poses[j])
                 good = count_consistent(fa, fb, m, yaw_t, c_t, tol)
-                score = upright._grid(
+                score, _ = upright._grid(
                     fa.bearings[m[:, 0]], fb.bearings[m[:, 1]], upright.UprightConfig(tol_deg=a.tol)
                 )
                 yaws = heads = np.radians(np.arange(0.0, 360.0, 1.0))

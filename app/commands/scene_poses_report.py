@@ -33,6 +33,11 @@ def pose_report(files: list[Path], est) -> list[str]:
             if p.ok
             else f"FAILED: {p.reason}"
         )
+        if p.level_search is not None:
+            state += (
+                f" (matches grown from the level-camera search: {p.level_search[0]} agree"
+                f" at its peak, at most {p.level_search[1]} elsewhere)"
+            )
         lines.append(f"  {files[p.i].name} - {files[p.j].name}: {p.matches} matches; {state}")
     lines.append("views:")
     lines += [f"  {files[v.index].name}: {v.note}" for v in est.views]
@@ -41,7 +46,10 @@ def pose_report(files: list[Path], est) -> list[str]:
 
 def _report_json(files: list[Path], est, lines: list[str]) -> dict:
     return {
-        "method": f"SIFT on cube faces, pooled and guided matching; COLMAP {est.mapper}",
+        "method": (
+            "SIFT on cube faces, pooled and guided matching, a level-camera search for pairs"
+            f" COLMAP cannot verify; COLMAP {est.mapper}"
+        ),
         "seconds": round(est.seconds, 2),
         "median_residual_deg": est.residual_deg,
         "pairs": [
@@ -54,6 +62,11 @@ def _report_json(files: list[Path], est, lines: list[str]) -> dict:
                 "median_residual_deg": p.residual_deg,
                 "ok": p.ok,
                 "reason": p.reason,
+                "level_search": (
+                    None
+                    if p.level_search is None
+                    else {"peak": p.level_search[0], "elsewhere": p.level_search[1]}
+                ),
             }
             for p in est.pairs
         ],

@@ -264,6 +264,8 @@ def _run(images, cfg: ColmapConfig, say, work: Path) -> ColmapEstimate:
         if est.registered.sum() < 2:  # no graph of pairs: the best pair alone, if it holds
             best = max(counts, key=lambda ij: counts[ij][1])
             est = _two_view(db_path, image_ids, feats, counts, cfg, best)
+    for p in est.pairs:
+        p.level_search = level.get((p.i, p.j))
     say("mapping", 1, 1)
     return est
 

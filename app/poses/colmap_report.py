@@ -43,6 +43,9 @@ class PairReport:
     """Median reprojection residual of those points (degrees; None: no shared points)."""
     ok: bool = False
     reason: str = ""
+    level_search: tuple[int, int] | None = None
+    """Where COLMAP could not verify the pooled matches and the search for level cameras
+    seeded the guided matching: (supporting matches at its peak, the best support elsewhere)."""
 
 
 @dataclass

@@ -3,18 +3,19 @@
 Two rooms that see each other through a doorway share a few percent of their matches: too
 few for a five-point RANSAC (COLMAP's verification keeps nothing), yet enough when the
 cameras are level, as 360-degree cameras make them (a tripod, or the camera's own horizon
-correction). Then the relative pose has two unknowns: the second camera's heading (yaw) and the
-direction of its centre in the horizontal plane. Every pair of them on a one-degree grid is
-scored by the matches whose rays meet in front of both cameras within ``tol_deg`` of the
-epipolar plane (a Hough transform, not sampling, so a 5 % inlier share is found as surely as
-a 50 % one). A peak is taken only if it is clearly the best: ``min_support`` matches and
-``min_ratio`` times the best hypothesis ``apart_deg`` away from it; it is then refined in all
-five degrees of freedom (the cameras need not be exactly level, nor at one height).
+correction). Then the relative pose has three unknowns: the second camera's heading (yaw) and
+the direction of its centre, nearly horizontal (the two cameras at about one height). Every
+yaw and heading on a one-degree grid, and elevations of the centre within
+``max_elevation_deg``, is scored by the matches whose rays meet in front of both cameras within
+``tol_deg`` of the epipolar plane (a Hough transform, not sampling, so a 5 % inlier share is
+found as surely as a 50 % one). A peak is taken only if it is clearly the best: ``min_support``
+matches and ``min_ratio`` times the best hypothesis ``apart_deg`` away from it; it is then
+refined in all five degrees of freedom (the cameras need not be exactly level).
 
 The result only seeds the guided matching of `panogrf.app.poses.colmap`; COLMAP verifies the
-grown matches and maps as for any other pair, so a wrong seed that finds no support is dropped
-there. Bearings and poses follow `panogrf.app.poses.geometry`: ``x2 = R x1 + t``, OpenGL camera
-frames (y up), ``b2^T E b1 = 0`` with ``E = [t]x R``.
+grown matches and maps as for any other pair. Bearings and poses follow
+`panogrf.app.poses.geometry`: ``x2 = R x1 + t``, OpenGL camera frames (y up),
+``b2^T E b1 = 0`` with ``E = [t]x R``.
 """
 
 from __future__ import annotations
@@ -46,6 +47,10 @@ class UprightConfig:
     min_ratio: float = 1.5
     """The peak's support over the best hypothesis ``apart_deg`` away from it (there: 1.8-4.1
     for true peaks, 1.0-1.3 for the others)."""
+    max_elevation_deg: float = 15.0
+    """The direction from one camera to the other is searched up to this far above or below
+    the horizon (hand-held cameras 0.3 m apart in height at 1.2 m: 14 degrees)."""
+    elevation_step_deg: float = 1.5
     apart_deg: float = 20.0
     """Yaw or heading this far from the peak: another hypothesis, not the peak's shoulder."""
 
@@ -74,36 +79,44 @@ def _rot_y(angles: np.ndarray) -> np.ndarray:
     return np.stack(rows, -2)
 
 
-def _support(b1: np.ndarray, d2: np.ndarray, trig: np.ndarray, limit: float) -> np.ndarray:
-    """Rays b1 [M, 3] from the origin and d2 [M, 3] (camera 1's axes) from the level centres
-    (sin h, 0, -cos h) given as ``trig`` [H, 2] = (sin h, -cos h) -> the matches [H] within
-    ``limit`` (a sine) of the epipolar plane, in front of both cameras.
-
-    Each quantity is linear in (sin h, -cos h): with c = sin h e_x - cos h e_z, the plane's
-    normal is c x b1 = sin h (e_x x b1) - cos h (e_z x b1), so every test is one [H, 2] x
-    [2, M] product."""
-    ex, ez = np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.0])
-    nx, nz = np.cross(ex, b1), np.cross(ez, b1)  # [M, 3]
-    cross = np.cross(b1, d2)
-    off = trig @ np.stack([(nx * d2).sum(1), (nz * d2).sum(1)])  # normal . d2, [H, M]
-    sq = (
-        trig[:, :1] ** 2 * (nx * nx).sum(1)
-        + trig[:, 1:] ** 2 * (nz * nz).sum(1)
-        + 2 * trig[:, :1] * trig[:, 1:] * (nx * nz).sum(1)
-    )  # |normal|^2
-    # depths along b1 and d2, up to the positive factor |b1 x d2|^2
-    depth2 = trig @ np.stack([(nx * cross).sum(1), (nz * cross).sum(1)])
-    depth1 = trig @ np.stack([(np.cross(ex, d2) * cross).sum(1), (np.cross(ez, d2) * cross).sum(1)])
-    ok = (off * off < limit * limit * sq) & (depth1 > 0) & (depth2 > 0)
-    return ok.sum(1)
+def _centres(cfg: UprightConfig) -> np.ndarray:
+    """Unit centres [E, H, 3] of camera 2 on the grid of elevations and headings."""
+    heads = np.radians(np.arange(0.0, 360.0, cfg.step_deg))
+    top = cfg.max_elevation_deg
+    elevs = np.radians(np.arange(-top, top + 1e-9, cfg.elevation_step_deg))
+    ce, se = np.cos(elevs)[:, None], np.sin(elevs)[:, None]
+    return np.stack(np.broadcast_arrays(ce * np.sin(heads), se, -ce * np.cos(heads)), -1)
 
 
 def _grid(b1: np.ndarray, b2: np.ndarray, cfg: UprightConfig) -> np.ndarray:
-    """Support [Y, H] of every yaw (camera 2 in camera 1's axes) and heading on the grid."""
-    angles = np.radians(np.arange(0.0, 360.0, cfg.step_deg))
-    trig = np.stack([np.sin(angles), -np.cos(angles)], -1)
+    """Support [Y, H] of every yaw (camera 2's axes in camera 1's) and heading on the grid:
+    the most matches any elevation of the centre gathers.
+
+    A match supports a centre c when c lies within the tolerance of its epipolar plane,
+    c . (b1 x d2) = 0 with d2 = R_yaw b2, and both rays' depths are positive: for each yaw,
+    three [C, 3] x [3, M] products over all centres C at once (single precision: the test is
+    on sines of a degree or so). Matches with less parallax than the tolerance fit every
+    heading and are not counted."""
+    import torch
+
+    centres = torch.from_numpy(_centres(cfg).reshape(-1, 3)).float()
     limit = math.sin(math.radians(cfg.tol_deg))
-    return np.stack([_support(b1, b2 @ r.T, trig, limit) for r in _rot_y(angles)])
+    yaws = np.radians(np.arange(0.0, 360.0, cfg.step_deg))
+    tb1 = torch.from_numpy(b1).float()
+    along1 = (centres @ tb1.T).square_()  # cos^2 of centre to b1, [C, M]
+    side1 = (1.0 - along1).clamp_(min=0.0).mul_(limit * limit)  # (limit |c x b1|)^2
+    out = np.empty((len(yaws), len(centres)), np.int64)
+    for k, r in enumerate(_rot_y(yaws)):
+        d2 = torch.from_numpy(b2 @ r.T).float()
+        n = torch.linalg.cross(tb1, d2)  # [M, 3]; |n| = sine of the parallax
+        moved = n.norm(dim=1) > limit
+        off = (centres @ n.T).square_() < side1
+        front = (centres @ torch.linalg.cross(d2, n).T > 0) & (
+            centres @ torch.linalg.cross(tb1, n).T > 0
+        )
+        out[k] = (off & front & moved).sum(1).numpy()
+    score = out.reshape(len(yaws), -1, len(yaws))  # [Y, E, H]
+    return score.max(1), score.argmax(1)
 
 
 def _refine(b1: np.ndarray, b2: np.ndarray, rot: np.ndarray, t: np.ndarray, tol: float):
@@ -133,7 +146,7 @@ def search(b1: np.ndarray, b2: np.ndarray, cfg: UprightConfig = UprightConfig())
     when no hypothesis stands out (see the module's description)."""
     if len(b1) < cfg.min_support:
         return None
-    score = _grid(b1, b2, cfg)
+    score, elevation = _grid(b1, b2, cfg)
     yi, hi = np.unravel_index(int(np.argmax(score)), score.shape)
     best = int(score[yi, hi])
     n = score.shape[0]
@@ -145,9 +158,9 @@ def search(b1: np.ndarray, b2: np.ndarray, cfg: UprightConfig = UprightConfig())
     runner_up = int(score[far].max()) if far.any() else 0
     if best < cfg.min_support or best < cfg.min_ratio * runner_up:
         return None
-    yaw, head = math.radians(yi * cfg.step_deg), math.radians(hi * cfg.step_deg)
+    yaw = math.radians(yi * cfg.step_deg)
     r_21 = _rot_y(np.array([yaw]))[0]  # camera 2's axes in camera 1's
-    centre = np.array([math.sin(head), 0.0, -math.cos(head)])
+    centre = _centres(cfg)[elevation[yi, hi], hi]
     rot = r_21.T
     t = -rot @ centre
     last = None

@@ -77,3 +77,32 @@ def test_too_few_true_matches_among_many_give_no_pose():
     rng = np.random.default_rng(3)
     b1, b2, _, _ = _pair(rng, inliers=4, outliers=220, yaw_deg=20.0)
     assert upright.search(b1, b2) is None
+
+
+def test_a_real_pair_that_colmap_did_not_verify_is_posed_from_the_search(monkeypatch):
+    """The pipeline's path for a pair without a verified geometry, on the real pair of
+    `tests/data/real_pair` (level cameras, CC0): with COLMAP's first verification ignored, the
+    search seeds the guided matching, COLMAP verifies the grown matches and the report says so."""
+    from pathlib import Path
+
+    from panogrf.app.commands.scene_poses_report import pose_report
+    from panogrf.app.files.images import read_rgb
+    from panogrf.app.poses import colmap
+
+    pair = Path(__file__).parents[1] / "data" / "real_pair"
+    files = [pair / "studio_small_03.jpg", pair / "studio_small_07.jpg"]
+    images = [read_rgb(f) for f in files]
+    monkeypatch.setattr(colmap, "_seed", lambda *args: None)
+    est = colmap.estimate_poses_colmap(images, colmap.ColmapConfig(num_threads=2))
+    (report,) = est.pairs
+    assert report.level_search is not None and report.level_search[0] >= 20
+    assert report.ok and est.registered.all()
+    line = pose_report(files, est)[2]
+    assert "level-camera search" in line and "ok" in line
+    # the same relative pose as the product's path with COLMAP's verification
+    monkeypatch.undo()
+    plain = colmap.estimate_poses_colmap(images, colmap.ColmapConfig(num_threads=2))
+    assert plain.pairs[0].level_search is None
+    rel = [np.linalg.inv(e.c2w[0]) @ e.c2w[1] for e in (est, plain)]
+    assert er.rotation_angle_deg(rel[0][:3, :3] @ rel[1][:3, :3].T) < 0.5
+    assert math.degrees(math.acos(np.clip(_unit(rel[0][:3, 3]) @ _unit(rel[1][:3, 3]), -1, 1))) < 2
