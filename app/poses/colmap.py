@@ -81,7 +81,8 @@ def estimate_poses_colmap(
     """Poses of panoramas [H, W, 3] uint8 (RGB), at least two, all the same size.
 
     Each step is a `panogrf.model.progress` stage ("posing: features", "posing: matching",
-    "posing: verification", "posing: mapping"); ``progress(stage, done, total)`` is also called
+    "posing: verification", "posing: level-camera search" where pairs were not verified,
+    "posing: guided matching", "posing: mapping"); ``progress(stage, done, total)`` is also called
     when given. ``work_dir``: where COLMAP's database goes (default: a temporary folder,
     removed after)."""
     start = time.perf_counter()
@@ -207,23 +208,27 @@ def _run(images, cfg: ColmapConfig, say, work: Path) -> ColmapEstimate:
         say("matching", len(pair_list), len(pair_list))
     say("verification", 0, 2)
     _verify(db_path, verify, cfg)
-    guided_rad = cfg.guided_px * math.pi / 512.0  # equator pixels at 1024 columns -> radians
-    level: dict[tuple[int, int], tuple[int, int]] = {}
     with pycolmap.Database.open(db_path) as db:
-        for i, j in pair_list:
+        seeds = {(i, j): _seed(db, image_ids[i], image_ids[j], cfg) for i, j in pair_list}
+    level: dict[tuple[int, int], tuple[int, int]] = {}
+    unseeded = [ij for ij in pair_list if seeds[ij] is None]
+    if cfg.level_search is not None and unseeded:
+        for n, (i, j) in enumerate(unseeded):
+            say("level-camera search", n, len(unseeded))
+            m = putative[(i, j)]
+            b_i, b_j = feats[i].bearings[m[:, 0]], feats[j].bearings[m[:, 1]]
+            found = upright.search(b_i, b_j, cfg.level_search)
+            if found is not None:
+                level[(i, j)] = (found.support, found.runner_up)
+                seeds[(i, j)] = found.essential
+        say("level-camera search", len(unseeded), len(unseeded))
+    guided_rad = cfg.guided_px * math.pi / 512.0  # equator pixels at 1024 columns -> radians
+    seeded = [ij for ij in pair_list if seeds[ij] is not None]
+    with pycolmap.Database.open(db_path) as db:
+        for n, (i, j) in enumerate(seeded):
+            say("guided matching", n, len(seeded))
             a, b = image_ids[i], image_ids[j]
-            e_gl = _seed(db, a, b, cfg)
-            if e_gl is None and cfg.level_search is not None:
-                m = putative[(i, j)]
-                found = upright.search(
-                    feats[i].bearings[m[:, 0]], feats[j].bearings[m[:, 1]], cfg.level_search
-                )
-                if found is not None:
-                    level[(i, j)] = (found.support, found.runner_up)
-                    e_gl = found.essential
-            if e_gl is None:
-                continue
-            guided = ft.match_guided(feats[i], feats[j], e_gl, guided_rad)
+            guided = ft.match_guided(feats[i], feats[j], seeds[(i, j)], guided_rad)
             if len(guided) > len(putative[(i, j)]):
                 merged = np.unique(np.concatenate([putative[(i, j)], guided]), axis=0)
                 # One keypoint, one match: the pooled match wins where they disagree.
@@ -235,6 +240,7 @@ def _run(images, cfg: ColmapConfig, say, work: Path) -> ColmapEstimate:
                 db.delete_matches(a, b)
                 db.delete_two_view_geometry(a, b)
                 db.write_matches(a, b, merged.astype(np.uint32))
+        say("guided matching", len(seeded), len(seeded))
     say("verification", 1, 2)
     _verify(db_path, verify, cfg)
     say("verification", 2, 2)

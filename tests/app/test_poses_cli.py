@@ -42,7 +42,7 @@ def test_demo_poses_from_its_pixels(tmp_path, capsys):
     assert "matches; ok" in report and "median residual" in report and "upright:" in report
     assert "nan" not in report.lower()
     # Every stage of the posing showed its progress on stderr.
-    for name in ("features", "matching", "verification", "mapping"):
+    for name in ("features", "matching", "verification", "guided matching", "mapping"):
         assert f"posing: {name}:" in captured.err
     saved = json.loads((out / "poses_report.json").read_text())
     assert len(saved["pairs"]) == 3 and all(p["ok"] for p in saved["pairs"])
