@@ -51,6 +51,10 @@ class UprightConfig:
     """The direction from one camera to the other is searched up to this far above or below
     the horizon (hand-held cameras 0.3 m apart in height at 1.2 m: 14 degrees)."""
     elevation_step_deg: float = 1.5
+    max_matches: int = 500
+    """More matches than this: the grid counts a random subset of this many (its cost grows
+    with the matches; a pair with thousands of matches that RANSAC could not verify, such as a
+    photo and a turned copy of it, needs no more to show a peak or its absence)."""
     apart_deg: float = 20.0
     """Yaw or heading this far from the peak: another hypothesis, not the peak's shoulder."""
 
@@ -146,7 +150,10 @@ def search(b1: np.ndarray, b2: np.ndarray, cfg: UprightConfig = UprightConfig())
     when no hypothesis stands out (see the module's description)."""
     if len(b1) < cfg.min_support:
         return None
-    score, elevation = _grid(b1, b2, cfg)
+    sub = slice(None)
+    if len(b1) > cfg.max_matches:
+        sub = np.sort(np.random.default_rng(0).choice(len(b1), cfg.max_matches, replace=False))
+    score, elevation = _grid(b1[sub], b2[sub], cfg)
     yi, hi = np.unravel_index(int(np.argmax(score)), score.shape)
     best = int(score[yi, hi])
     n = score.shape[0]
