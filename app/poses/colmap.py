@@ -209,27 +209,31 @@ def _run(images, cfg: ColmapConfig, say, work: Path) -> ColmapEstimate:
     say("verification", 0, 2)
     _verify(db_path, verify, cfg)
     with pycolmap.Database.open(db_path) as db:
-        seeds = {(i, j): _seed(db, image_ids[i], image_ids[j], cfg) for i, j in pair_list}
-    level: dict[tuple[int, int], tuple[int, int]] = {}
-    unseeded = [ij for ij in pair_list if seeds[ij] is None]
-    if cfg.level_search is not None and unseeded:
-        for n, (i, j) in enumerate(unseeded):
-            say("level-camera search", n, len(unseeded))
+        first = {(i, j): _seed(db, image_ids[i], image_ids[j], cfg) for i, j in pair_list}
+    seeds = {ij: e_gl for ij, (e_gl, _) in first.items()}
+    found_level: dict[tuple[int, int], tuple[int, int]] = {}
+    unverified = [ij for ij in pair_list if not first[ij][1]]
+    if cfg.level_search is not None and unverified:
+        for n, (i, j) in enumerate(unverified):
+            say("level-camera search", n, len(unverified))
             m = putative[(i, j)]
             b_i, b_j = feats[i].bearings[m[:, 0]], feats[j].bearings[m[:, 1]]
             found = upright.search(b_i, b_j, cfg.level_search)
             if found is not None:
-                level[(i, j)] = (found.support, found.runner_up)
+                found_level[(i, j)] = (found.support, found.runner_up)
                 seeds[(i, j)] = found.essential
-        say("level-camera search", len(unseeded), len(unseeded))
+        say("level-camera search", len(unverified), len(unverified))
     guided_rad = cfg.guided_px * math.pi / 512.0  # equator pixels at 1024 columns -> radians
     seeded = [ij for ij in pair_list if seeds[ij] is not None]
+    level: dict[tuple[int, int], tuple[int, int]] = {}
     with pycolmap.Database.open(db_path) as db:
         for n, (i, j) in enumerate(seeded):
             say("guided matching", n, len(seeded))
             a, b = image_ids[i], image_ids[j]
             guided = ft.match_guided(feats[i], feats[j], seeds[(i, j)], guided_rad)
             if len(guided) > len(putative[(i, j)]):
+                if (i, j) in found_level:  # the report names only pairs it grew
+                    level[(i, j)] = found_level[(i, j)]
                 merged = np.unique(np.concatenate([putative[(i, j)], guided]), axis=0)
                 # One keypoint, one match: the pooled match wins where they disagree.
                 _, first_a = np.unique(merged[:, 0], return_index=True)
@@ -240,7 +244,8 @@ def _run(images, cfg: ColmapConfig, say, work: Path) -> ColmapEstimate:
                 db.delete_matches(a, b)
                 db.delete_two_view_geometry(a, b)
                 db.write_matches(a, b, merged.astype(np.uint32))
-        say("guided matching", len(seeded), len(seeded))
+        if seeded:
+            say("guided matching", len(seeded), len(seeded))
     say("verification", 1, 2)
     _verify(db_path, verify, cfg)
     say("verification", 2, 2)
@@ -276,27 +281,29 @@ def _run(images, cfg: ColmapConfig, say, work: Path) -> ColmapEstimate:
     return est
 
 
-def _seed(db, a: int, b: int, cfg: ColmapConfig):
-    """The essential matrix (OpenGL frames) of a verified pair that earns guided matching, or
-    None. Guided matching harvests matches along whatever epipolar planes it is given: only a
-    calibrated geometry with a clear majority of support earns it."""
+def _seed(db, a: int, b: int, cfg: ColmapConfig) -> tuple[np.ndarray | None, bool]:
+    """(The essential matrix (OpenGL frames) of a verified pair that earns guided matching, or
+    None; whether the pair has a verified geometry of ``min_pair_inliers``). Guided matching
+    harvests matches along whatever epipolar planes it is given: only a calibrated geometry with
+    a clear majority of support earns it."""
     pycolmap = load_pycolmap()
 
     if not db.exists_two_view_geometry(a, b):
-        return None
+        return None, False
     tvg = db.read_two_view_geometry(a, b)
+    verified = len(tvg.inlier_matches) >= cfg.min_pair_inliers
     kind = pycolmap.TwoViewGeometryConfiguration
     if len(tvg.inlier_matches) < cfg.min_guided_inliers or tvg.config not in (
         kind.CALIBRATED,
         kind.PLANAR,  # a wall or the floor dominates: the pose is from the homography
     ):
-        return None
+        return None, verified
     pose = tvg.cam2_from_cam1
     t_cv = np.asarray(pose.translation).reshape(3)
     if not np.linalg.norm(t_cv) > 0:
-        return None
+        return None, verified
     e_cv = geo.skew(t_cv / np.linalg.norm(t_cv)) @ np.asarray(pose.rotation.matrix())
-    return CV_TO_GL @ e_cv @ CV_TO_GL
+    return CV_TO_GL @ e_cv @ CV_TO_GL, verified
 
 
 def _verify(db_path: Path, verify, cfg: ColmapConfig) -> None:

@@ -35,17 +35,20 @@ class Features:
     """[K, 128] float32 SIFT descriptors."""
 
 
-#: Panoramas narrower than this many columns get faces of this width's size: upsampled.
+#: Panoramas narrower than this many columns get faces of this width's size (652 px), up to
+#: twice their own: upsampled.
 MIN_FACE_COLUMNS = 2048
 
 
 def face_size_for(width: int) -> int:
     """Face size (px) that samples the equator at the panorama's resolution, and at least a
-    2048-column panorama's (652 px). SIFT on the faces of a panorama exported at 1024 columns,
-    326 px, finds too few keypoints that match: on the 13 real scenes of the posing benchmark
-    at 1024 columns, 3 scenes and 8 of 34 panoramas posed; with the faces upsampled to 652 px, 5
-    and 18 (at 2048 columns: 7 and 22)."""
-    return int(round(max(width, MIN_FACE_COLUMNS) / math.pi))
+    2048-column panorama's (652 px) where that is at most twice as fine. SIFT on the faces of
+    a panorama exported at 1024 columns, 326 px, finds too few keypoints that match: on the 13
+    real scenes of the posing benchmark at 1024 columns, 3 scenes and 8 of 34 panoramas posed;
+    with the faces upsampled to 652 px, 5 and 18 (at 2048 columns: 7 and 22). Smaller
+    panoramas are upsampled twice only: each doubling of the faces quadruples the keypoints'
+    search and matching."""
+    return int(round(max(width, min(MIN_FACE_COLUMNS, 2 * width)) / math.pi))
 
 
 @lru_cache(maxsize=4)

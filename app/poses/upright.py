@@ -92,12 +92,13 @@ def _centres(cfg: UprightConfig) -> np.ndarray:
     return np.stack(np.broadcast_arrays(ce * np.sin(heads), se, -ce * np.cos(heads)), -1)
 
 
-def _grid(b1: np.ndarray, b2: np.ndarray, cfg: UprightConfig) -> np.ndarray:
+def _grid(b1: np.ndarray, b2: np.ndarray, cfg: UprightConfig) -> tuple[np.ndarray, np.ndarray]:
     """Support [Y, H] of every yaw (camera 2's axes in camera 1's) and heading on the grid:
-    the most matches any elevation of the centre gathers.
+    the most matches any elevation of the centre gathers, and that elevation's index [Y, H].
 
-    A match supports a centre c when c lies within the tolerance of its epipolar plane,
-    c . (b1 x d2) = 0 with d2 = R_yaw b2, and both rays' depths are positive: for each yaw,
+    A match supports a centre c when d2 = R_yaw b2 is within the tolerance of the epipolar
+    plane through c and b1 (c . (b1 x d2) = 0 exactly on it) and both rays' depths are
+    positive: for each yaw,
     three [C, 3] x [3, M] products over all centres C at once (single precision: the test is
     on sines of a degree or so). Matches with less parallax than the tolerance fit every
     heading and are not counted."""
