@@ -46,7 +46,11 @@ def pose(method: str, images: list[np.ndarray]):
         if method == "colmap-nolevel":  # without the search for level cameras
             cfg = ColmapConfig(num_threads=2, level_search=None)
         est = estimate_poses_colmap(images, cfg)
-        notes = [f"{p.i}-{p.j}: {p.matches} matches, {p.inliers} inliers" for p in est.pairs]
+        notes = [
+            f"{p.i}-{p.j}: {p.matches} matches, {p.inliers} inliers"
+            + ("" if p.level_search is None else f", grown from the level search {p.level_search}")
+            for p in est.pairs
+        ]
         return est.c2w, est.registered, est.points, notes
     raise SystemExit(f"unknown method {method}")
 
