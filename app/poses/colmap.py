@@ -65,8 +65,9 @@ class ColmapConfig:
     max_error_px: float = 4.0
     """COLMAP's RANSAC and reprojection thresholds, in panorama pixels at 1024 columns."""
     level_search: upright.UprightConfig | None = upright.UprightConfig()
-    """Pairs without a verified geometry: the exhaustive search for level cameras
-    (`panogrf.app.poses.upright`) seeds their guided matching (None: not tried)."""
+    """Pairs without a verified geometry, between panoramas no verified pair links: the
+    exhaustive search for level cameras (`panogrf.app.poses.upright`) seeds their guided
+    matching (None: not tried)."""
     num_threads: int = -1
     """COLMAP's threads (-1: all cores)."""
     seed: int = 0
@@ -212,16 +213,34 @@ def _run(images, cfg: ColmapConfig, say, work: Path) -> ColmapEstimate:
         first = {(i, j): _seed(db, image_ids[i], image_ids[j], cfg) for i, j in pair_list}
     seeds = {ij: e_gl for ij, (e_gl, _) in first.items()}
     found_level: dict[tuple[int, int], tuple[int, int]] = {}
-    unverified = [ij for ij in pair_list if not first[ij][1]]
+    # The search links panoramas no verified pair links: the most matches first, and a pair
+    # whose panoramas are linked already (by verified pairs or an earlier find) is skipped, so
+    # a tour of many photos pays for its gaps, not for every pair that sees nothing in common.
+    group = list(range(v_count))
+
+    def root(k: int) -> int:
+        while group[k] != k:
+            k = group[k]
+        return k
+
+    for i, j in pair_list:
+        if first[(i, j)][1]:
+            group[root(i)] = root(j)
+    unverified = sorted(
+        (ij for ij in pair_list if not first[ij][1]), key=lambda ij: -len(putative[ij])
+    )
     if cfg.level_search is not None and unverified:
         for n, (i, j) in enumerate(unverified):
             say("level-camera search", n, len(unverified))
+            if root(i) == root(j):
+                continue
             m = putative[(i, j)]
             b_i, b_j = feats[i].bearings[m[:, 0]], feats[j].bearings[m[:, 1]]
             found = upright.search(b_i, b_j, cfg.level_search)
             if found is not None:
                 found_level[(i, j)] = (found.support, found.runner_up)
                 seeds[(i, j)] = found.essential
+                group[root(i)] = root(j)
         say("level-camera search", len(unverified), len(unverified))
     guided_rad = cfg.guided_px * math.pi / 512.0  # equator pixels at 1024 columns -> radians
     seeded = [ij for ij in pair_list if seeds[ij] is not None]
