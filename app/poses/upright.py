@@ -135,9 +135,8 @@ def _refine(b1: np.ndarray, b2: np.ndarray, rot: np.ndarray, t: np.ndarray, tol:
         )
 
     def residual(p):
-        r, tt = unpack(p)
-        n = b1 @ (skew(tt) @ r).T
-        return (n * b2).sum(1) / np.maximum(np.linalg.norm(n, axis=1), 1e-12)
+        dot, length = _epipolar(b1, b2, *unpack(p))
+        return dot / np.maximum(length, 1e-12)
 
     p0 = np.concatenate([Rotation.from_matrix(rot).as_rotvec(), [0.0, 0.0]])
     p0[3] = math.atan2(t[0], -t[2])
@@ -183,7 +182,14 @@ def search(b1: np.ndarray, b2: np.ndarray, cfg: UprightConfig = UprightConfig())
     return UprightPose(rot=rot, t=t, support=best, runner_up=runner_up)
 
 
+def _epipolar(b1: np.ndarray, b2: np.ndarray, rot: np.ndarray, t: np.ndarray):
+    """(b2 . n, |n|) [M] with n = E b1 the normal of each match's epipolar plane in camera 2:
+    their ratio is the sine of b2's angle out of the plane."""
+    normal = b1 @ (skew(t) @ rot).T
+    return (normal * b2).sum(-1), np.linalg.norm(normal, axis=-1)
+
+
 def _within(b1: np.ndarray, b2: np.ndarray, rot: np.ndarray, t: np.ndarray, limit: float):
     """Which matches [M] lie within ``limit`` (a sine) of their epipolar planes."""
-    normal = b1 @ (skew(t) @ rot).T
-    return np.abs((normal * b2).sum(-1)) < limit * np.linalg.norm(normal, axis=-1)
+    dot, length = _epipolar(b1, b2, rot, t)
+    return np.abs(dot) < limit * length
