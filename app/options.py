@@ -6,11 +6,13 @@ is written once, with its default, its help and its checks (the dataclass's ``__
 
 The option of field ``field_name`` is ``--field-name`` unless the field names its own flag. Its
 value is parsed by the field's ``parse`` function, else by the field's type (``Path | None``
-parses a Path). A bool field is a flag that sets the opposite of its default (``--no-field-name``
-for a field true by default), or, made ``negatable``, both ``--field-name`` and
-``--no-field-name``. A field without a default is a required option. A field made
-without `option` is no option. A subclass gives an inherited option another default by
-declaring the field again with a plain default: the option keeps its flag, help and parse.
+parses a Path; a `StrEnum` parses into its members, its ``choices`` shown and checked as their
+values, so that the option takes their text and argparse names a wrong one). A bool field is a
+flag that sets the opposite of its default (``--no-field-name`` for a field true by default),
+or, made ``negatable``, both ``--field-name`` and ``--no-field-name``. A field without a
+default is a required option. A field made without `option` is no option. A subclass gives an
+inherited option another default by declaring the field again with a plain default: the option
+keeps its flag, help and parse.
 A ``positional`` field is an argument named by its place (shown as its ``metavar``, else its
 name), with ``nargs`` as argparse's (``"+"``: one or more, a list). Options that name the same
 ``one_of`` group are alternatives: exactly one of them must be given; of those that name the
@@ -24,6 +26,7 @@ import dataclasses
 import types
 import typing
 from collections.abc import Callable
+from enum import StrEnum
 from typing import Any
 
 _KEY = "panogrf.option"
@@ -117,12 +120,42 @@ def _value_type(cls: type, name: str) -> type:
     return hint
 
 
+def _member_of(enum: type[StrEnum]) -> Callable[[str], Any]:
+    """Parses an option's text into the member of ``enum`` of that value; any other text is
+    left as it is, for the option's ``choices`` to refuse with argparse's own message."""
+
+    def parse(text: str) -> Any:
+        try:
+            return enum(text)
+        except ValueError:
+            return text
+
+    return parse
+
+
+def _parse(cls: type, field: dataclasses.Field, opt: Option) -> Callable[[str], Any]:
+    """The argparse ``type`` of option ``field`` of ``cls``: its ``parse``, else its type (a
+    `StrEnum`: into its members)."""
+    if opt.parse is not None:
+        return opt.parse
+    kind = _value_type(cls, field.name)
+    return _member_of(kind) if isinstance(kind, type) and issubclass(kind, StrEnum) else kind
+
+
+def _choices(opt: Option) -> tuple | None:
+    """The option's choices for argparse: the values of `StrEnum` members as plain strings
+    (argparse names the choices by their repr, which is a member's class and name)."""
+    if opt.choices is None:
+        return None
+    return tuple(str(c) if isinstance(c, StrEnum) else c for c in opt.choices)
+
+
 def _argument(cls: type, field: dataclasses.Field, opt: Option) -> tuple[str, dict[str, Any]]:
     """The flag (a positional argument: its name) and the `add_argument` keywords of option
     ``field`` of ``cls``."""
     if opt.positional:
-        kwargs = {"type": opt.parse or _value_type(cls, field.name), "help": opt.help}
-        extra = {"metavar": opt.metavar, "nargs": opt.nargs, "choices": opt.choices}
+        kwargs = {"type": _parse(cls, field, opt), "help": opt.help}
+        extra = {"metavar": opt.metavar, "nargs": opt.nargs, "choices": _choices(opt)}
         return field.name, kwargs | {k: v for k, v in extra.items() if v is not None}
     flag = flag_of(cls, field.name)
     default = field.default
@@ -136,13 +169,13 @@ def _argument(cls: type, field: dataclasses.Field, opt: Option) -> tuple[str, di
         else:
             kwargs["action"] = "store_false" if default else "store_true"
         return flag, kwargs
-    kwargs["type"] = opt.parse or _value_type(cls, field.name)
+    kwargs["type"] = _parse(cls, field, opt)
     if default is dataclasses.MISSING:
         kwargs["required"] = True
     else:
         kwargs["default"] = default
     if opt.choices is not None:
-        kwargs["choices"] = opt.choices
+        kwargs["choices"] = _choices(opt)
     else:
         kwargs["metavar"] = opt.metavar or flag.lstrip("-").replace("-", "_").upper()
     if opt.nargs is not None:

@@ -34,10 +34,12 @@ def weights_folder() -> Path:
 def main(argv: list[str]) -> int:
     os.environ["PANOGRF_WEIGHTS"] = str(weights_folder())
     from panogrf.app.cli import main as panogrf
+    from panogrf.model.depth_config import DepthMode
+    from panogrf.model.render_net import RendererPreset
     from panogrf.renderer.methods import METHODS, Kind, MethodSpec
 
     for name, preset in ABLATIONS.items():
-        METHODS[name] = MethodSpec(name, "full", preset, Kind.NEURAL)
+        METHODS[name] = MethodSpec(name, DepthMode.FULL, RendererPreset(preset), Kind.NEURAL)
     return panogrf(["eval", *argv])
 
 

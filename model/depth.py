@@ -140,13 +140,11 @@ class DepthEstimator(nn.Module):
     def d_max(self) -> float:
         return self.mono.config.d_max
 
-    def _fuses(self, mode: DepthMode) -> bool:
-        """Mono-guided depth is fused with the unguided network's by the photometric sweep."""
-        return self.fuse and mode == DepthMode.FULL and "mvs" in self.mvs and self.sweep is not None
-
-    def _canonical(self, mode: DepthMode) -> bool:
-        """The MVS networks (and the sweep) work in the world of the monocular network's scale."""
-        return self.canonical and mode == DepthMode.FULL and "mvs" in self.mvs
+    def _fuses_canonical(self, mode: DepthMode) -> tuple[bool, bool]:
+        """(mono-guided depth is fused with the unguided network's by the photometric sweep,
+        the MVS networks (and the sweep) work in the world of the monocular network's scale)."""
+        both = mode == DepthMode.FULL and DepthMode.MVS in self.mvs
+        return self.fuse and both and self.sweep is not None, self.canonical and both
 
     def _clean(self, depth: Tensor) -> Tensor:
         return torch.nan_to_num(depth, nan=self.d_max, posinf=self.d_max).clamp(0.05, self.d_max)
@@ -157,7 +155,7 @@ class DepthEstimator(nn.Module):
 
     def _mvs_confidence(
         self,
-        mode: str,
+        mode: DepthMode,
         small: Tensor,
         c2w: Tensor,
         mono: MonoOutput,
@@ -276,21 +274,21 @@ class DepthEstimator(nn.Module):
             net.warnings.append("one view only: monocular depth (no multi-view stereo)")
         net.sources, notes = self.view_sources(c2w)
         net.warnings += notes
-        sources, fuses, canonical = net.sources, self._fuses(mode), self._canonical(mode)
+        sources, (fuses, canonical) = net.sources, self._fuses_canonical(mode)
         passes = 1 + int(fuses or canonical) + int(canonical)
         progress = open_stage("depth: multi-view stereo", passes * sum(map(bool, sources)))
         step = progress.advance
         conf_u: Tensor | None = None
         if fuses or canonical:
             unguided, conf_u = self._mvs_confidence(
-                "mvs", small, c2w, mono, sources, mono.depth.clone(), step
+                DepthMode.MVS, small, c2w, mono, sources, mono.depth.clone(), step
             )
             if canonical:
                 net.scale = self._world_scale(mono.depth, self._clean(unguided), sources)
                 c2w = c2w.clone()
                 c2w[:, :3, 3] *= net.scale
                 unguided, conf_u = self._mvs_confidence(
-                    "mvs", small, c2w, mono, sources, mono.depth.clone(), step
+                    DepthMode.MVS, small, c2w, mono, sources, mono.depth.clone(), step
                 )
             if fuses:
                 net.others = (unguided, mono.depth) if self.mono_hypothesis else (unguided,)

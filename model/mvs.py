@@ -21,6 +21,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from panogrf.model.depth_config import DepthMode
 from panogrf.model.erp import direction_to_pixel, erp_directions, invert_rigid, sample_erp
 from panogrf.model.layers import CircularConv2d
 
@@ -61,9 +62,11 @@ class MVSConfig:
         return self.n_mono + self.n_uni
 
 
-PRESETS = {
-    "full": MVSConfig(),
-    "mvs": MVSConfig(n_mono=0, n_uni=64, use_mono=False),
+#: The MVS networks, by the depth mode that runs each as its own: mode full the mono-guided
+#: one, mode mvs the unguided one (which mode full also runs, for the fusion).
+PRESETS: dict[DepthMode, MVSConfig] = {
+    DepthMode.FULL: MVSConfig(),
+    DepthMode.MVS: MVSConfig(n_mono=0, n_uni=64, use_mono=False),
 }
 
 

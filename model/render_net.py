@@ -16,6 +16,7 @@ Everything here is per sample; the ray casting, projection and compositing are f
 from __future__ import annotations
 
 from dataclasses import dataclass
+from enum import StrEnum
 from typing import cast
 
 import torch
@@ -45,11 +46,24 @@ class RendererConfig:
     """Panoramas are resized to this height (width 2x) for the appearance encoder."""
 
 
-PRESETS = {
-    "panogrf": RendererConfig(),
-    "no_geometry": RendererConfig(use_geometry=False),
+class RendererPreset(StrEnum):
+    """A named configuration of the renderer networks (`PRESETS`)."""
+
+    PANOGRF = "panogrf"
+    """The shipped renderer."""
+    NO_GEOMETRY = "no_geometry"
+    """The ablation without the depth-derived visibility and residuals."""
+    TINY = "tiny"
+    """The model-size ladder's smaller rung."""
+    LARGE = "large"
+    """The model-size ladder's larger rung."""
+
+
+PRESETS: dict[RendererPreset, RendererConfig] = {
+    RendererPreset.PANOGRF: RendererConfig(),
+    RendererPreset.NO_GEOMETRY: RendererConfig(use_geometry=False),
     # The model-size ladder's smaller rung: half the widths everywhere.
-    "tiny": RendererConfig(
+    RendererPreset.TINY: RendererConfig(
         feature_channels=8,
         encoder_widths=(8, 12, 16),
         geometry_width=8,
@@ -57,7 +71,7 @@ PRESETS = {
         view_channels=12,
     ),
     # The ladder's larger rung: one and a half times the widths everywhere.
-    "large": RendererConfig(
+    RendererPreset.LARGE: RendererConfig(
         feature_channels=24,
         encoder_widths=(24, 36, 48),
         geometry_width=24,

@@ -46,7 +46,7 @@ from panogrf.model.sweep import median_filter
 from panogrf.renderer.cache import SceneCache, resize_erp, source_rows
 from panogrf.renderer.graphs import replayed
 from panogrf.renderer.nadir import mask_factor
-from panogrf.renderer.render import RenderOutput, Sampling, render_panorama
+from panogrf.renderer.render import Quality, RenderOutput, Sampling, render_panorama
 
 
 @dataclass(frozen=True)
@@ -242,7 +242,7 @@ def render_detailed(
     cache: SceneCache,
     c2w: Tensor,
     height: int,
-    quality: str | Sampling = "fast",
+    quality: Quality | Sampling = Quality.FAST,
     config: DetailConfig = DEFAULT_DETAIL,
     progress: Callable[[float], None] | None = None,
     should_stop: Callable[[], bool] | None = None,
@@ -268,7 +268,7 @@ def _render_detailed(
     cache: SceneCache,
     c2w: Tensor,
     height: int,
-    quality: str | Sampling,
+    quality: Quality | Sampling,
     config: DetailConfig,
     progress: Callable[[float], None] | None = None,
     should_stop: Callable[[], bool] | None = None,

@@ -24,12 +24,12 @@ from torch import Tensor
 from panogrf.model.render_net import RendererNet
 from panogrf.model.steps import CAPTURE_LOCK
 from panogrf.renderer.cache import SceneCache
-from panogrf.renderer.render import QUALITY, RenderOutput, sample_range
+from panogrf.renderer.render import QUALITY, Quality, RenderOutput, sample_range
 
 #: Replay renders from CUDA graphs (False: every render launched operation by operation).
 ENABLED = True
 #: Qualities whose renders are replayed: one pass of the network, no importance sampling.
-GRAPHED = ("fast", "draft")
+GRAPHED = (Quality.FAST, Quality.DRAFT)
 
 
 @dataclass
@@ -88,7 +88,7 @@ def replayed(
         entry.span.copy_(torch.tensor(sample_range(cache, pose[:3, 3]), dtype=torch.float64))
         entry.pose.copy_(c2w)
         if entry.graph is None:
-            sampling = replace(QUALITY[quality], near=entry.span[0], far=entry.span[1])
+            sampling = replace(QUALITY[Quality(quality)], near=entry.span[0], far=entry.span[1])
             try:
                 entry.graph = torch.cuda.CUDAGraph()
                 with torch.cuda.graph(entry.graph, capture_error_mode="thread_local"):

@@ -30,7 +30,7 @@ from torch import Tensor
 
 from panogrf.model.depth import DepthEstimator, DepthMode
 from panogrf.model.refine import RefineConfig, nearest_sources, refine_depth
-from panogrf.model.render_net import RendererNet
+from panogrf.model.render_net import RendererNet, RendererPreset
 from panogrf.renderer.baselines import render_meshwarp, render_nearest
 from panogrf.renderer.cache import SceneCache, build_cache
 from panogrf.renderer.detail import render_detailed
@@ -41,6 +41,7 @@ from panogrf.renderer.nadir import (
     nadir_masks,
 )
 from panogrf.renderer.perspective import render_perspective
+from panogrf.renderer.render import Quality
 
 if TYPE_CHECKING:
     from panogrf.renderer.snerf import SNeRF
@@ -58,17 +59,17 @@ class Kind(StrEnum):
 @dataclass(frozen=True)
 class MethodSpec:
     """A rendering method: the depth it reads, the renderer preset it runs and its kind. The
-    one description every caller passes down (no (preset, mode) strings on the way)."""
+    one description every caller passes down (no (preset, mode) pairs on the way)."""
 
     name: str
     depth_mode: DepthMode | None
     """`panogrf.model.depth.MODES` entry, or None for methods that read no depth."""
-    renderer: str | None
+    renderer: RendererPreset | None
     """`panogrf.model.render_net.PRESETS` entry, for the neural methods."""
     kind: Kind
 
     @property
-    def cache_key(self) -> tuple[str, str]:
+    def cache_key(self) -> tuple[RendererPreset, DepthMode]:
         """What a neural method's `SceneCache` depends on: (renderer preset, depth mode)."""
         if self.kind is not Kind.NEURAL:
             raise ValueError(f"method {self.name!r} has no renderer cache")
@@ -79,9 +80,9 @@ class MethodSpec:
 METHODS: dict[str, MethodSpec] = {
     m.name: m
     for m in (
-        MethodSpec("panogrf", DepthMode.FULL, "panogrf", Kind.NEURAL),
-        MethodSpec("no_mono", DepthMode.MVS, "panogrf", Kind.NEURAL),
-        MethodSpec("no_mvs", DepthMode.MONO, "panogrf", Kind.NEURAL),
+        MethodSpec("panogrf", DepthMode.FULL, RendererPreset.PANOGRF, Kind.NEURAL),
+        MethodSpec("no_mono", DepthMode.MVS, RendererPreset.PANOGRF, Kind.NEURAL),
+        MethodSpec("no_mvs", DepthMode.MONO, RendererPreset.PANOGRF, Kind.NEURAL),
         MethodSpec("meshwarp", DepthMode.FULL, None, Kind.MESHWARP),
         MethodSpec("nearest", None, None, Kind.NEAREST),
         MethodSpec("snerf", None, None, Kind.SNERF),
@@ -94,8 +95,8 @@ class Models:
     """Loaders of the shared networks: ``estimator(mode)`` and ``renderer(preset)``, on
     ``device`` (where `SourceViews` made with ``device=models.device`` put the sources)."""
 
-    estimator: Callable[[str], DepthEstimator]
-    renderer: Callable[[str], RendererNet]
+    estimator: Callable[[DepthMode], DepthEstimator]
+    renderer: Callable[[RendererPreset], RendererNet]
     device: torch.device = torch.device("cpu")
 
 
@@ -125,8 +126,8 @@ class SourceViews:
 
     images: Tensor  # [V, 3, H, W] in [0, 1]
     c2w: Tensor  # [V, 4, 4]
-    depth: dict[str, Tensor] = field(default_factory=dict)  # mode -> [V, 1, h, w]
-    caches: dict[tuple[str, str], SceneCache] = field(default_factory=dict)
+    depth: dict[DepthMode, Tensor] = field(default_factory=dict)  # mode -> [V, 1, h, w]
+    caches: dict[tuple[RendererPreset, DepthMode], SceneCache] = field(default_factory=dict)
     fitted: dict[str, object] = field(default_factory=dict)  # per-scene models (snerf)
     seconds: dict[str, float] = field(default_factory=dict)  # preparation time per item
     refine: RefineConfig | None = None  # per-scene depth refinement (None: none)
@@ -159,7 +160,10 @@ class SourceViews:
         """``depth`` with the masked rig's pixels on the floor plane around them."""
         return depth if self.nadir_mask is None else fill_floor_depth(depth, self.nadir_mask)
 
-    def depth_for(self, mode: str, models: Models) -> Tensor:
+    def depth_for(self, mode: DepthMode, models: Models) -> Tensor:
+        """The estimated depth [V, 1, h, w] of ``mode`` (a `DepthMode` or its value), refined
+        as `refine` says; estimated once."""
+        mode = DepthMode(mode)
         if mode not in self.depth:
             start = time.perf_counter()
             est = models.estimator(mode)
@@ -178,7 +182,7 @@ class SourceViews:
     def refined_depth(
         self,
         depth: Tensor,
-        mode: str,
+        mode: DepthMode,
         models: Models,
         should_stop: Callable[[], bool] | None = None,
     ) -> Tensor | None:
@@ -210,7 +214,7 @@ class SourceViews:
         the refinement's input is this depth, so a viewer can show the plain scene first. None
         when ``should_stop`` said so."""
         mode = METHODS["panogrf"].depth_mode
-        assert mode is not None  # panogrf reads the depth of mode "full"
+        assert mode is not None  # panogrf reads the depth of mode full
         out = SourceViews(
             self.images,
             self.c2w,
@@ -272,7 +276,7 @@ def render_view(
     tgt_c2w: Tensor,
     height: int,
     models: Models,
-    quality: str = "fast",
+    quality: Quality = Quality.FAST,
 ) -> Tensor:
     """The panorama [3, H, 2H] seen from ``tgt_c2w`` [4, 4], rendered by ``method``."""
     if method not in METHODS:
@@ -307,7 +311,7 @@ def render_perspective_view(
     height: int,
     fov_deg: float,
     models: Models,
-    quality: str = "fast",
+    quality: Quality = Quality.FAST,
 ) -> Tensor | None:
     """The pinhole view [3, height, width] of a neural ``method``, casting exactly its rays;
     None for the other methods (they render a panorama that is cut, `erp_to_perspective`)."""

@@ -12,6 +12,7 @@ from panogrf.model.perspective import perspective_directions
 from panogrf.model.render_net import RendererNet
 from panogrf.renderer.cache import SceneCache
 from panogrf.renderer.render import (
+    Quality,
     RenderOutput,
     Sampling,
     proxy_for,
@@ -31,7 +32,7 @@ def render_perspective(
     width: int,
     height: int,
     fov_deg: float,
-    quality: str | Sampling = "fast",
+    quality: Quality | Sampling = Quality.FAST,
     chunk: int | None = None,
     progress: Callable[[float], None] | None = None,
     should_stop: Callable[[], bool] | None = None,

@@ -27,6 +27,7 @@ import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
+from enum import StrEnum
 from typing import Any
 
 import torch
@@ -73,6 +74,18 @@ class Sampling:
     from several depths, which blurs detail in proportion to the parallax."""
 
 
+class Quality(StrEnum):
+    """A named sampling of the renderer (`QUALITY`: ``paper`` and ``fast`` as the module says,
+    ``draft`` the viewer's first pass), or the GL preview instead of the renderer."""
+
+    PAPER = "paper"
+    FAST = "fast"
+    DRAFT = "draft"
+    PREVIEW = "preview"
+    """No sampling (none in `QUALITY`): the GL depth-mesh preview (`panogrf.renderer.gl_preview`)
+    draws the sources warped by their depth."""
+
+
 #: ``fast``: 8 samples around the proxies plus a backbone of 4 uniform ones, 12 per ray. Chosen
 #: on validation scenes of the train split (6 scenes, 128 rows, WS-PSNR): guided 8 alone 29.34,
 #: 8 + 4 backbone 30.00, 12 guided 29.40, 64 + 64 30.26 dB.
@@ -81,10 +94,10 @@ class Sampling:
 #: WS-PSNR / median seconds, 2 sources: fast 26.99 / 1.49, 4 + 2: 26.62 / 0.84, 4 + 1: 26.52 /
 #: 0.75, 3 + 2: 26.42 / 0.71, 3 + 1: 26.30 / 0.59, 2 + 2: 26.30 / 0.59; the GL preview it
 #: replaces: 23.98 dB.
-QUALITY = {
-    "paper": Sampling(n_coarse=64, n_fine=64),
-    "fast": Sampling(n_coarse=4, n_fine=0, n_guided=8),
-    "draft": Sampling(n_coarse=1, n_fine=0, n_guided=3),
+QUALITY: dict[Quality, Sampling] = {
+    Quality.PAPER: Sampling(n_coarse=64, n_fine=64),
+    Quality.FAST: Sampling(n_coarse=4, n_fine=0, n_guided=8),
+    Quality.DRAFT: Sampling(n_coarse=1, n_fine=0, n_guided=3),
 }
 
 
@@ -292,14 +305,14 @@ def render_panorama(
     cache: SceneCache,
     c2w: Tensor,  # [4, 4] target pose
     height: int,
-    quality: str | Sampling = "fast",
+    quality: Quality | Sampling = Quality.FAST,
     chunk: int | None = None,
     progress: Callable[[float], None] | None = None,
     should_stop: Callable[[], bool] | None = None,
 ) -> RenderOutput | None:
     """Render the H x 2H panorama seen from ``c2w``; None if ``should_stop`` said so midway.
 
-    ``quality``: "paper", "fast" or a `Sampling`. Rays go through the network ``chunk`` sample
+    ``quality``: a `Quality` or a `Sampling`. Rays go through the network ``chunk`` sample
     points per view at a time (None: `default_chunk` of the cache's device), so memory stays
     bounded at any resolution; ``progress`` gets the fraction done.
     """
@@ -331,8 +344,12 @@ def default_chunk(device: torch.device) -> int:
     return CPU_CHUNK if device.type == "cpu" else GPU_CHUNK
 
 
-def sampling_for(quality: str | Sampling, cache: SceneCache, c2w: Tensor) -> Sampling:
-    sampling = QUALITY[quality] if isinstance(quality, str) else quality
+def sampling_for(quality: Quality | Sampling, cache: SceneCache, c2w: Tensor) -> Sampling:
+    """``quality``'s `Sampling` (a `Quality` or its value: a ValueError for another name and
+    for the preview, which samples nothing) with its range seen from ``c2w`` [4, 4]."""
+    sampling = quality if isinstance(quality, Sampling) else QUALITY.get(Quality(quality))
+    if sampling is None:
+        raise ValueError(f"quality {quality}: the GL preview, not a sampling of the renderer")
     if sampling.n_coarse:  # once per frame, not per chunk
         sampling = with_range(sampling, cache, c2w[:3, 3])
     return sampling

@@ -41,6 +41,7 @@ from panogrf.app.options import flag_of, option
 from panogrf.app.runtime import metres_list, number
 from panogrf.model.refine import RefineConfig
 from panogrf.renderer.methods import Models, SourceViews
+from panogrf.renderer.render import Quality
 
 METRICS = ("ws_psnr", "lpips", "psnr", "ssim")
 
@@ -222,7 +223,7 @@ def _prepare_cached(setting: Setting, views: SourceViews, models: Models, cfg) -
     from panogrf.app.scene import session
 
     method, quality = (
-        ("panogrf", "preview")
+        ("panogrf", Quality.PREVIEW)
         if setting.method == "gl"
         else (
             setting.method,

@@ -18,7 +18,9 @@ import torch
 from torch import Tensor
 
 from panogrf.app.runtime import heap_in_use
+from panogrf.model.depth_config import DepthMode
 from panogrf.renderer.methods import METHODS, Kind, Models, SourceViews, prepare, render_view
+from panogrf.renderer.render import Quality
 
 
 @dataclass(frozen=True)
@@ -29,7 +31,7 @@ class Setting:
     """Label on the chart and key in the results, e.g. ``panogrf:fast`` or ``gl:64``."""
     method: str
     """A name of `METHODS`, or ``gl`` (the viewer's GL preview)."""
-    quality: str = "fast"
+    quality: Quality = Quality.FAST
     """Sampling of the neural methods (`panogrf.renderer.render.QUALITY`)."""
     mesh_rows: int = 0
     """Rows of the GL preview's depth meshes (``gl`` only)."""
@@ -43,11 +45,11 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("nearest", "nearest"),
     *(Setting(f"gl:{r}", "gl", mesh_rows=r) for r in (32, 48, 64, 96, 128)),
     Setting("meshwarp", "meshwarp"),
-    Setting("panogrf:draft", "panogrf", "draft"),
-    Setting("panogrf:fast", "panogrf", "fast"),
-    Setting("no_mono", "no_mono", "fast"),
-    Setting("no_mvs", "no_mvs", "fast"),
-    Setting("panogrf:paper", "panogrf", "paper", slow=True),
+    Setting("panogrf:draft", "panogrf", Quality.DRAFT),
+    Setting("panogrf:fast", "panogrf", Quality.FAST),
+    Setting("no_mono", "no_mono", Quality.FAST),
+    Setting("no_mvs", "no_mvs", Quality.FAST),
+    Setting("panogrf:paper", "panogrf", Quality.PAPER, slow=True),
     Setting("snerf", "snerf", slow=True),
 )
 BY_NAME = {s.name: s for s in SETTINGS}
@@ -101,7 +103,7 @@ def prepare_setting(setting: Setting, views: SourceViews, models: Models, gl: GL
         from panogrf.app.files.images import to_uint8
         from panogrf.renderer.gl_preview import PreviewRenderer
 
-        depth = views.depth_for("full", models)[:, 0].cpu().numpy()
+        depth = views.depth_for(DepthMode.FULL, models)[:, 0].cpu().numpy()
         start = time.perf_counter()
         views.fitted[key] = PreviewRenderer(
             gl.get(),
@@ -144,7 +146,7 @@ def parameters(setting: Setting, models: Models) -> int:
 
         return 4 * int(np.prod(SNeRFConfig().grid))  # density + colour per cell
     spec = METHODS.get(setting.method)
-    mode = spec.depth_mode if spec is not None else "full"
+    mode = spec.depth_mode if spec is not None else DepthMode.FULL
     total = _count(models.estimator(mode))
     if spec is not None and spec.kind is Kind.NEURAL:
         total += _count(models.renderer(spec.renderer))
@@ -154,9 +156,9 @@ def parameters(setting: Setting, models: Models) -> int:
 def depth_networks(models: Models) -> dict[str, int]:
     """The shipped depth chain's (mode full) networks and their parameters, in the order it runs
     them: the monocular network, the mono-guided and the unguided MVS, the selector, the blend."""
-    est = models.estimator("full")
+    est = models.estimator(DepthMode.FULL)
     nets = {"monocular": est.mono}
-    names = {"full": "MVS mono-guided", "mvs": "MVS unguided"}
+    names = {DepthMode.FULL: "MVS mono-guided", DepthMode.MVS: "MVS unguided"}
     nets |= {names.get(k, f"MVS {k}"): net for k, net in est.mvs.items()}
     nets |= {"selector": est.selector, "blend": est.blend}
     return {name: _count(net) for name, net in nets.items() if net is not None}

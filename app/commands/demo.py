@@ -49,6 +49,7 @@ def run(args: argparse.Namespace) -> int:
     from panogrf.app.scene.folder import load_scene
     from panogrf.app.visualize import colorize_depth, stack_rows
     from panogrf.assets import path as asset_path
+    from panogrf.model.depth_config import DepthMode
 
     cfg = from_args(DemoConfig, args)
     device = resolve_device(args.device)
@@ -76,7 +77,7 @@ def run(args: argparse.Namespace) -> int:
     for i in range(scene.num_views):
         rgb = to_uint8(data.images[i])
         rows += [rgb, colorize_depth(data.depths[i, 0].numpy(), max_depth)]
-        rows.append(colorize_depth(estimates["full"][i, 0].cpu().numpy(), max_depth))
+        rows.append(colorize_depth(estimates[DepthMode.FULL][i, 0].cpu().numpy(), max_depth))
     try:
         cfg.out.mkdir(parents=True, exist_ok=True)
         sheet = cfg.out / "demo_views.png"
@@ -110,6 +111,7 @@ def _novel_view(
     from panogrf.app.visualize import stack_rows
     from panogrf.model import refine
     from panogrf.renderer.methods import SourceViews, render_view
+    from panogrf.renderer.render import Quality
 
     models = session.default_models(device)
     v = data.images.shape[0]
@@ -125,16 +127,16 @@ def _novel_view(
     )
     height = data.images.shape[-2]
     print(f"novel view: frame {target} rendered from frames {sources} ({2 * height}x{height}):")
-    cache = session.prepare_views(views, models, "panogrf", "fast", cache_dir, use_cache)
+    cache = session.prepare_views(views, models, "panogrf", Quality.FAST, cache_dir, use_cache)
     print(
         f"  depth of the sources, estimated and refined for the scene, and feature maps: "
         f"{cache.seconds:.2f} s (scene cache {cache.status})"
     )
     rows = [to_uint8(data.images[target])]
     for method in ("panogrf", "meshwarp", "nearest"):
-        session.prepare_views(views, models, method, "fast", cache_dir, use_cache)
+        session.prepare_views(views, models, method, Quality.FAST, cache_dir, use_cache)
         start = time.perf_counter()
-        rgb = render_view(method, views, data.c2w[target], height, models, "fast")
+        rgb = render_view(method, views, data.c2w[target], height, models, Quality.FAST)
         ms = 1000 * (time.perf_counter() - start)
         s = image_scores(rgb, data.images[target : target + 1])
         print(
@@ -155,12 +157,13 @@ def _walk_preview(data, out: Path, models, cache_dir: Path | None, use_cache: bo
     from panogrf.app.paths.trajectory import interpolate_keyframes
     from panogrf.app.scene import session
     from panogrf.renderer.methods import SourceViews
+    from panogrf.renderer.render import Quality
 
     height = data.images.shape[-2]
     poses = interpolate_keyframes(data.c2w.numpy().astype(np.float64), 48)
     walk = SourceViews(data.images, data.c2w, nadir=nadir, device=models.device)
-    session.prepare_views(walk, models, "panogrf", "preview", cache_dir, use_cache)
-    frames = FrameRenderer(walk, models, "preview")
+    session.prepare_views(walk, models, "panogrf", Quality.PREVIEW, cache_dir, use_cache)
+    frames = FrameRenderer(walk, models, Quality.PREVIEW)
     video = out / "walk_preview.mp4"
     try:
         with FrameSink(video, 24, 2 * height, height, spherical=True) as sink:
@@ -179,13 +182,14 @@ def _estimate_depth(
 
     from panogrf.app.scene.cache import estimate_cached
     from panogrf.app.weights.networks import NETWORKS, load_depth_estimator
+    from panogrf.model.depth_config import DepthMode
     from panogrf.model.metrics import depth_metrics
 
-    estimator = load_depth_estimator(NETWORKS["full"], str(device))
+    estimator = load_depth_estimator(NETWORKS[DepthMode.FULL], str(device))
     images, c2w = data.images.to(device), data.c2w.to(device)
     print("depth estimation (each view uses the others as sources), error vs ground truth:")
     out = {}
-    for mode in ("mono", "full"):
+    for mode in (DepthMode.MONO, DepthMode.FULL):
         start = time.perf_counter()
         if use_cache:  # shared with `panogrf depth` (the same estimate of the same views)
             est, cache = estimate_cached(estimator, images, c2w, mode, cache_dir)

@@ -22,6 +22,7 @@ from panogrf.app.scene.estimate import (
     estimate_scene,
     prepare_out_dir,
 )
+from panogrf.model.depth_config import DepthMode
 
 _DESCRIPTION = """\
 Estimate spherical depth (metres from the camera centre) for every view of a scene folder;
@@ -52,7 +53,7 @@ class DepthConfig:
     """The scene folder."""
     out: Path = option(help="output folder (a new scene)", metavar="DIR")
     """The output folder, a scene of its own."""
-    mode: str = option("full", "which estimator (default full)", choices=MODES)
+    mode: DepthMode = option(DepthMode.FULL, "which estimator (default full)", choices=MODES)
     """The estimator (`MODES`)."""
 
 

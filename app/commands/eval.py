@@ -42,24 +42,25 @@ from panogrf.app.runtime import (
 )
 from panogrf.renderer.methods import METHODS, Kind
 from panogrf.renderer.nadir import nadir_setting
-from panogrf.renderer.render import QUALITY
+from panogrf.renderer.render import QUALITY, Quality
 
 METRICS = ("psnr", "ws_psnr", "ssim", "lpips")
 
 
-def parse_methods(text: str) -> list[tuple[str, str]]:
+def parse_methods(text: str) -> list[tuple[str, Quality]]:
     """ "panogrf,panogrf:paper,nearest" -> [(method, quality), ...]."""
     out = []
     for item in (x.strip() for x in text.split(",")):
         if not item:
             continue
-        name, _, quality = item.partition(":")
-        quality = quality or "fast"
+        name, _, sampling = item.partition(":")
+        sampling = sampling or Quality.FAST
         if name not in METHODS:
             raise UserError(f"--methods: unknown method {name!r}; choose from {sorted(METHODS)}")
-        if quality not in QUALITY:
-            raise UserError(f"--methods: unknown sampling {quality!r} in {item!r}")
-        if quality != "fast" and METHODS[name].kind is not Kind.NEURAL:
+        if sampling not in QUALITY:
+            raise UserError(f"--methods: unknown sampling {sampling!r} in {item!r}")
+        quality = Quality(sampling)
+        if quality != Quality.FAST and METHODS[name].kind is not Kind.NEURAL:
             raise UserError(f"--methods: {name} has no sampling choice ({item!r})")
         if (name, quality) in out:
             raise UserError(f"--methods lists {item!r} twice")
@@ -69,8 +70,8 @@ def parse_methods(text: str) -> list[tuple[str, str]]:
     return out
 
 
-def label(method: str, quality: str) -> str:
-    if quality == "fast" or METHODS[method].kind is not Kind.NEURAL:
+def label(method: str, quality: Quality) -> str:
+    if quality == Quality.FAST or METHODS[method].kind is not Kind.NEURAL:
         return method
     return f"{method}:{quality}"
 

@@ -34,9 +34,10 @@ from panogrf.app.runtime import (
 from panogrf.app.scene import session
 from panogrf.app.scene.pose_check import MAX_POSITION_M
 from panogrf.app.scene.session import MAX_HEIGHT
+from panogrf.model.depth_config import DepthMode
 from panogrf.renderer.methods import METHODS
 from panogrf.renderer.nadir import nadir_setting
-from panogrf.renderer.render import QUALITY
+from panogrf.renderer.render import QUALITY, Quality
 
 #: Largest frame of a camera path (columns x rows): a 2:1 panorama of `MAX_HEIGHT` rows.
 MAX_FRAME = (2 * MAX_HEIGHT, MAX_HEIGHT)
@@ -99,11 +100,11 @@ class RenderConfig:
     """Rows of the panorama (None: the scene's, at most `MAX_HEIGHT`)."""
     method: str = option("panogrf", "default panogrf", choices=tuple(sorted(METHODS)))
     """The method (`panogrf.renderer.methods.METHODS`)."""
-    quality: str = option(
-        "fast",
+    quality: Quality = option(
+        Quality.FAST,
         "preview (GL depth-mesh warp), fast (depth-guided neural, default) or paper "
         "(neural, 64 + 64 samples)",
-        choices=("preview", *sorted(QUALITY)),
+        choices=(Quality.PREVIEW, *sorted(QUALITY)),
     )
     """The sampling, or ``preview`` (the GL depth-mesh warp)."""
     json: bool = option(False, "print the summary as JSON")
@@ -127,7 +128,7 @@ class RenderConfig:
                 raise UserError(f"--out must be a .png or .jpg file, got {self.out}")
             if self.out.parent and not self.out.parent.exists():
                 raise UserError(f"--out: folder {self.out.parent} does not exist")
-        if self.quality == "preview" and self.method != "panogrf":
+        if self.quality == Quality.PREVIEW and self.method != "panogrf":
             raise UserError(
                 "--quality preview is the GL depth-mesh preview: use it without --method"
             )
@@ -305,8 +306,8 @@ def _warn_pose(tgt: np.ndarray, sources: np.ndarray, views) -> None:
             "geometry",
             file=sys.stderr,
         )
-    if "full" in views.depth:
-        depth = views.depth["full"][:, 0].double().cpu().numpy()
+    if DepthMode.FULL in views.depth:
+        depth = views.depth[DepthMode.FULL][:, 0].double().cpu().numpy()
         hit = cv.behind_surface(tgt[:3, 3], sources, depth)
         if hit is not None:
             k, dist, surface = hit
@@ -361,8 +362,7 @@ def run_path(cfg: RenderConfig, args: argparse.Namespace) -> int:
     refuse_scene_inputs(cfg.out, scene, folder=cfg.out.suffix.lower() != ".mp4")
     data = scene.images
     views, models = _source_views(args, scene)
-    warning = path_warning(np.asarray(path.poses, dtype=np.float64), scene.c2w)
-    if warning:
+    if warning := path_warning(np.asarray(path.poses, dtype=np.float64), scene.c2w):
         print(warning, flush=True)
     frames = FrameRenderer(views, models, cfg.quality, cfg.method, data.origin)
     start = time.perf_counter()
@@ -377,8 +377,8 @@ def run_path(cfg: RenderConfig, args: argparse.Namespace) -> int:
         )
         frames.prepare()
         prep = time.perf_counter() - start
-        if "full" in views.depth:  # the estimated depth says where the surfaces are
-            depth = views.depth["full"][:, 0].double().cpu().numpy()
+        if DepthMode.FULL in views.depth:  # the estimated depth says where the surfaces are
+            depth = views.depth[DepthMode.FULL][:, 0].double().cpu().numpy()
             inside = inside_warning(np.asarray(path.poses, np.float64), scene.c2w, depth)
             if inside:
                 print(inside, flush=True)

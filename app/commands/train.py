@@ -133,28 +133,31 @@ def run_depth(args: argparse.Namespace) -> int:
 def run_renderer(args: argparse.Namespace) -> int:
     from panogrf.app.train.renderer import train_renderer
     from panogrf.app.weights.networks import load_depth_estimator
+    from panogrf.model.depth_config import DepthMode
 
     with _training(TrainRendererConfig, args, depth_height=args.height // 2) as (cfg, log):
         if cfg.depth == "shipped":
             train_renderer(cfg, log=log)
         else:
-            train_renderer(cfg, load_depth_estimator(("full",)), log=log)
+            train_renderer(cfg, load_depth_estimator((DepthMode.FULL,)), log=log)
     return 0
 
 
 def run_select(args: argparse.Namespace) -> int:
     from panogrf.app.train.select import train_selector
-    from panogrf.app.weights.networks import load_depth_estimator
+    from panogrf.app.weights.networks import NETWORKS, load_depth_estimator
+    from panogrf.model.depth_config import DepthMode
 
     with _training(TrainSelectConfig, args) as (cfg, log):
-        train_selector(cfg, load_depth_estimator(("full", "mvs")), log=log)
+        train_selector(cfg, load_depth_estimator(NETWORKS[DepthMode.FULL]), log=log)
     return 0
 
 
 def run_blend(args: argparse.Namespace) -> int:
     from panogrf.app.train.blend import train_blend
-    from panogrf.app.weights.networks import load_depth_estimator
+    from panogrf.app.weights.networks import NETWORKS, load_depth_estimator
+    from panogrf.model.depth_config import DepthMode
 
     with _training(TrainBlendConfig, args) as (cfg, log):
-        train_blend(cfg, load_depth_estimator(("full", "mvs")), log=log)
+        train_blend(cfg, load_depth_estimator(NETWORKS[DepthMode.FULL]), log=log)
     return 0

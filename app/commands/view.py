@@ -245,6 +245,7 @@ def _background(cfg: ViewConfig, prepared, threads: int) -> tuple:
     ``--no-refine``), each None where not started."""
     from panogrf.app.viewer.torch_threads import off_main_thread
     from panogrf.app.viewer.worker import LEVELS, LIVE_LEVELS, RenderWorker
+    from panogrf.model.render_net import RendererPreset
 
     refiner = None
     if prepared.pending_refine is not None:
@@ -258,7 +259,7 @@ def _background(cfg: ViewConfig, prepared, threads: int) -> tuple:
         cache = off_main_thread(threads, views.cache_for, "panogrf", models)
         live = cfg.live == "on" or (cfg.live == "auto" and models.device.type == "cuda")
         levels = LIVE_LEVELS if live else LEVELS
-        net = models.renderer("panogrf")
+        net = models.renderer(RendererPreset.PANOGRF)
         worker = RenderWorker(net, cache, levels, threads=threads, live=live).start()
     return refiner, worker
 

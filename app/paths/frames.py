@@ -21,6 +21,7 @@ import torch
 from panogrf.app.errors import UserError
 from panogrf.app.files.images import to_uint8
 from panogrf.app.scene.types import shifted
+from panogrf.model.depth_config import DepthMode
 from panogrf.model.perspective import erp_to_perspective
 from panogrf.renderer.detail import DEFAULT_DETAIL
 from panogrf.renderer.methods import (
@@ -30,10 +31,10 @@ from panogrf.renderer.methods import (
     render_perspective_view,
     render_view,
 )
-from panogrf.renderer.render import QUALITY
+from panogrf.renderer.render import QUALITY, Quality
 
 #: ``preview`` (GL) and every sampling of the neural renderer (what `render --help` offers).
-QUALITIES = ("preview", *QUALITY)
+QUALITIES = (Quality.PREVIEW, *QUALITY)
 
 
 def erp_height_for(camera_type: str, width: int, height: int, fov_deg: float) -> int:
@@ -51,14 +52,18 @@ class FrameRenderer:
         self,
         views: SourceViews,
         models: Models,
-        quality: str,
+        quality: Quality,
         method: str = "panogrf",
         origin: np.ndarray | None = None,
     ) -> None:
-        """``origin`` [3]: the world point the views' poses are relative to
-        (`SceneImages.origin`); the poses given to `panorama` and `frame` are the world's."""
+        """``quality``: a `Quality` or its value. ``origin`` [3]: the world point the views'
+        poses are relative to (`SceneImages.origin`); the poses given to `panorama` and `frame`
+        are the world's."""
         if quality not in QUALITIES:
-            raise ValueError(f"quality must be one of {QUALITIES}, got {quality!r}")
+            raise ValueError(
+                f"quality must be one of {tuple(map(str, QUALITIES))}, got {quality!r}"
+            )
+        quality = Quality(quality)
         self.views, self.models, self.quality, self.method = views, models, quality, method
         self.origin = np.zeros(3) if origin is None else np.asarray(origin, np.float64)
         self._preview = None
@@ -67,8 +72,8 @@ class FrameRenderer:
     def prepare(self) -> None:
         """Compute (once) what this quality needs before the first frame: the estimated depth
         for the preview, the method's caches for the neural qualities."""
-        if self.quality == "preview":
-            self.views.depth_for("full", self.models)
+        if self.quality == Quality.PREVIEW:
+            self.views.depth_for(DepthMode.FULL, self.models)
         else:
             prepare(self.method, self.views, self.models)
 
@@ -82,7 +87,7 @@ class FrameRenderer:
     def check_height(self, height: int, what: str = "--height") -> None:
         """Refuse, before any work, a panorama height this quality cannot draw: the GL preview
         draws its sources' layers side by side in one texture, which the GL limits in width."""
-        if self.quality != "preview":
+        if self.quality != Quality.PREVIEW:
             return
         from panogrf.renderer.gl_preview import MAX_VIEWS
 
@@ -99,7 +104,7 @@ class FrameRenderer:
         if self._preview is None:
             from panogrf.renderer.gl_preview import PreviewRenderer
 
-            depth = self.views.depth_for("full", self.models)[:, 0].cpu().numpy()
+            depth = self.views.depth_for(DepthMode.FULL, self.models)[:, 0].cpu().numpy()
             images = to_uint8(self.views.images)
             self._context()
             mask = self.views.nadir_mask
@@ -115,7 +120,7 @@ class FrameRenderer:
     def panorama(self, c2w: np.ndarray, height: int) -> torch.Tensor:
         """The H x 2H panorama [3, H, 2H] in [0, 1] seen from ``c2w`` (the world's)."""
         c2w = self._local(c2w)
-        if self.quality == "preview":
+        if self.quality == Quality.PREVIEW:
             rgb, _ = self._preview_renderer().render(c2w, height)
             return torch.from_numpy(rgb).permute(2, 0, 1).float() / 255.0
         tgt = torch.from_numpy(np.asarray(c2w, np.float64)).to(self.views.c2w.dtype)
@@ -134,7 +139,7 @@ class FrameRenderer:
         pano_rays = 2 * min(erp_h, DEFAULT_DETAIL.net_height) ** 2
         if (
             camera_type == "perspective"
-            and self.quality != "preview"
+            and self.quality != Quality.PREVIEW
             and width * height < pano_rays
         ):
             tgt = torch.from_numpy(self._local(c2w))

@@ -25,7 +25,7 @@ from panogrf.app.scene.store import (
     get_or_compute,
     read_valid,
 )
-from panogrf.model.depth import DepthEstimate
+from panogrf.model.depth import DepthEstimate, DepthMode
 from panogrf.renderer.cache import SceneCache
 from panogrf.renderer.methods import METHODS, Models, SourceViews
 
@@ -165,7 +165,7 @@ def prepare_cached(
 
 
 # -- the depth of `panogrf depth` and the demo's depth check --------------------------------------
-def estimate_key(images: torch.Tensor, c2w: torch.Tensor, estimator, mode: str) -> str | None:
+def estimate_key(images: torch.Tensor, c2w: torch.Tensor, estimator, mode: DepthMode) -> str | None:
     """The cache key of ``estimator``'s depth of mode ``mode`` on the panoramas as given (no
     exposure balance, no refinement, at their resolution: what `panogrf depth` writes), or
     None when the estimator was not loaded from weights files (`weight_files` attribute, set
@@ -187,7 +187,7 @@ def estimate_cached(
     estimator,
     images: torch.Tensor,
     c2w: torch.Tensor,
-    mode: str,
+    mode: DepthMode,
     cache_dir: Path | None,
     store: Store | None = None,
 ):

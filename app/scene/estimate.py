@@ -19,13 +19,15 @@ import torch
 
 from panogrf.app.errors import UserError
 from panogrf.app.files.atomic import parse_json
+from panogrf.model.depth_config import DepthMode
 
 if TYPE_CHECKING:
     from panogrf.app.scene.folder import Scene
     from panogrf.model.depth import DepthEstimator
     from panogrf.model.metrics import DepthMetrics
 
-MODES = ("full", "mono", "mvs")
+#: The depth modes `panogrf depth` offers, in the order its help lists them.
+MODES = (DepthMode.FULL, DepthMode.MONO, DepthMode.MVS)
 #: Top-level key of the output transforms.json that describes the estimation.
 METADATA_KEY = "panogrf_depth"
 METRIC_COLUMNS = (("L1", "l1"), ("RMSE", "rmse"), ("WS-L1", "ws_l1"), ("WS-RMSE", "ws_rmse"))
@@ -36,7 +38,7 @@ class DepthRun:
     """What `estimate_scene` did: per-view figures in the order of the scene's frames."""
 
     out_dir: Path
-    mode: str
+    mode: DepthMode
     views: tuple[str, ...]
     """Frame names (image file stems)."""
     seconds: float
@@ -138,7 +140,7 @@ def estimate_scene(
     scene: str | Path | Scene,
     out_dir: str | Path,
     estimator: DepthEstimator,
-    mode: str = "full",
+    mode: DepthMode = DepthMode.FULL,
     *,
     weights: dict[str, str] | None = None,
     cache_dir: str | Path | None = None,
@@ -160,7 +162,8 @@ def estimate_scene(
     from panogrf.app.visualize import colorize_depth
 
     if mode not in MODES:
-        raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+        raise ValueError(f"mode must be one of {tuple(map(str, MODES))}, got {mode!r}")
+    mode = DepthMode(mode)
     out_dir = Path(out_dir)
     if not isinstance(scene, Scene):
         prepare_out_dir(Path(scene), out_dir)

@@ -29,8 +29,11 @@ import torch
 from panogrf.app.scene.cache import CacheResult
 from panogrf.app.scene.estimate import DepthRun, estimate_scene
 from panogrf.app.scene.store import DiskStore, Store
+from panogrf.model.depth_config import DepthMode
 from panogrf.model.refine import RefineConfig
+from panogrf.model.render_net import RendererPreset
 from panogrf.renderer.methods import METHODS, Models, SourceViews
+from panogrf.renderer.render import Quality
 
 if TYPE_CHECKING:
     from panogrf.app.scene.folder import Scene
@@ -71,10 +74,10 @@ def default_models(device: torch.device | str = "cpu") -> Models:
         torch.backends.cudnn.allow_tf32 = False
         torch.backends.cuda.matmul.allow_tf32 = False
 
-    def estimator(mode: str):
+    def estimator(mode: DepthMode):
         return load_depth_estimator(NETWORKS[mode], str(device))
 
-    def renderer(preset: str):
+    def renderer(preset: RendererPreset):
         return load_renderer(preset, str(device))
 
     return ShippedModels(estimator=estimator, renderer=renderer, device=device)
@@ -237,20 +240,20 @@ def _check_shipped(models: Models, method: str) -> None:
         check_weights(weight_files(method))
 
 
-def uses_cache(method: str, quality: str = "fast") -> bool:
+def uses_cache(method: str, quality: Quality = Quality.FAST) -> bool:
     """Whether ``method`` at ``quality`` reads what the scene cache holds: PanoGRF's depth
     (mode full, refined as the views say) and its feature maps. The GL preview and meshwarp
     draw that depth, the renderer presets other than PanoGRF's build their own maps on it;
     the other depth modes and the baselines without depth are prepared afresh."""
     spec = METHODS[method]
-    return quality == "preview" or spec.depth_mode == METHODS["panogrf"].depth_mode
+    return quality == Quality.PREVIEW or spec.depth_mode == METHODS["panogrf"].depth_mode
 
 
 def prepare_views(
     views: SourceViews,
     models: Models,
     method: str = "panogrf",
-    quality: str = "fast",
+    quality: Quality = Quality.FAST,
     cache_dir: Path | None = None,
     use_cache: bool = True,
     store: Store | None = None,
@@ -296,7 +299,7 @@ def _prepare_views(views, models, method, quality, store):
         why = "not cached: given networks"
     else:
         result = prepare_cached(views, models, None, weight_files("panogrf"), store)
-    if quality == "preview":
+    if quality == Quality.PREVIEW:
         views.depth_for(METHODS["panogrf"].depth_mode, models)
     elif spec.kind is Kind.NEURAL:
         build_maps(views, models, spec)

@@ -196,13 +196,14 @@ def _validate_mvs(net, mono, val: TripletSet) -> dict:
 
 def train_mvs(cfg: TrainDepthConfig, log=print) -> dict:
     """Train the 360-degree MVS (preset cfg.mvs_preset) with the monocular network frozen."""
+    from panogrf.model.depth_config import DepthMode
     from panogrf.model.mvs import PRESETS, MVSNet
 
     torch.manual_seed(cfg.seed)
     data = load_triplets(cfg.data, cfg.height, cfg.limit_scenes)
     train_idx, val_idx = held_back(len(data), cfg.val_scenes)
     train, val = data.subset(train_idx.tolist()), data.subset(val_idx.tolist())
-    mvs_cfg = replace(PRESETS[cfg.mvs_preset], trunk=cfg.trunk)
+    mvs_cfg = replace(PRESETS[DepthMode(cfg.mvs_preset)], trunk=cfg.trunk)
     needs_mono = mvs_cfg.use_mono or mvs_cfg.n_mono > 0
     mono = load_mono(cfg.mono_weights) if needs_mono else None
     log(

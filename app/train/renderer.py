@@ -39,13 +39,20 @@ from panogrf.app.files.atomic import save_tensors_atomic
 from panogrf.app.train.configs import DEPTHS, TrainRendererConfig
 from panogrf.app.train.data import TripletSet, load_triplets, yaw_roll
 from panogrf.app.train.loop import Steps, held_back, init_from, save_trained
-from panogrf.model.depth import DepthEstimator
+from panogrf.model.depth import DepthEstimator, DepthMode
 from panogrf.model.erp import latitude_weights
 from panogrf.model.metrics import ws_psnr
-from panogrf.model.render_net import PRESETS, RendererNet
+from panogrf.model.render_net import PRESETS, RendererNet, RendererPreset
 from panogrf.model.splat import proxy_depth
 from panogrf.renderer.cache import build_cache
-from panogrf.renderer.render import QUALITY, Sampling, render_panorama, render_rays, target_rays
+from panogrf.renderer.render import (
+    QUALITY,
+    Quality,
+    Sampling,
+    render_panorama,
+    render_rays,
+    target_rays,
+)
 
 PAIRS = ((0, 1), (0, 2), (1, 2))
 SAVE_EVERY = 20  # scenes between the shipped depth's partial saves
@@ -84,7 +91,7 @@ def pair_depths(
             imgs = data.images[i].to(device).float() / 255.0
             c2w = data.c2w[i].to(device)
             for a, b in PAIRS:
-                depth = estimator(imgs[[a, b]], c2w[[a, b]], "full").depth.half().cpu()
+                depth = estimator(imgs[[a, b]], c2w[[a, b]], DepthMode.FULL).depth.half().cpu()
                 out.setdefault(f"r{a}s{b}", []).append(depth[0:1])
                 out.setdefault(f"r{b}s{a}", []).append(depth[1:2])
     finally:
@@ -204,13 +211,13 @@ def validate(
     """WS-PSNR of the middle view rendered from the outer two: depth-guided sampling on every
     scene, 64 + 64 samples on the first four (slow on a CPU). ``net`` is on ``device``."""
     net.eval()
-    scores: dict[str, list[float]] = {"fast": [], "paper": []}
+    scores: dict[Quality, list[float]] = {Quality.FAST: [], Quality.PAPER: []}
     for i in range(len(data)):
         imgs = data.images[i].to(device).float() / 255.0
         c2w = data.c2w[i].to(device)
         dep = torch.stack((depths["r0s2"][i], depths["r2s0"][i])).to(device).float()
         cache = build_cache(net, imgs[[0, 2]], c2w[[0, 2]], dep)
-        for q in scores if i < 4 else ("fast",):
+        for q in scores if i < 4 else (Quality.FAST,):
             out = render_panorama(net, cache, c2w[1], height, q)
             gt = torch.nn.functional.interpolate(imgs[1:2], size=(height, 2 * height), mode="area")
             scores[q].append(float(ws_psnr(out.rgb[None], gt)))
@@ -255,7 +262,7 @@ def train_renderer(
         small = _at_height(data, cfg.depth_height)
         depths = pair_depths(estimator, small, Path(cfg.data), log, cfg.device)
     train_idx, val_idx = held_back(len(data), cfg.val_scenes)
-    net = RendererNet(PRESETS[cfg.preset])
+    net = RendererNet(PRESETS[RendererPreset(cfg.preset)])
     init_from(net, cfg.init, log)
     net.to(cfg.device)
     log(
@@ -267,7 +274,7 @@ def train_renderer(
     gen = torch.Generator().manual_seed(cfg.seed)
     probs = _row_sampler(cfg.height, 2 * cfg.height)
     train_sampling = Sampling(n_coarse=cfg.coarse, n_fine=cfg.fine)
-    fast = dataclasses.replace(QUALITY["fast"], surface=cfg.surface_loss)
+    fast = dataclasses.replace(QUALITY[Quality.FAST], surface=cfg.surface_loss)
     steps = Steps(opt, cfg.steps, cfg.lr, cfg.log_every, log, _describe, tuple(net.parameters()))
     for _ in steps:
         losses = torch.zeros(4)

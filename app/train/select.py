@@ -40,7 +40,7 @@ from panogrf.app.train.configs import FusionRecordingConfig, TrainSelectConfig
 from panogrf.app.train.data import load_triplets
 from panogrf.app.train.loop import Steps, held_back, save_trained
 from panogrf.app.train.renderer import _weights_key
-from panogrf.model.depth import DepthEstimator
+from panogrf.model.depth import DepthEstimator, DepthMode
 from panogrf.model.select import CONSISTENCY, FEATURES, HypothesisSelector, SelectorConfig
 
 #: What `record_scenes` returns (and caches).
@@ -151,7 +151,7 @@ def fusion_runs(
                 stack.enter_context(mono_out_of_domain(estimator, partner, gen, features_only=True))
             if heights:
                 stack.enter_context(mono_wrong_heights(estimator, gen, shared=cfg.heights_shared))
-            estimator(images, c2w, "full", **{attr: records})
+            estimator(images, c2w, DepthMode.FULL, **{attr: records})
         yield i, records
 
 

@@ -71,10 +71,11 @@ class ViewerSetup:
     def from_views(cls, views, start_frame: int = 0, **kw) -> ViewerSetup:
         """A setup from prepared `SourceViews` (full depth estimated), starting at a view."""
         from panogrf.app.files.images import to_uint8
+        from panogrf.model.depth_config import DepthMode
 
         return cls(
             images=to_uint8(views.images),
-            depth=views.depth["full"][:, 0].cpu().numpy(),
+            depth=views.depth[DepthMode.FULL][:, 0].cpu().numpy(),
             c2w=views.c2w.cpu().numpy(),
             start_pose=views.c2w[start_frame].cpu().numpy().astype(np.float64),
             masks=None

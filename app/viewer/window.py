@@ -137,13 +137,15 @@ class PanoViewer(ExportsMixin, OverlayMixin, ControlsMixin, mglw.WindowConfig):
         """The background depth refinement finished: the GL preview's meshes and the render
         worker's cache come from the refined depth from this frame on, and the still view is
         refined again from it."""
+        from panogrf.model.depth_config import DepthMode
+
         refiner = self.setup.scene_refiner
         prepared = refiner.take() if refiner is not None else None
         if prepared is None:
             return
         self.scene_swapped = True
         views = prepared.views
-        depth = views.depth["full"][:, 0].cpu().numpy()
+        depth = views.depth[DepthMode.FULL][:, 0].cpu().numpy()
         old, self.preview = self.preview, self._make_preview(depth)
         old.release()
         self.setup.depth = depth

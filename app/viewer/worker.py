@@ -21,7 +21,7 @@ from panogrf.model.render_net import RendererNet
 from panogrf.model.steps import apart_from_captures
 from panogrf.renderer.cache import SceneCache
 from panogrf.renderer.detail import DEFAULT_DETAIL, render_detailed
-from panogrf.renderer.render import render_panorama
+from panogrf.renderer.render import Quality, render_panorama
 
 #: (height, sampling, sources, network rows, detail sampling) of each refinement level, coarse
 #: to fine; both are shown at 512 x 1024, the network running at the fourth entry's rows and
@@ -39,7 +39,7 @@ from panogrf.renderer.render import render_panorama
 #: read the sources at their own depth splatted into the target (`DEFAULT_DETAIL`'s
 #: projection; detail_projection_val.json): draft 25.61 / 0.143 / 0.15 -> 26.43 / 0.109 / 0.17,
 #: fast at 128 26.66 / 0.103 / 0.31 -> 26.87 / 0.094 / 0.32.
-LEVELS = ((512, "draft", 2, 128, "bilinear"), (512, "fast", None, 128, "bicubic"))
+LEVELS = ((512, Quality.DRAFT, 2, 128, "bilinear"), (512, Quality.FAST, None, 128, "bicubic"))
 #: The live view's one level (`RenderWorker` ``live``): the last level of `LEVELS`, every frame.
 LIVE_LEVELS = LEVELS[-1:]
 

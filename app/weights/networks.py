@@ -19,35 +19,42 @@ from safetensors.torch import load_file
 from panogrf.app.errors import UserError
 from panogrf.assets import path as asset_path
 from panogrf.model.blend import BlendConfig, DepthBlend
-from panogrf.model.depth import DepthEstimator
+from panogrf.model.depth import DepthEstimator, DepthMode
 from panogrf.model.mono import MonoDepthConfig, MonoDepthNet
 from panogrf.model.mvs import PRESETS, MVSConfig, MVSNet
 from panogrf.model.render_net import PRESETS as RENDERER_PRESETS
-from panogrf.model.render_net import RendererNet
+from panogrf.model.render_net import RendererNet, RendererPreset
 from panogrf.model.select import HypothesisSelector, SelectorConfig
 
+#: The depth networks' weights files, by the mode that runs each as its own: the monocular
+#: network (which every mode runs first), the mono-guided and the unguided MVS network.
 WEIGHTS = {
-    "mono": "depth_mono.safetensors",
-    "full": "depth_mvs_full.safetensors",
-    "mvs": "depth_mvs_only.safetensors",
+    DepthMode.MONO: "depth_mono.safetensors",
+    DepthMode.FULL: "depth_mvs_full.safetensors",
+    DepthMode.MVS: "depth_mvs_only.safetensors",
 }
 
-#: The fusion's learned choice between the mono-guided and the unguided depth (mode "full").
+#: The fusion's learned choice between the mono-guided and the unguided depth (mode full).
 SELECTOR = "depth_select.safetensors"
 
-#: The learned blend of the fused depth with the monocular depth (mode "full"), used where the
+#: The learned blend of the fused depth with the monocular depth (mode full), used where the
 #: file is there (`panogrf.model.blend`; `panogrf train blend`).
 BLEND = "depth_blend.safetensors"
 
 
-#: The MVS networks each depth mode runs: "full" fuses the mono-guided network's depth with the
-#: unguided one's (`panogrf.model.depth.DepthEstimator.fuse`).
-NETWORKS = {"mono": (), "mvs": ("mvs",), "full": ("full", "mvs")}
+#: The MVS networks each depth mode runs (by the mode whose own each is, as `WEIGHTS`): mode
+#: full fuses the mono-guided network's depth with the unguided one's
+#: (`panogrf.model.depth.DepthEstimator.fuse`).
+NETWORKS: dict[DepthMode, tuple[DepthMode, ...]] = {
+    DepthMode.MONO: (),
+    DepthMode.MVS: (DepthMode.MVS,),
+    DepthMode.FULL: (DepthMode.FULL, DepthMode.MVS),
+}
 
-#: The shipped renderer. The ablations' weights (`RENDERER_PRESETS` "no_geometry", "tiny",
-#: "large") are experiments kept in the repository's `lab/weights`, read as
+#: The shipped renderer. The ablations' weights (`RENDERER_PRESETS` no_geometry, tiny, large)
+#: are experiments kept in the repository's `lab/weights`, read as
 #: ``renderer_<preset>.safetensors`` from ``$PANOGRF_WEIGHTS`` (`lab/ablations.py`).
-RENDERER_WEIGHTS = {"panogrf": "renderer_panogrf.safetensors"}
+RENDERER_WEIGHTS = {RendererPreset.PANOGRF: "renderer_panogrf.safetensors"}
 
 
 # Config fields added after some shipped weights were trained, with the value those weights
@@ -166,7 +173,7 @@ def load_mono_weights(path: Path) -> MonoDepthNet:
     return mono
 
 
-def _stored_mvs_config(path: Path, mode: str) -> MVSConfig:
+def _stored_mvs_config(path: Path, mode: DepthMode) -> MVSConfig:
     """The preset of ``mode`` with the trunk the weights were trained with (the rest must be
     the preset: a file of another mode is refused by the config check)."""
     stored = json.loads(_metadata(path).get("config", "{}")) if path.exists() else {}
@@ -202,22 +209,22 @@ def load_blend(path: Path) -> DepthBlend:
 
 @lru_cache(maxsize=4)
 def load_depth_estimator(
-    modes: tuple[str, ...] = ("full", "mvs"), device: str = "cpu"
+    modes: tuple[DepthMode, ...] = (DepthMode.FULL, DepthMode.MVS), device: str = "cpu"
 ) -> DepthEstimator:
     """The depth estimator with the monocular network and the MVS networks of ``modes`` (with
-    both "full" and "mvs", also the fusion's hypothesis selector, and its blend with the
+    both full and mvs, also the fusion's hypothesis selector, and its blend with the
     monocular depth where that file is there)."""
     from dataclasses import asdict
 
-    mono = load_mono_weights(weights_path(WEIGHTS["mono"]))
+    mono = load_mono_weights(weights_path(WEIGHTS[DepthMode.MONO]))
     mvs = {}
-    for mode in modes:
+    for mode in map(DepthMode, modes):
         path = weights_path(WEIGHTS[mode])
         config = _stored_mvs_config(path, mode)
         net = MVSNet(config)
         _load(net, path, asdict(net.config))
         mvs[mode] = net
-    files = [weights_path(WEIGHTS["mono"]), *(weights_path(WEIGHTS[m]) for m in modes)]
+    files = [weights_path(WEIGHTS[DepthMode.MONO]), *(weights_path(WEIGHTS[m]) for m in modes)]
     selector = blend = None
     if _fuses(modes):
         selector = load_selector(weights_path(SELECTOR))
@@ -234,15 +241,16 @@ def load_depth_estimator(
 def _fuses(networks) -> bool:
     """The mono-guided and the unguided MVS networks are both loaded: mode full fuses their
     depth, with the selector choosing."""
-    return "full" in networks and "mvs" in networks
+    return DepthMode.FULL in networks and DepthMode.MVS in networks
 
 
-def depth_weight_files(mode: str) -> dict[str, str]:
-    """The weights files depth mode ``mode`` reads, by role: the monocular network, every MVS
-    network it runs and, where two are fused (mode "full"), the selector ("select") and the
-    blend with the monocular depth ("blend") where its file is there."""
+def depth_weight_files(mode: DepthMode) -> dict[str, str]:
+    """The weights files depth mode ``mode`` reads, by role: the monocular network
+    (`DepthMode.MONO`), every MVS network it runs (by its mode, as `NETWORKS`) and, where two
+    are fused (mode full), the selector ("select") and the blend with the monocular depth
+    ("blend") where its file is there."""
     networks = NETWORKS[mode]
-    files = {"mono": WEIGHTS["mono"], **{net: WEIGHTS[net] for net in networks}}
+    files = {DepthMode.MONO: WEIGHTS[DepthMode.MONO], **{net: WEIGHTS[net] for net in networks}}
     if _fuses(networks):
         files["select"] = SELECTOR
         if weights_path(BLEND).exists():
@@ -250,19 +258,23 @@ def depth_weight_files(mode: str) -> dict[str, str]:
     return files
 
 
-def renderer_file(preset: str) -> str:
+def renderer_file(preset: RendererPreset) -> str:
     """The weights file name of renderer ``preset``."""
     return RENDERER_WEIGHTS.get(preset, f"renderer_{preset}.safetensors")
 
 
 @lru_cache(maxsize=4)
-def load_renderer(preset: str = "panogrf", device: str = "cpu") -> RendererNet:
-    """The renderer networks of ``preset`` ("panogrf", or an ablation of `RENDERER_PRESETS`
-    whose weights ``$PANOGRF_WEIGHTS`` holds)."""
+def load_renderer(
+    preset: RendererPreset = RendererPreset.PANOGRF, device: str = "cpu"
+) -> RendererNet:
+    """The renderer networks of ``preset`` (PanoGRF's, or an ablation of `RENDERER_PRESETS`
+    whose weights ``$PANOGRF_WEIGHTS`` holds; a `RendererPreset` or its value)."""
     from dataclasses import asdict
 
     if preset not in RENDERER_PRESETS:
-        raise UserError(f"unknown renderer preset {preset!r}: one of {sorted(RENDERER_PRESETS)}")
+        known = sorted(map(str, RENDERER_PRESETS))
+        raise UserError(f"unknown renderer preset {str(preset)!r}: one of {known}")
+    preset = RendererPreset(preset)
     net = RendererNet(RENDERER_PRESETS[preset])
     _load(net, weights_path(renderer_file(preset)), asdict(net.config))
     return net.to(device).eval()
