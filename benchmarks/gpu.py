@@ -136,7 +136,8 @@ def chunk_sweep(views, target, models, device, chunks, rows_list) -> list[dict]:
 def refine_graphs(views, models, device, settles=(0.0,), repeats=3) -> dict:
     """The refinement of the same estimate with and without CUDA graphs, and on the CPU."""
     from panogrf.model import refine
-    from panogrf.model.refine import nearest_sources, refine_depth
+    from panogrf.model.depth_config import compared_sources
+    from panogrf.model.refine import refine_depth
 
     out, depths = {}, {}
     for graphs in (False, True):
@@ -157,7 +158,7 @@ def refine_graphs(views, models, device, settles=(0.0,), repeats=3) -> dict:
     # refinement's own sensitivity), for each ``settle`` of the learning rate.
     est = default_models_cpu().estimator("full")
     c2w = views.c2w.cpu()
-    sources = nearest_sources(c2w, est.view_sources(c2w)[0], est.sweep_sources)
+    sources = compared_sources(est.config, c2w, est.view_sources(c2w)[0])
     plain = views.plain.cpu()
     out["parity"] = []
     for settle in settles:

@@ -5,9 +5,10 @@
 
 For every scene all three views are prepared as `panogrf render` prepares a scene of three
 photos (the depth chain, the per-scene refinement, the renderer's feature maps; timed), once
-with every source in the sweep and the refinement (`all`) and once with the sources farther
-than ``--reach`` times the nearest one's distance left out (`near`; with ``--min-near``,
-only for the views whose nearest source is at least that far). Scored: each view's
+with every source in the sweep and the refinement (`all`: `DepthConfig.far_from` infinite)
+and once with the sources farther than ``--reach`` times the nearest one's distance left out
+(`near`: ``far_factor``) for the views whose nearest source is at least ``--min-near``
+metres away (``far_from``; 0: every view). Scored: each view's
 depth L1 against the truth (synthetic scenes), the preparation seconds. Table printed last.
 """
 
@@ -15,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import platform
 import statistics
 import sys
@@ -24,49 +26,34 @@ from pathlib import Path
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
-from depth_stages import scene_folders  # noqa: E402
-
-#: Sources left out since the counter was last reset (a view's, in the sweep or refinement).
-DROPPED = [0]
+from depth_stages import estimator_as, scene_folders  # noqa: E402
 
 
-def within_reach(nearest_sources, reach, min_near=0.0):
-    """``nearest_sources`` keeping only the sources within ``reach`` times the nearest one's
-    distance, where the nearest is at least ``min_near`` metres away (all of them otherwise)."""
+def compared(est, c2w, sources) -> int:
+    """How many sources ``est`` leaves out of what the sweep and refinement compare."""
+    from panogrf.model.depth_config import compared_sources
 
-    def pick(c2w, sources, k):
-        centres = c2w[:, :3, 3]
-        out = []
-        for r, src in enumerate(nearest_sources(c2w, sources, k)):
-            dist = [float((centres[j] - centres[r]).norm()) for j in src]
-            if not dist or min(dist) < min_near:
-                out.append(src)
-                continue
-            kept = [j for j, d in zip(src, dist, strict=True) if d <= reach * min(dist)]
-            DROPPED[0] += len(src) - len(kept)
-            out.append(kept)
-        return out
-
-    return pick
+    kept = compared_sources(est.config, c2w, sources)
+    every = compared_sources(est.configured(far_from=math.inf).config, c2w, sources)
+    return sum(map(len, every)) - sum(map(len, kept))
 
 
 def prepare(data, models, reach, min_near=0.0):
-    from panogrf.model import depth, refine
+    """The three views prepared with every source (``reach`` None) or the near ones."""
     from panogrf.model.refine import PREPARE_REFINE
-    from panogrf.renderer import methods
     from panogrf.renderer.methods import SourceViews
 
-    if reach is not None:  # where the sweep and the refinement pick their sources
-        depth.nearest_sources = methods.nearest_sources = within_reach(
-            refine.nearest_sources, reach, min_near
-        )
-    try:
+    est = models.estimator("full")
+    if reach is None:
+        est = est.configured(far_from=math.inf)
+    else:
+        est = est.configured(far_from=min_near, far_factor=reach)
+    with estimator_as(models, "full", est):
         t0 = time.perf_counter()
         views = SourceViews(data.images, data.c2w, refine=PREPARE_REFINE)
         views.cache_for("panogrf", models)
-        return views, time.perf_counter() - t0
-    finally:
-        depth.nearest_sources = methods.nearest_sources = refine.nearest_sources
+        seconds = time.perf_counter() - t0
+    return views, seconds, compared(est, data.c2w, est.view_sources(data.c2w)[0])
 
 
 def main() -> int:
@@ -102,10 +89,9 @@ def main() -> int:
         group = folder.parent.name if (folder.parent / "dataset.json").exists() else folder.name
         order = [("all", None), ("near", args.reach)]
         for name, reach in order if len(rows) % 4 == 0 else order[::-1]:  # alternate
-            DROPPED[0] = 0
-            views, seconds = prepare(data, models, reach, args.min_near)
+            views, seconds, left_out = prepare(data, models, reach, args.min_near)
             row = {"scene": str(folder), "set": group, "variant": name, "seconds": seconds}
-            row["sources_left_out"] = DROPPED[0]
+            row["sources_left_out"] = left_out
             if data.depths is not None:
                 depth = torch.nn.functional.interpolate(
                     views.depth["full"], size=data.images.shape[-2:], mode="bilinear"

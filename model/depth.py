@@ -38,12 +38,12 @@ from panogrf.model.depth_config import (
     SHORT_SWEEP,
     DepthConfig,
     DepthMode,
+    compared_sources,
     view_sources,
 )
 from panogrf.model.mono import MonoDepthNet, MonoOutput
 from panogrf.model.mvs import MVSNet
 from panogrf.model.progress import open_stage, stage
-from panogrf.model.refine import nearest_sources
 from panogrf.model.select import HypothesisSelector, SelectorChooser
 from panogrf.model.sweep import SweepConfig, median_filter, sweep_depth
 
@@ -86,6 +86,8 @@ class DepthEstimator(nn.Module):
     fusion_sweep: SweepConfig
     median: int
     sweep_sources: int
+    far_from: float
+    far_factor: float
     fuse: bool
     switch_gain: float
     mono_hypothesis: bool
@@ -312,7 +314,7 @@ class DepthEstimator(nn.Module):
     ) -> Tensor:
         """The sweep (fusing the hypotheses), the median and, mode "full" fused, the blend with
         the monocular depth, in the networks' world."""
-        nearest = nearest_sources(net.c2w, net.sources, self.sweep_sources)
+        nearest = compared_sources(self.config, net.c2w, net.sources, net.scale)
         clean = tuple(self._clean(o) for o in net.others)
         fused = len(clean) == 1
         chooser = None

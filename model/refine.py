@@ -118,16 +118,6 @@ PREPARE_REFINE = RefineConfig(
 )
 
 
-def nearest_sources(c2w: Tensor, sources: list[list[int]], k: int) -> list[list[int]]:
-    """Each view's ``k`` sources nearest to it (by camera centre), from ``sources``."""
-    centres = c2w[:, :3, 3]
-
-    def nearest(r: int, src: list[int]) -> list[int]:
-        return sorted(src, key=lambda j: float((centres[j] - centres[r]).norm()))[:k]
-
-    return [nearest(r, src) for r, src in enumerate(sources)]
-
-
 #: Gap (log depth) below which a point in front of a source's surface is not a violation: the
 #: depth maps' own sampling error.
 FREE_SPACE_TOLERANCE = 0.02

@@ -29,7 +29,8 @@ import torch
 from torch import Tensor
 
 from panogrf.model.depth import DepthEstimator, DepthMode
-from panogrf.model.refine import RefineConfig, nearest_sources, refine_depth
+from panogrf.model.depth_config import compared_sources
+from panogrf.model.refine import RefineConfig, refine_depth
 from panogrf.model.render_net import RendererNet, RendererPreset
 from panogrf.renderer.baselines import render_meshwarp, render_nearest
 from panogrf.renderer.cache import SceneCache, build_cache
@@ -108,8 +109,9 @@ class SourceViews:
     leave-one-out of the depth chain (`docs/lean-chain.md`) and left.
 
     ``refine``: the multi-view depth is refined per scene by photometric consistency between
-    the sources (`panogrf.model.refine.refine_depth`, each view against its two nearest
-    sources) after the estimator; a few seconds per view here, paid once at preparation.
+    the sources (`panogrf.model.refine.refine_depth`, each view against the sources the sweep
+    compares it with, `panogrf.model.depth_config.compared_sources`) after the estimator; a
+    few seconds per view here, paid once at preparation.
 
     ``nadir``: the capture rig (tripod, hand) at the bottom of every source is masked
     (`panogrf.renderer.nadir`): "auto" (detected per source), degrees of a cap around the
@@ -198,7 +200,7 @@ class SourceViews:
                 self.images,
                 self.c2w.to(depth.dtype),
                 depth,
-                nearest_sources(self.c2w, sources, est.sweep_sources),
+                compared_sources(est.config, self.c2w, sources),
                 self.refine,
                 (0.05, est.d_max),
                 should_stop,

@@ -287,3 +287,32 @@ def test_the_blend_records_its_input_and_moves_the_depth_towards_mono(estimator)
     metric_mono = (plain.mono / record[0]["scale"]).clamp(0.05, estimator.d_max)
     torch.testing.assert_close(towards_mono.depth, metric_mono, atol=1e-3, rtol=1e-3)
     torch.testing.assert_close(mvs, estimator(images, c2w, "mvs").depth)
+
+
+def _on_a_line(*xs: float) -> torch.Tensor:
+    c2w = torch.eye(4).repeat(len(xs), 1, 1)
+    c2w[:, 0, 3] = torch.tensor(xs)
+    return c2w
+
+
+def test_the_far_source_is_compared_only_where_the_near_one_gives_little_parallax():
+    from panogrf.model.depth_config import DepthConfig, compared_sources
+
+    every = [[1, 2], [0, 2], [0, 1]]
+    wide = _on_a_line(0.0, 2.0, 4.0)  # a tour's spacing: the outer views keep the middle one
+    assert compared_sources(DepthConfig(), wide, every) == [[1], [0, 2], [1]]
+    narrow = _on_a_line(0.0, 0.4, 0.8)  # the far photo's doubled baseline is kept
+    assert compared_sources(DepthConfig(), narrow, every) == [[1, 2], [0, 2], [1, 0]]
+    # The threshold is in metres: 1.6 m apart in a world of 4 units a metre is narrow.
+    scaled = compared_sources(DepthConfig(), _on_a_line(0.0, 1.6, 3.2), every, scale=4.0)
+    assert scaled == [[1, 2], [0, 2], [1, 0]]
+    assert compared_sources(DepthConfig(far_from=math.inf), wide, every) == [
+        [1, 2],
+        [0, 2],
+        [1, 0],
+    ]
+    assert compared_sources(DepthConfig(sweep_sources=1, far_from=math.inf), wide, every) == [
+        [1],
+        [0],  # a tie: the first of the equally near
+        [1],
+    ]
