@@ -40,7 +40,6 @@ import argparse
 import json
 import statistics
 import time
-from contextlib import nullcontext
 from pathlib import Path
 
 import torch
@@ -101,24 +100,21 @@ def _pairs(
         c2w = data.c2w[i, [0, 2]].clone()
         c2w[:, :3, 3] *= scale
         t0 = time.perf_counter()
+        stages = []  # around the monocular network
         if mono == "shape":
-            context = _mono_wrong_in_shape(estimator, seed=i)
+            stages.append(_mono_wrong_in_shape(seed=i))
         elif mono in ("shift", "features"):
             partner = data.images[(i + 1) % len(data), [0, 2]].float() / 255.0
-            context = _mono_out_of_domain(estimator, partner, i, mono == "features")
+            stages.append(_mono_out_of_domain(partner, i, mono == "features"))
         elif mono == "heights":
-            context = mono_wrong_heights(estimator, torch.Generator().manual_seed(i))
+            stages.append(mono_wrong_heights(torch.Generator().manual_seed(i)))
         elif mono == "room":
-            gen = torch.Generator().manual_seed(i)
-            context = mono_wrong_heights(estimator, gen, shared=True)
+            stages.append(mono_wrong_heights(torch.Generator().manual_seed(i), shared=True))
         elif mono == "warp":
-            context = mono_warped_room(estimator, torch.Generator().manual_seed(i))
+            stages.append(mono_warped_room(torch.Generator().manual_seed(i)))
         elif mono == "true":
-            context = _mono_true(estimator, data.depths[i, [0, 2]] * scale)
-        else:
-            context = nullcontext()
-        with context:
-            est = estimator(images, c2w, mode)
+            stages.append(_mono_true(estimator, data.depths[i, [0, 2]] * scale))
+        est = estimator(images, c2w, mode, mono_stages=stages)
         seconds.append(time.perf_counter() - t0)
         for k, v in enumerate((0, 2)):
             gt = data.depths[i, v] * scale
@@ -131,7 +127,7 @@ def _pairs(
 
 
 def _mono_true(estimator, truth: Tensor):
-    """While inside, the monocular depth of the views is ``truth`` [V, H, W] (metres) resized
+    """A stage: the monocular depth of the views is ``truth`` [V, H, W] (metres) resized
     to the network's rows (nearest), its own value kept where the truth is missing or beyond
     ``d_max``; the features stay as computed."""
 
@@ -144,23 +140,23 @@ def _mono_true(estimator, truth: Tensor):
         ok = (gt > 0) & (gt <= estimator.d_max)
         return torch.where(ok, gt, depth)
 
-    return mono_depth_changed(estimator, change)
+    return mono_depth_changed(change)
 
 
-def _mono_wrong_in_shape(estimator, seed: int):
-    """The monocular network's depth made wrong as on real rooms while inside: smooth regions
+def _mono_wrong_in_shape(seed: int):
+    """A stage: the monocular network's depth made wrong as on real rooms: smooth regions
     off by up to +-40 % and a global scale of 0.7-1.4x (`corrupt_mono`, every view), seeded."""
     gen = torch.Generator().manual_seed(seed)
-    return mono_depth_changed(estimator, lambda depth: corrupt_mono(depth, gen, p=1.0))
+    return mono_depth_changed(lambda depth: corrupt_mono(depth, gen, p=1.0))
 
 
-def _mono_out_of_domain(estimator, partner, seed: int, features_only: bool = False):
-    """The monocular network sees every view blended (weight 0.35-0.55) with ``partner``'s
-    panoramas [V, 3, H, W] (another scene), turned by a seeded random yaw, while inside: its
+def _mono_out_of_domain(partner, seed: int, features_only: bool = False):
+    """A stage: the monocular network sees every view blended (weight 0.35-0.55) with
+    ``partner``'s panoramas [V, 3, H, W] (another scene), turned by a seeded random yaw: its
     depth and features are wrong together (`out_of_domain`, training's ``--mono-shift``), or
     only its features (``features_only``, training's ``--mono-features-shift``)."""
     gen = torch.Generator().manual_seed(seed)
-    return mono_out_of_domain(estimator, partner, gen, features_only)
+    return mono_out_of_domain(partner, gen, features_only)
 
 
 def _base(estimator):

@@ -27,7 +27,6 @@ import platform
 import statistics
 import subprocess
 import time
-from contextlib import nullcontext
 from pathlib import Path
 
 import torch
@@ -102,6 +101,8 @@ def main() -> int:
     from panogrf.app.scene.session import default_models
     from panogrf.app.scoring import image_scores
     from panogrf.app.train.augment import mono_out_of_domain
+    from panogrf.model.depth import DepthMode
+    from panogrf.renderer.cache import resize_erp
     from panogrf.renderer.methods import SourceViews, prepare, render_view
 
     names = [s.strip() for s in args.settings.split("|") if s.strip()]
@@ -120,13 +121,16 @@ def main() -> int:
     for i, folder in enumerate(folders):
         data = load_scene(folder, load_images=True).images
         plain = SourceViews(data.images[[0, 2]], data.c2w[[0, 2]])
-        context = nullcontext()
-        if args.mono_shift:
+        if args.mono_shift:  # the estimate made here with the stage, as `depth_for` makes it
             partner = load_scene(folders[(i + 1) % len(folders)], load_images=True).images
             gen = torch.Generator().manual_seed(i)
-            context = mono_out_of_domain(models.estimator("full"), partner.images[[0, 2]], gen)
-        with context:
-            plain.depth_for("full", models)
+            est = models.estimator("full")
+            stage = mono_out_of_domain(partner.images[[0, 2]], gen)
+            small = resize_erp(plain.images, est.working_height)
+            with torch.no_grad():
+                out = est(small, plain.c2w, "full", detail=plain.images, mono_stages=[stage])
+            plain.depth[DepthMode.FULL] = out.depth
+        plain.depth_for("full", models)
         for name, config in settings.items():
             # The library's own path (`SourceViews.refined`, as `panogrf view` takes it).
             t0 = time.perf_counter()

@@ -23,6 +23,7 @@ does, to keep its depth caches cheap).
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -37,11 +38,12 @@ from panogrf.model.depth_config import (
     DEFAULT_SWEEP,
     SHORT_SWEEP,
     DepthConfig,
+    DepthEstimate,
     DepthMode,
     compared_sources,
     view_sources,
 )
-from panogrf.model.mono import MonoDepthNet, MonoOutput
+from panogrf.model.mono import MonoDepthNet, MonoOutput, MonoStage
 from panogrf.model.mvs import MVSNet
 from panogrf.model.progress import open_stage, stage
 from panogrf.model.select import HypothesisSelector, SelectorChooser
@@ -57,15 +59,6 @@ __all__ = [
     "DepthMode",
     "DepthEstimator",
 ]
-
-
-@dataclass
-class DepthEstimate:
-    depth: Tensor  # [V, 1, H, W] spherical depth, metres
-    mono: Tensor  # [V, 1, H, W] the monocular depth
-    out_of_range: Tensor  # [V, 1, H, W] bool: clamped at the top of the depth range
-    sources: list[list[int]]  # views used as sources, per reference view
-    warnings: list[str] = field(default_factory=list)
 
 
 class DepthEstimator(nn.Module):
@@ -233,6 +226,7 @@ class DepthEstimator(nn.Module):
         *,
         record: list[dict[str, Any]] | None = None,
         blend_record: list[dict[str, Any]] | None = None,
+        mono_stages: Sequence[MonoStage] = (),
     ) -> DepthEstimate:
         """images [V, 3, H, W] in [0, 1] (W = 2H), c2w [V, 4, 4] -> `DepthEstimate`.
 
@@ -243,7 +237,8 @@ class DepthEstimator(nn.Module):
         default ``images``), when the caller passes working-resolution images. Training taps
         (mode "full" fused): ``record`` gets, per reference view, the selector's input and
         where the search from each hypothesis ends; ``blend_record`` the blend's input and the
-        two depths it blends (the depth is then not blended)."""
+        two depths it blends (the depth is then not blended). Training perturbations:
+        ``mono_stages`` around the monocular network, each around the one before."""
         if mode not in MODES:
             raise ValueError(f"mode must be one of {[str(m) for m in MODES]}, got {mode!r}")
         mode = DepthMode(mode)
@@ -254,19 +249,24 @@ class DepthEstimator(nn.Module):
             raise ValueError(f"panoramas must be 2:1, got {w}x{h} (width x height)")
         hw = (self.working_height, 2 * self.working_height)
         small = F.interpolate(images, size=hw, mode="area") if (h, w) != hw else images
-        net = self._networks(mode, small, c2w)
+        net = self._networks(mode, small, c2w, mono_stages)
         if mode != DepthMode.MONO and self.sweep is not None and any(net.sources):
             pixels = images if detail is None else detail
             net.depth = self._photometric(mode, pixels, net, record, blend_record)
         return self._finish(net, (h, w))
 
-    def _networks(self, mode: DepthMode, small: Tensor, c2w: Tensor) -> _NetworkDepth:
+    def _networks(
+        self, mode: DepthMode, small: Tensor, c2w: Tensor, mono_stages: Sequence[MonoStage] = ()
+    ) -> _NetworkDepth:
         """The monocular network, then (modes "full" and "mvs") the MVS passes over every view
         with sources: the unguided one (twice when it first fixes the world's scale, see
         ``canonical``), then the mode's own."""
         v = small.shape[0]
         with stage("depth: monocular network", 1) as progress:
-            mono = self.mono(small)
+            forward: Callable[[Tensor], MonoOutput] = self.mono
+            for wrap in mono_stages:
+                forward = functools.partial(wrap, forward)
+            mono = forward(small)
             progress.advance()
         net = _NetworkDepth(mono, mono.depth.clone(), [[] for _ in range(v)], c2w)
         if mode == DepthMode.MONO:

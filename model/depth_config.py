@@ -3,7 +3,7 @@ fixed at construction, with the sweeps it uses; the figures that chose each sett
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from enum import StrEnum
 
 import torch
@@ -21,6 +21,17 @@ class DepthMode(StrEnum):
     """The unguided MVS network alone (the no-mono ablation)."""
     MONO = "mono"
     """The monocular network alone (the no-MVS ablation)."""
+
+
+@dataclass
+class DepthEstimate:
+    """What `panogrf.model.depth.DepthEstimator` returns."""
+
+    depth: Tensor  # [V, 1, H, W] spherical depth, metres
+    mono: Tensor  # [V, 1, H, W] the monocular depth
+    out_of_range: Tensor  # [V, 1, H, W] bool: clamped at the top of the depth range
+    sources: list[list[int]]  # views used as sources, per reference view
+    warnings: list[str] = field(default_factory=list)
 
 
 DEFAULT_SWEEP = SweepConfig()

@@ -16,6 +16,7 @@ Sized for a 2-core CPU: a few hundred thousand parameters at 128 x 256.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, cast
 
@@ -260,6 +261,12 @@ class _Up(nn.Module):
 class MonoOutput:
     depth: Tensor  # [B, 1, H, W] spherical depth, metres, in (0, d_max)
     features: Tensor  # [B, feature_channels, H/2, W/2] last decoder features (at 1/2)
+
+
+#: A stage a training (or a benchmark) inserts around the monocular network in one call of
+#: the depth chain (`panogrf.model.depth.DepthEstimator`'s ``mono_stages``): given the network
+#: (or the stage inside it) and the images, what the chain reads as the network's output.
+MonoStage = Callable[[Callable[[Tensor], MonoOutput], Tensor], MonoOutput]
 
 
 class MonoDepthNet(nn.Module):

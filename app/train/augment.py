@@ -22,8 +22,7 @@ All functions draw from a torch.Generator and work on batches [B, C, H, W].
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
 
 import torch
 import torch.nn.functional as F
@@ -140,70 +139,45 @@ def out_of_domain(images: Tensor, gen: torch.Generator) -> Tensor:
     return (1 - alpha) * images + alpha * other
 
 
-@contextmanager
-def patched_mono(estimator, make) -> Iterator[None]:
-    """While inside, ``estimator``'s monocular network's forward is ``make(forward)`` (its own
-    forward wrapped)."""
-    net = estimator.mono
-    outer = net.__dict__.get("forward")  # another patch around this one, kept on the way out
-    net.forward = make(net.forward)
-    try:
-        yield
-    finally:
-        if outer is None:
-            del net.forward
-        else:
-            net.forward = outer
+def mono_out_of_domain(partner: Tensor, gen: torch.Generator, features_only: bool = False):
+    """A `MonoStage` (the depth chain's ``mono_stages``): the monocular network sees every view
+    blended with ``partner``'s panoramas [V', 3, H, W] (another scene; the first V of them are
+    used, resized to the input) by `out_of_domain`: its depth and features wrong together.
+    ``features_only``: only its features are those of the blended view, its depth that of the
+    view as it is."""
+
+    def shifted(forward: Callable[[Tensor], MonoOutput], images: Tensor) -> MonoOutput:
+        other = F.interpolate(partner[: len(images)], size=images.shape[-2:], mode="area")
+        both = out_of_domain(torch.stack((images, other), 1).flatten(0, 1), gen)
+        out = forward(both[0::2])
+        if features_only:
+            return MonoOutput(forward(images).depth, out.features)
+        return out
+
+    return shifted
 
 
-def mono_out_of_domain(
-    estimator, partner: Tensor, gen: torch.Generator, features_only: bool = False
-):
-    """While inside, ``estimator``'s monocular network sees every view blended with
-    ``partner``'s panoramas [V', 3, H, W] (another scene; the first V of them are used, resized
-    to the input) by `out_of_domain`: its depth and features wrong together. ``features_only``:
-    only its features are those of the blended view, its depth that of the view as it is."""
+def mono_depth_changed(change: Callable[[Tensor], Tensor]):
+    """A `MonoStage`: the monocular depth is ``change(depth)`` at every call of the network;
+    its features stay as computed."""
 
-    def make(forward):
-        def shifted(images: Tensor):
-            other = F.interpolate(partner[: len(images)], size=images.shape[-2:], mode="area")
-            both = out_of_domain(torch.stack((images, other), 1).flatten(0, 1), gen)
-            out = forward(both[0::2])
-            if features_only:
-                return MonoOutput(forward(images).depth, out.features)
-            return out
+    def changed(forward: Callable[[Tensor], MonoOutput], images: Tensor) -> MonoOutput:
+        out = forward(images)
+        return MonoOutput(change(out.depth), out.features)
 
-        return shifted
-
-    return patched_mono(estimator, make)
+    return changed
 
 
-def mono_depth_changed(estimator, change: Callable[[Tensor], Tensor]):
-    """While inside, ``estimator``'s monocular depth is ``change(depth)`` at every call of the
-    network; its features stay as computed."""
-
-    def make(forward):
-        def changed(images: Tensor):
-            out = forward(images)
-            return MonoOutput(change(out.depth), out.features)
-
-        return changed
-
-    return patched_mono(estimator, make)
-
-
-def mono_wrong_heights(
-    estimator, gen: torch.Generator, strength: float = 0.4, shared: bool = False
-):
-    """While inside, ``estimator``'s monocular depth has its ceiling and floor at wrong heights
+def mono_wrong_heights(gen: torch.Generator, strength: float = 0.4, shared: bool = False):
+    """A `MonoStage`: the monocular depth has its ceiling and floor at wrong heights
     (`wrong_heights`, one draw per call of the network); its features stay as computed.
-    ``shared``: one draw on entry for every view and call instead, so the views read the same
+    ``shared``: one draw now for every view and call instead, so the views read the same
     wrong room and agree with each other, as a real capture's views do (a per-view
     draw makes the views disagree, which the fusion's cross-view check sees)."""
     if not shared:
-        return mono_depth_changed(estimator, lambda depth: wrong_heights(depth, gen, strength))
+        return mono_depth_changed(lambda depth: wrong_heights(depth, gen, strength))
     a, c = _u(gen, 1, -strength, strength, 1, 1, 1), _u(gen, 1, -strength, strength, 1, 1, 1)
-    return mono_depth_changed(estimator, lambda depth: _heights_scaled(depth, a, c))
+    return mono_depth_changed(lambda depth: _heights_scaled(depth, a, c))
 
 
 def _rows_read_at(x: Tensor, elevation: Tensor) -> Tensor:
@@ -265,19 +239,15 @@ def seen_warped(forward, images: Tensor, up_log: Tensor, down_log: Tensor) -> Mo
     )
 
 
-def mono_warped_room(estimator, gen: torch.Generator, strength: float = WARP_STRENGTH):
-    """While inside, ``estimator``'s monocular network sees every panorama as a room of other
-    heights (`seen_warped`, log factors uniform in +-``strength`` above and below the camera),
-    as on a real room whose proportions the network did not learn (the triplet's ceiling):
-    one draw on entry for every view and call, so the views see the same wrong
-    room."""
+def mono_warped_room(gen: torch.Generator, strength: float = WARP_STRENGTH):
+    """A `MonoStage`: the monocular network sees every panorama as a room of other heights
+    (`seen_warped`, log factors uniform in +-``strength`` above and below the camera), as on a
+    real room whose proportions the network did not learn (the triplet's ceiling): one draw
+    now for every view and call, so the views see the same wrong room."""
     up, down = room_factors(gen, 1, strength=strength)
 
-    def make(forward):
-        def warped(images: Tensor):
-            b = len(images)
-            return seen_warped(forward, images, up.expand(b), down.expand(b))
+    def warped(forward: Callable[[Tensor], MonoOutput], images: Tensor) -> MonoOutput:
+        b = len(images)
+        return seen_warped(forward, images, up.expand(b), down.expand(b))
 
-        return warped
-
-    return patched_mono(estimator, make)
+    return warped

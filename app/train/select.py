@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-from contextlib import ExitStack
 from pathlib import Path
 
 import torch
@@ -144,14 +143,12 @@ def fusion_runs(
         )
         partner = data.images[indices[(n + 1) % len(indices)], [0, 2]].float() / 255.0
         records: list[dict] = []
-        with ExitStack() as stack:
-            if shifted:
-                stack.enter_context(mono_out_of_domain(estimator, partner, gen))
-            elif features:
-                stack.enter_context(mono_out_of_domain(estimator, partner, gen, features_only=True))
-            if heights:
-                stack.enter_context(mono_wrong_heights(estimator, gen, shared=cfg.heights_shared))
-            estimator(images, c2w, DepthMode.FULL, **{attr: records})
+        stages = []  # around the monocular network, each around the one before
+        if shifted or features:
+            stages.append(mono_out_of_domain(partner, gen, features_only=not shifted))
+        if heights:
+            stages.append(mono_wrong_heights(gen, shared=cfg.heights_shared))
+        estimator(images, c2w, DepthMode.FULL, mono_stages=stages, **{attr: records})
         yield i, records
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 
 import torch
@@ -121,18 +122,13 @@ def test_mono_wrong_heights_changes_the_depth_not_the_features():
 
     est, images = Estimator(), _images(2, 32, 64)
     plain = est.mono(images)
-    with mono_wrong_heights(est, torch.Generator().manual_seed(0)):
-        wrong = est.mono(images)
+    wrong = mono_wrong_heights(torch.Generator().manual_seed(0))(est.mono, images)
     assert torch.equal(wrong.features, plain.features)
     assert not torch.allclose(wrong.depth, plain.depth)
-    assert torch.equal(est.mono(images).depth, plain.depth)  # the patch is gone afterwards
-    # Inside another patch (a view also out of its domain): both apply, both end.
-    with mono_wrong_heights(est, torch.Generator().manual_seed(0)):
-        with mono_wrong_heights(est, torch.Generator().manual_seed(1)):
-            twice = est.mono(images)
-        once = est.mono(images)
-    assert not torch.allclose(twice.depth, once.depth)
-    assert torch.equal(est.mono(images).depth, plain.depth)
+    # Around another stage (a view also out of its domain): both apply.
+    inner = functools.partial(mono_wrong_heights(torch.Generator().manual_seed(1)), est.mono)
+    twice = mono_wrong_heights(torch.Generator().manual_seed(0))(inner, images)
+    assert not torch.allclose(twice.depth, wrong.depth)
 
 
 def test_mono_wrong_heights_shared_is_one_room_for_every_view_and_call():
@@ -148,14 +144,12 @@ def test_mono_wrong_heights_shared_is_one_room_for_every_view_and_call():
         mono = Mono()
 
     est, images = Estimator(), _images(2, 32, 64)
-    with mono_wrong_heights(est, torch.Generator().manual_seed(4), shared=True):
-        first, second = est.mono(images).depth, est.mono(images[:1]).depth
+    room = mono_wrong_heights(torch.Generator().manual_seed(4), shared=True)
+    first, second = room(est.mono, images).depth, room(est.mono, images[:1]).depth
     assert torch.equal(first[0], first[1]) and torch.equal(first[0], second[0])
     assert not torch.allclose(first, torch.full_like(first, 2.0))  # the room did change
-    with mono_wrong_heights(est, torch.Generator().manual_seed(4)):
-        apart = est.mono(images).depth
+    apart = mono_wrong_heights(torch.Generator().manual_seed(4))(est.mono, images).depth
     assert not torch.allclose(apart[0], apart[1])
-    assert torch.equal(est.mono(images).depth, torch.full_like(first, 2.0))
 
 
 def _box_room_labels(h: int, up: float, down: float) -> torch.Tensor:
@@ -201,15 +195,13 @@ def test_mono_warped_room_changes_depth_and_features_the_same_for_both_views():
     est = _echo_estimator()
     room = _box_room_labels(64, 1.2, 1.5).expand(2, 3, -1, -1).contiguous()
     plain = est.mono(room)
-    with mono_warped_room(est, torch.Generator().manual_seed(3)):
-        seen = est.mono(room)
-        again = est.mono(room[:1])
+    warp = mono_warped_room(torch.Generator().manual_seed(3))
+    seen, again = warp(est.mono, room), warp(est.mono, room[:1])
     # A network that returns its input sees the warped room and its output is warped back:
     # the round trip loses only the rows a boundary crosses.
     assert float(((seen.depth - plain.depth).abs() > 0.25).float().mean()) < 0.03
     torch.testing.assert_close(seen.depth[0], seen.depth[1])
     torch.testing.assert_close(seen.depth[0], again.depth[0])
-    assert torch.equal(est.mono(room).depth, plain.depth)  # the patch is gone afterwards
 
     class Fixed(torch.nn.Module):
         """A network that always sees the same room, whatever it is shown."""
@@ -220,8 +212,7 @@ def test_mono_warped_room_changes_depth_and_features_the_same_for_both_views():
 
     est.mono = Fixed()
     fixed = est.mono(room)
-    with mono_warped_room(est, torch.Generator().manual_seed(3)):
-        moved = est.mono(room)
+    moved = mono_warped_room(torch.Generator().manual_seed(3))(est.mono, room)
     # Its answer, read back at the panorama's rows, is a room of other heights: depth and
     # features moved alike.
     changed = (moved.depth - fixed.depth).abs() > 0.25
@@ -246,12 +237,11 @@ def test_mono_out_of_domain_features_only_keeps_the_depth_of_the_view_as_it_is()
     est = _echo_estimator()
     views, partner = _images(2), _images(2).flip(-1)
     plain = est.mono(views)
-    with mono_out_of_domain(est, partner, torch.Generator().manual_seed(5)):
-        both = est.mono(views)
-    with mono_out_of_domain(est, partner, torch.Generator().manual_seed(5), features_only=True):
-        feats = est.mono(views)
+    both = mono_out_of_domain(partner, torch.Generator().manual_seed(5))(est.mono, views)
+    feats = mono_out_of_domain(partner, torch.Generator().manual_seed(5), features_only=True)(
+        est.mono, views
+    )
     assert not torch.allclose(both.features, plain.features)
     torch.testing.assert_close(feats.features, both.features)
     torch.testing.assert_close(feats.depth, plain.depth)
     assert not torch.allclose(both.depth, plain.depth)
-    assert torch.equal(est.mono(views).depth, plain.depth)  # the patch is gone afterwards

@@ -316,3 +316,30 @@ def test_the_far_source_is_compared_only_where_the_near_one_gives_little_paralla
         [0],  # a tie: the first of the equally near
         [1],
     ]
+
+
+def test_mono_stages_wrap_the_monocular_network_for_one_call_only(estimator):
+    """Training perturbations are a call's argument: each stage gets the network (or the stage
+    inside it) and the images; the next call without them is as before."""
+    from panogrf.model.mono import MonoOutput
+
+    images, c2w = _images(2, 64), _poses((0, 0, 0), (0.5, 0, 0))
+    plain = estimator(images, c2w, "mono")
+    seen: list[int] = []
+
+    def halved(forward, small):
+        out = forward(small)
+        seen.append(len(small))
+        return MonoOutput(out.depth * 0.5, out.features)
+
+    def doubled(forward, small):  # around `halved`: both apply, the outer one last
+        out = forward(small)
+        seen.append(-len(small))
+        return MonoOutput(out.depth * 2.0, out.features)
+
+    once = estimator(images, c2w, "mono", mono_stages=[halved])
+    torch.testing.assert_close(once.depth, (plain.depth * 0.5).clamp(0.05, estimator.d_max))
+    both = estimator(images, c2w, "mono", mono_stages=[halved, doubled])
+    torch.testing.assert_close(both.depth, plain.depth)
+    assert seen == [2, 2, -2]
+    assert torch.equal(estimator(images, c2w, "mono").depth, plain.depth)
