@@ -31,10 +31,15 @@ from safetensors.torch import load_file, save_file
 from torch import Tensor
 
 from panogrf.app.files.atomic import atomic_output
+from panogrf.model.depth_config import DepthConfig
 
 #: Format of the entries: part of every name, so a new format never reads an old entry.
 #: 6: no exposure balance of the sources; 7: a checksum; 8: one store for scenes and estimates.
 FORMAT = "panogrf-scene-cache-8"
+#: The depth chain's settings as shipped: the same weights and pixels give other depth when they
+#: change (which sources a view is compared with, the sweep's candidates), so they name the
+#: entry too.
+CHAIN = repr(DepthConfig())
 
 Tensors = dict[str, Tensor]
 
@@ -56,6 +61,7 @@ class Provenance:
     @property
     def key(self) -> str:
         h = hashlib.sha256(FORMAT.encode())
+        h.update(CHAIN.encode())
         if self.setting:
             h.update(self.setting.encode())
         for part in (self.pixels, self.poses, self.weights):
