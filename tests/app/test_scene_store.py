@@ -93,6 +93,19 @@ def test_provenance_names_pixels_poses_weights_and_setting(tmp_path):
         p.setting = "x"
 
 
+def test_the_depth_chains_settings_name_the_entry(monkeypatch, tmp_path):
+    """The same photos and weights through a chain of other settings: another entry."""
+    from panogrf.app.scene import store
+    from panogrf.model.depth_config import DepthConfig
+
+    w = tmp_path / "w"
+    w.write_bytes(b"1")
+    v = _views()
+    before = Provenance.of(v.images, v.c2w, [w]).key
+    monkeypatch.setattr(store, "CHAIN", repr(DepthConfig(far_from=float("inf"))))
+    assert Provenance.of(v.images, v.c2w, [w]).key != before
+
+
 def test_a_prepared_scene_is_a_hit_in_a_store_in_memory(tmp_path):
     """The cache miss fills the dict; a second preparation of the same views reads it back
     (the same depth and maps, nothing computed: the estimator is never called)."""
