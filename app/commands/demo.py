@@ -44,7 +44,7 @@ def register(subparsers) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from panogrf.app.files.images import to_uint8, write_rgb
-    from panogrf.app.runtime import resolve_device
+    from panogrf.app.runtime import refuse_scene_inputs, resolve_device
     from panogrf.app.scene.consistency import reprojection_check
     from panogrf.app.scene.folder import load_scene
     from panogrf.app.visualize import colorize_depth, stack_rows
@@ -63,6 +63,10 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"{root}: the demo renders a view from the others: it needs two or more")
     if cfg.out.exists() and not cfg.out.is_dir():  # before the work, not after it
         raise UserError(f"--out {cfg.out}: is a file; the demo writes a folder")
+    refuse_scene_inputs(cfg.out, scene, folder=True)
+    from panogrf.renderer.nadir import nadir_setting
+
+    nadir = nadir_setting(scene.metadata, args.nadir_cap)  # a bad value refused before any work
     target = scene.num_views // 2
     for source in (i for i in range(scene.num_views) if i != target):
         r = reprojection_check(data.images, data.c2w, data.depths, source, target)
@@ -85,9 +89,6 @@ def run(args: argparse.Namespace) -> int:
     except OSError as exc:
         raise UserError(f"cannot write to {cfg.out}: {exc.strerror or exc}") from None
     print(f"wrote {sheet} (each panorama above its true depth, then the estimated depth)")
-    from panogrf.renderer.nadir import nadir_setting
-
-    nadir = nadir_setting(scene.metadata, args.nadir_cap)
     _novel_view(data, cfg.out, args.cache_dir, not args.no_cache, nadir, device)
     return 0
 

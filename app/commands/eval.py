@@ -162,6 +162,10 @@ def register(subparsers) -> None:
     parser.set_defaults(func=run)
 
 
+def _any_scored(rows: dict) -> bool:
+    return any(scores for per_b in rows.values() for scores in per_b.values())
+
+
 def run(args: argparse.Namespace) -> int:
     from panogrf.app.files.atomic import check_output
     from panogrf.app.scene import session
@@ -172,6 +176,7 @@ def run(args: argparse.Namespace) -> int:
     methods, subset = cfg.method_list(), cfg.subset_names()
     from_args(ThreadOptions, args).apply()
     check_output(cfg.out)  # before the work: an hour of rendering must not end unwritable
+    nadir_setting(None, args.nadir_cap)  # a bad --nadir-cap is refused before any scene
     index = Path(cfg.dataset) / "dataset.json"
     if Path(cfg.out).resolve() == index.resolve():
         raise UserError(f"--out {cfg.out}: is the dataset's own index; choose another file")
@@ -203,7 +208,11 @@ def run(args: argparse.Namespace) -> int:
             skipped.append({"scene": str(folder), "why": why})
             for per_b in rows.values():  # a half-scored scene counts for no method
                 per_b[b] = [r for r in per_b[b] if r["scene"] != folder.name]
-        _write(cfg, _report(cfg, methods, subset, rows, skipped, start_all), final=False)
+        if _any_scored(rows):  # an earlier report is replaced only by one with scores
+            _write(cfg, _report(cfg, methods, subset, rows, skipped, start_all), final=False)
+    if not _any_scored(rows):
+        why = skipped[0]["why"] if skipped else "no method gave a score"
+        raise UserError(f"{cfg.dataset}: no scene could be scored ({why}); {cfg.out} unchanged")
     report = _report(cfg, methods, subset, rows, skipped, start_all)
     print(format_table(report["results"], baselines))
     _write(cfg, report)

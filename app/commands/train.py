@@ -95,6 +95,12 @@ def _training(config: type, args: argparse.Namespace, **fields):
         refuse_training_inputs(run.log, cfg, "--log")
         if run.log.resolve() == cfg.out.resolve():
             raise UserError(f"--log {run.log}: is the --out weights; log elsewhere")
+        if run.log.is_dir():
+            raise UserError(f"--log {run.log}: is a folder; the log is a file")
+    if getattr(cfg, "init", None) is not None:  # read before the data: minutes may go first
+        from panogrf.app.train.loop import read_weights_file
+
+        read_weights_file(cfg.init, "--init")
     if run.threads:
         import torch
 
@@ -110,8 +116,11 @@ def _logger(path: Path | None):
     """A function that prints a line and appends it to ``path``, and a closer."""
     log_file = None
     if path:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        log_file = path.open("a", encoding="utf-8")
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            log_file = path.open("a", encoding="utf-8")
+        except OSError as exc:
+            raise UserError(f"--log {path}: cannot write ({exc.strerror or exc})") from None
 
     def log(line: str) -> None:
         print(line, flush=True)

@@ -65,6 +65,21 @@ class DepthRun:
         return {key: float(np.mean([getattr(m, key) for m in rows])) for _, key in METRIC_COLUMNS}
 
 
+def _foreign_entry(out_dir: Path, earlier: dict) -> Path | None:
+    """The first file or folder in ``out_dir`` that its earlier `panogrf depth` output
+    (``earlier``: its transforms.json) did not write, or None."""
+    allowed = {"transforms.json", "images", "depth", "preview"}
+    frames = earlier.get("frames")
+    for frame in frames if isinstance(frames, list) else []:
+        image = frame.get("file_path") if isinstance(frame, dict) else None
+        if isinstance(image, str):
+            allowed |= {image, f"depth/{Path(image).stem}.png", f"preview/{Path(image).stem}.png"}
+    for path in sorted(out_dir.rglob("*")):
+        if path.relative_to(out_dir).as_posix() not in allowed:
+            return path
+    return None
+
+
 def prepare_out_dir(scene_root: Path, out_dir: Path) -> None:
     """Create ``out_dir``; one-line errors for a missing scene or an output folder that cannot
     or must not be written (the input itself, another scene)."""
@@ -88,13 +103,20 @@ def prepare_out_dir(scene_root: Path, out_dir: Path) -> None:
     existing = out_dir / TRANSFORMS
     if existing.is_file():
         try:
-            ours = METADATA_KEY in json.loads(existing.read_text(encoding="utf-8"))
+            earlier = json.loads(existing.read_text(encoding="utf-8"))
+            ours = isinstance(earlier, dict) and METADATA_KEY in earlier
         except (ValueError, TypeError, OSError):
             ours = False
         if not ours:
             raise UserError(
                 f"{existing} exists and was not written by `panogrf depth`: refusing to overwrite "
                 "another scene, choose an empty folder"
+            )
+        foreign = _foreign_entry(out_dir, earlier)
+        if foreign is not None:
+            raise UserError(
+                f"--out {out_dir} holds {foreign}, which no `panogrf depth` output has: "
+                "refusing to replace the folder, move it or choose another"
             )
     elif out_dir.is_dir() and any(out_dir.iterdir()):
         raise UserError(

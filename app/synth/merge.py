@@ -17,8 +17,12 @@ def merge_datasets(out: Path, sources: list[Path]) -> dict:
     different ``--start``). Run again with the same sources, it changes nothing."""
     out = Path(out)
     entries, links = [], {}
+    seen: set[Path] = set()
     for source in sources:
         source = Path(source).resolve()
+        if source in seen:
+            raise UserError(f"{source}: listed twice; give each dataset once")
+        seen.add(source)
         index_path = source / "dataset.json"
         if not index_path.exists():
             raise UserError(f"{source}: no dataset.json (make one with `panogrf dataset make`)")
@@ -35,6 +39,11 @@ def merge_datasets(out: Path, sources: list[Path]) -> dict:
             entries.append(dict(entry, source=str(source)))
     if out.exists() and not out.is_dir():
         raise UserError(f"{out} exists and is not a folder")
+    if out.is_dir() and any(out.iterdir()) and not _earlier_merge(out):
+        raise UserError(
+            f"--out {out} is not empty and holds no earlier `dataset merge` output: refusing to "
+            "replace its index, choose an empty or new folder"
+        )
     out.mkdir(parents=True, exist_ok=True)
     for name, target in links.items():
         link = out / name
@@ -52,3 +61,14 @@ def merge_datasets(out: Path, sources: list[Path]) -> dict:
     }
     write_text_atomic(out / "dataset.json", json.dumps(index, indent=2))
     return {"scenes": len(entries), "sources": len(sources)}
+
+
+def _earlier_merge(out: Path) -> bool:
+    """Whether ``out`` holds only what `merge_datasets` writes: its index and links."""
+    try:
+        index = json.loads((out / "dataset.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    if not isinstance(index, dict) or index.get("generator") != "panogrf dataset merge":
+        return False
+    return all(p.name == "dataset.json" or p.is_symlink() for p in out.iterdir())

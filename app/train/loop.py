@@ -32,7 +32,14 @@ def lr_at(step: int, steps: int, lr: float) -> float:
 def held_back(n: int, val_scenes: int) -> tuple[Tensor, Tensor]:
     """(train, validation) scene indices: the last ``val_scenes`` (at most a fifth, at least
     one) are held back."""
+    from panogrf.app.errors import UserError
+
     k = min(val_scenes, max(1, n // 5))
+    if n - k < 1:
+        raise UserError(
+            f"--data: {n} scene(s), and {k} held back for validation leaves none to train on; "
+            "give more scenes"
+        )
     return torch.arange(n - k), torch.arange(n - k, n)
 
 
@@ -42,13 +49,33 @@ def init_from(net: torch.nn.Module, path: Path | None, log, new: tuple[str, ...]
     initialisation: parts added to a trained network)."""
     if path is None:
         return
-    from safetensors.torch import load_file
+    from panogrf.app.errors import UserError
 
-    missing, unexpected = net.load_state_dict(load_file(str(path)), strict=False)
+    state = read_weights_file(path, "--init")
+    try:
+        missing, unexpected = net.load_state_dict(state, strict=False)
+    except RuntimeError as exc:  # a tensor of another shape: another preset's weights
+        first = str(exc).strip().splitlines()[-1].strip()
+        raise UserError(f"--init {path}: does not fit the network ({first})") from None
     wrong = [k for k in missing if not k.startswith(new)] + list(unexpected)
     if wrong:
-        raise ValueError(f"{path} does not fit the network: {wrong[:6]}")
+        raise UserError(f"--init {path}: does not fit the network: {wrong[:6]}")
     log(f"initialised from {path}" + (f" ({len(missing)} new tensors)" if missing else ""))
+
+
+def read_weights_file(path: Path, option: str) -> dict[str, torch.Tensor]:
+    """The tensors of a safetensors file; a `UserError` naming ``option`` and the file for
+    anything else (a folder, another format, a truncated file)."""
+    from safetensors.torch import load_file
+
+    from panogrf.app.errors import UserError
+
+    if not Path(path).is_file():
+        raise UserError(f"{option} {path}: not a file")
+    try:
+        return load_file(str(path))
+    except Exception as exc:  # safetensors' own error type, or the OS's
+        raise UserError(f"{option} {path}: not a safetensors weights file ({exc})") from None
 
 
 class Steps:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
+from panogrf.app.errors import UserError
 from panogrf.app.train.loop import Steps, held_back, init_from, lr_at, save_weights
 
 
@@ -56,5 +57,18 @@ def test_init_from_refuses_weights_of_another_network(tmp_path):
     save_weights(torch.nn.Linear(3, 2), tmp_path / "a.safetensors", {"note": "x"})
     net = torch.nn.Linear(3, 2)
     init_from(net, tmp_path / "a.safetensors", lambda _: None)
-    with pytest.raises(ValueError, match="does not fit"):
+    with pytest.raises(UserError, match="does not fit"):
         init_from(torch.nn.Sequential(torch.nn.Linear(3, 2)), tmp_path / "a.safetensors", print)
+    with pytest.raises(UserError, match="does not fit"):  # another shape: another preset's
+        init_from(torch.nn.Linear(4, 2), tmp_path / "a.safetensors", print)
+    (tmp_path / "junk.safetensors").write_text("junk")
+    for bad in (tmp_path / "junk.safetensors", tmp_path):
+        with pytest.raises(UserError, match="--init"):
+            init_from(net, bad, print)
+
+
+def test_held_back_refuses_a_dataset_with_nothing_left_to_train_on():
+    with pytest.raises(UserError, match="none to train on"):
+        held_back(1, 4)
+    train, val = held_back(2, 4)
+    assert train.tolist() == [0] and val.tolist() == [1]
