@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -202,9 +203,13 @@ def test_merge_datasets_links_every_scene(tmp_path):
     assert torch.equal(merged.images[2], alone.images[0])
     assert (tmp_path / "ab" / "train_00005").resolve() == (tmp_path / "b" / "train_00005").resolve()
     merge_datasets(tmp_path / "ab", [tmp_path / "a", tmp_path / "b"])  # again: no change
-    # The same scene names in two sources, or a source that is no dataset: refused.
-    with pytest.raises(UserError, match="in both"):
+    # One source twice, the same scene names in two sources, or a source that is no
+    # dataset: refused.
+    with pytest.raises(UserError, match="listed twice"):
         merge_datasets(tmp_path / "aa", [tmp_path / "a", tmp_path / "a"])
+    shutil.copytree(tmp_path / "a", tmp_path / "a2")
+    with pytest.raises(UserError, match="in both"):
+        merge_datasets(tmp_path / "aa", [tmp_path / "a", tmp_path / "a2"])
     with pytest.raises(UserError, match="no dataset.json"):
         merge_datasets(tmp_path / "ax", [tmp_path / "a", tmp_path / "missing"])
     assert not (tmp_path / "ax").exists()  # nothing written on a refusal
