@@ -64,18 +64,15 @@ def init_from(net: torch.nn.Module, path: Path | None, log, new: tuple[str, ...]
 
 
 def read_weights_file(path: Path, option: str) -> dict[str, torch.Tensor]:
-    """The tensors of a safetensors file; a `UserError` naming ``option`` and the file for
-    anything else (a folder, another format, a truncated file)."""
-    from safetensors.torch import load_file
-
+    """The tensors of the weights file ``path`` (checked as `read_weights` does: a `UserError`
+    naming ``option`` and the file for a folder, another format, a truncated file)."""
     from panogrf.app.errors import UserError
+    from panogrf.app.weights.networks import read_weights
 
-    if not Path(path).is_file():
-        raise UserError(f"{option} {path}: not a file")
     try:
-        return load_file(str(path))
-    except Exception as exc:  # safetensors' own error type, or the OS's
-        raise UserError(f"{option} {path}: not a safetensors weights file ({exc})") from None
+        return read_weights(Path(path))
+    except UserError as exc:
+        raise UserError(f"{option} {exc}") from None
 
 
 class Steps:
