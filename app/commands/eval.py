@@ -136,9 +136,12 @@ class EvalConfig:
         if self.baselines is None:
             return None
         try:
-            return [round(float(x), 1) for x in self.baselines.split(",") if x.strip()]
+            out = [round(float(x), 1) for x in self.baselines.split(",") if x.strip()]
         except ValueError:
             raise UserError(f"--baselines: expected metres, got {self.baselines!r}") from None
+        if not out:
+            raise UserError(f"--baselines {self.baselines!r}: no baseline given")
+        return out
 
     def subset_names(self) -> set[str]:
         """The methods ``subset`` names (each one of ``methods``, by label or name)."""

@@ -30,7 +30,7 @@ def _size(text: str) -> tuple[int, int]:
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT, got {text!r}") from None
     if not (64 <= w <= 8192 and 64 <= h <= 8192):
-        raise argparse.ArgumentTypeError(f"window size out of range: {text}")
+        raise argparse.ArgumentTypeError(f"window size {text}: each side 64 to 8192 px")
     return w, h
 
 

@@ -92,7 +92,10 @@ def load_triplets(
             raise UserError(f"{folder}: expected three views, found {len(frames)}")
         src_h = int(meta["h"])
         if src_h % height:
-            raise UserError(f"{folder}: height {src_h} is not a multiple of {height}")
+            raise UserError(
+                f"{folder}: its {src_h} rows cannot be averaged to --height {height} (the "
+                "scenes' rows must be a multiple of it)"
+            )
         f = src_h // height
         view_imgs, view_deps = [], []
         for frame in frames:

@@ -114,3 +114,14 @@ def test_training_refuses_one_scene_a_bad_init_and_a_log_folder(dataset, tmp_pat
     code, line = _run([*args, "--data", str(dataset), "--out", weights, "--log", str(logs)], capsys)
     assert code == 2 and "--log" in line and "folder" in line
     assert not Path(weights).exists()
+
+
+def test_messages_name_the_option_at_fault(dataset, tmp_path, capsys):
+    out = str(tmp_path / "r.json")
+    code, line = _run(
+        ["eval", str(dataset), "--methods", "nearest", "--out", out, "--baselines", ","], capsys
+    )
+    assert code == 2 and "--baselines" in line
+    pack = str(tmp_path / "p.safetensors")
+    code, line = _run(["dataset", "pack", str(dataset), "--out", pack, "--height", "4096"], capsys)
+    assert code == 2 and "cannot be averaged to --height 4096" in line
