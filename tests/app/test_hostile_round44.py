@@ -13,21 +13,10 @@ import sys
 from pathlib import Path
 
 import pytest
+from helpers.cli import run_cli as _run
 
 from panogrf.app.cli import main
 from panogrf.assets import path as asset_path
-
-
-def _run(argv: list[str], capsys) -> tuple[int, str]:
-    """(exit code, the last line of stderr), asserting no traceback."""
-    try:
-        code = main(argv)
-    except SystemExit as exc:  # argparse's own errors
-        code = int(exc.code or 0)
-    err = capsys.readouterr().err
-    assert "Traceback" not in err
-    lines = [x for x in err.strip().splitlines() if x.strip()]
-    return code, lines[-1] if lines else ""
 
 
 @pytest.fixture(scope="module")
