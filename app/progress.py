@@ -2,7 +2,8 @@
 
 `TerminalProgress` writes to stderr: on a terminal a tqdm bar per stage (its name, k/n,
 elapsed and ETA); elsewhere (a log file, a pipe) plain lines ``stage: k/n, elapsed 1.2 s,
-eta 3.4 s``, a stage's first and last and at most one a second between. A heartbeat thread
+eta 3.4 s``, a stage's first and last and at most one a second between. A stage is shown once
+it has taken a second: one done sooner adds nothing to the screen or the log. A heartbeat thread
 refreshes the innermost open stage when its unit of work is taking long (a preparation is one
 outer stage around its inner ones, which covers the work between them), so nothing waits
 silently for more than about a second. Commands with ``--quiet``
@@ -31,14 +32,14 @@ class TerminalProgress:
     """A `panogrf.model.progress.Listener` that shows every stage on ``stream`` (stderr)."""
 
     def __init__(
-        self, stream=None, tty: bool | None = None, interval: float = INTERVAL, clock=None
+        self, stream=None, tty: bool | None = None, interval: float | None = None, clock=None
     ) -> None:
         self.stream = stream if stream is not None else sys.stderr
         if tty is None:
             isatty = getattr(self.stream, "isatty", None)
             tty = bool(isatty and isatty())
         self.tty = tty
-        self.interval = interval
+        self.interval = INTERVAL if interval is None else interval
         self.clock = clock or time.monotonic
         self._lock = threading.RLock()
         self._open: dict[int, dict] = {}  # id(stage) -> {"stage", "bar", "shown", "shown_done"}
@@ -50,11 +51,10 @@ class TerminalProgress:
         if stage.total <= 0:  # no work (e.g. no view with sources): nothing to show
             return
         with self._lock:
+            # Quiet until it has taken `interval` (`advanced`, or the heartbeat's `beat`).
             entry = {"stage": stage, "bar": None, "shown": self.clock(), "shown_done": 0}
-            entry["quiet"] = stage.lazy  # a lazy stage: shown once it has taken `interval`
+            entry["quiet"] = True
             self._open[id(stage)] = entry
-            if not stage.lazy:
-                self._show(entry)
 
     def _show(self, entry: dict) -> None:
         """Start showing a stage: its bar on a terminal, else its line."""
@@ -94,7 +94,7 @@ class TerminalProgress:
     def ended(self, stage: Stage) -> None:
         with self._lock:
             entry = self._open.pop(id(stage), None)
-            if entry is None or entry["quiet"]:  # a lazy stage that never took long: no lines
+            if entry is None or entry["quiet"]:  # a stage that never took long: no lines
                 return
             if entry["bar"] is not None:
                 entry["bar"].close()

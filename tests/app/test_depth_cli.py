@@ -16,6 +16,7 @@ import pytest
 import torch
 
 from panogrf.app import cli
+from panogrf.app import progress as app_progress
 from panogrf.app.files.images import read_depth, read_rgb
 from panogrf.app.scene.estimate import METADATA_KEY
 from panogrf.app.scene.folder import check_scene, load_scene, write_scene
@@ -97,7 +98,10 @@ def test_mono_mode_needs_no_mvs_network(tmp_path):
     assert check_scene(tmp_path / "out") == []
 
 
-def test_cli_prints_metrics_time_and_writes_the_scene(tmp_path, capsys, random_weights):
+def test_cli_prints_metrics_time_and_writes_the_scene(
+    tmp_path, capsys, random_weights, monkeypatch
+):
+    monkeypatch.setattr(app_progress, "INTERVAL", 0.0)  # every stage shown, however short
     out = tmp_path / "out"
     assert cli.main(["depth", str(DEMO), "--out", str(out)]) == 0
     captured = capsys.readouterr()

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from panogrf.app import cli
+from panogrf.app import progress as app_progress
 from panogrf.app.files.images import write_rgb
 from panogrf.app.poses import errors as er
 from panogrf.app.scene import session
@@ -26,7 +27,8 @@ def only_needed_commands(monkeypatch):
     monkeypatch.setattr(cli, "_COMMANDS", ("scene", "eval"))
 
 
-def test_demo_poses_from_its_pixels(tmp_path, capsys):
+def test_demo_poses_from_its_pixels(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(app_progress, "INTERVAL", 0.0)  # every stage shown, however short
     truth = load_scene(DEMO)
     images = [str(f.image_path) for f in truth.frames]
     heights = ",".join(f"{h:.4f}" for h in truth.c2w[:, 1, 3])  # the floor is at y = 0
