@@ -1,6 +1,6 @@
 """Spherical depth for every view of a scene: monocular, MVS-only or mono-guided MVS.
 
-Every view is the reference once, with all other views as sources (cost volumes averaged).
+Every view is the reference once, its nearest views the sources (``mvs_sources``; costs averaged).
 Panoramas of any 2:1 size are resized to the networks' working resolution and the depth is
 resized back. Degenerate input never yields NaN:
 - one view: monocular depth, with a warning;
@@ -75,6 +75,7 @@ class DepthEstimator(nn.Module):
     # `DepthConfig`'s fields, read-only properties set below the class (`_setting`).
     working_height: int
     min_baseline: float
+    mvs_sources: int | None
     sweep: SweepConfig | None
     fusion_sweep: SweepConfig
     median: int
@@ -118,7 +119,8 @@ class DepthEstimator(nn.Module):
     def configured(self, **changes: Any) -> DepthEstimator:
         """An estimator with other settings (`DepthConfig` fields, ``selector``, ``blend``)
         sharing this one's networks, in the same mode (training or evaluation); with settings
-        other than these it has no ``weight_files`` (its estimates are never cached)."""
+        other than these it has no ``weight_files`` (estimates are cached under the weights
+        files' key only as the files configure it)."""
         parts = {k: changes.pop(k, getattr(self, k)) for k in ("selector", "blend")}
         config = dataclasses.replace(self.config, **changes)
         same = config == self.config and all(parts[k] is getattr(self, k) for k in parts)
@@ -126,7 +128,6 @@ class DepthEstimator(nn.Module):
             self.mono,
             cast(dict[str, MVSNet], dict(self.mvs)),
             config,
-            # Estimates are cached under the weights files' key only as the files configure it.
             weight_files=self.weight_files if same else (),
             **parts,
         ).train(self.training)
@@ -146,7 +147,7 @@ class DepthEstimator(nn.Module):
 
     def view_sources(self, c2w: Tensor) -> tuple[list[list[int]], list[str]]:
         """Each view's sources and warnings about the views left without (`view_sources`)."""
-        return view_sources(c2w, self.min_baseline)
+        return view_sources(c2w, self.min_baseline, self.mvs_sources)
 
     def _mvs_confidence(
         self,
@@ -381,8 +382,7 @@ class _NetworkDepth:
     depth: Tensor
     """[V, 1, h, w] metres in the networks' world (scaled by ``scale``), clean."""
     sources: list[list[int]]
-    c2w: Tensor
-    """[V, 4, 4] the poses in the networks' world."""
+    c2w: Tensor  # [V, 4, 4] the poses in the networks' world
     scale: float = 1.0
     """The world's scale for the MVS networks (see ``DepthConfig.canonical``)."""
     others: tuple[Tensor, ...] = ()

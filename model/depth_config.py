@@ -49,6 +49,9 @@ class DepthConfig:
     """Rows the networks run at (panoramas are resized to it and the depth back)."""
     min_baseline: float = 0.05
     """Sources closer than this to the reference (metres) carry no parallax: dropped."""
+    mvs_sources: int | None = None
+    """Each view's sources: at most this many, its nearest of those ``min_baseline`` away (None:
+    all). The networks trained on a view and two others."""
     sweep: SweepConfig | None = DEFAULT_SWEEP
     """The photometric sweep after the MVS network in mode "mvs" (None: no sweep in any mode,
     and no fusion, median or blend)."""
@@ -98,9 +101,12 @@ class DepthConfig:
     0.301, on 0.155 / 0.126 / 0.215."""
 
 
-def view_sources(c2w: Tensor, min_baseline: float) -> tuple[list[list[int]], list[str]]:
-    """Each view's sources (every other view at least ``min_baseline`` away: closer ones give
-    no parallax) and warnings about the views left without."""
+def view_sources(
+    c2w: Tensor, min_baseline: float, count: int | None = None
+) -> tuple[list[list[int]], list[str]]:
+    """Each view's sources (the ``count`` nearest other views at least ``min_baseline`` away,
+    closer ones giving no parallax; None: all of them, in order) and warnings about the views
+    left without."""
     v = c2w.shape[0]
     sources: list[list[int]] = [[] for _ in range(v)]
     warnings: list[str] = []
@@ -118,6 +124,8 @@ def view_sources(c2w: Tensor, min_baseline: float) -> tuple[list[list[int]], lis
             if v > 1:
                 warnings.append(f"view {ref}: no usable source, monocular depth")
             continue
+        if count is not None and len(src) > count:
+            src = sorted(sorted(src, key=lambda j: float(dist[j]))[:count])
         sources[ref] = src
     return sources, warnings
 

@@ -23,6 +23,11 @@ from panogrf.model.render_net import RendererNet
 SOURCE_ROWS_PER_ROW: int | None = 2
 
 
+#: Sources a neural render reads: the nearest to its target (`SceneCache.nearest`; None: every
+#: source of the scene).
+RENDER_SOURCES: int | None = None
+
+
 def source_rows(height: int) -> int | None:
     """The rows of the sources that a render at ``height`` rows reads (None: all of them)."""
     return None if SOURCE_ROWS_PER_ROW is None else SOURCE_ROWS_PER_ROW * height
@@ -48,6 +53,7 @@ class SceneCache:
         self.mask_padded = None if self.mask is None else pad_seam(self.mask.to(self.maps.dtype))
         self._surface: tuple[Tensor, Tensor] | None = None
         self._levels: dict[int, SceneCache] = {}
+        self._subsets: dict[tuple[int, ...], SceneCache] = {}
 
     def at_most(self, rows: int | None) -> SceneCache:
         """This cache with its sources area-averaged to ``rows`` rows where they have more (made
@@ -120,6 +126,19 @@ class SceneCache:
             self.feature_channels,
             None if self.mask is None else self.mask.to(device),
         )
+
+    def nearest(self, c2w: Tensor, count: int | None) -> SceneCache:
+        """The cache of the ``count`` sources nearest to the target pose ``c2w`` [4, 4] (None,
+        or as many as there are: this one), in their order here; made once per subset."""
+        if count is None or count >= self.num_views:
+            return self
+        dist = torch.linalg.vector_norm(
+            self.centres.double().cpu() - c2w[:3, 3].double().cpu(), dim=-1
+        )
+        key = tuple(sorted(torch.argsort(dist, stable=True)[:count].tolist()))
+        if key not in self._subsets:
+            self._subsets[key] = self.select(list(key))
+        return self._subsets[key]
 
     def select(self, views: list[int]) -> SceneCache:
         """The cache of a subset of the views."""

@@ -33,7 +33,7 @@ from panogrf.model.depth_config import compared_sources
 from panogrf.model.refine import RefineConfig, refine_depth
 from panogrf.model.render_net import RendererNet, RendererPreset
 from panogrf.renderer.baselines import render_meshwarp, render_nearest
-from panogrf.renderer.cache import SceneCache, build_cache
+from panogrf.renderer.cache import RENDER_SOURCES, SceneCache, build_cache
 from panogrf.renderer.detail import render_detailed
 from panogrf.renderer.nadir import (
     NadirSetting,
@@ -298,7 +298,7 @@ def render_view(
         return render_snerf(cast("SNeRF", views.fitted["snerf"]), tgt_c2w, height)
     assert spec.renderer is not None  # a neural method's
     net = models.renderer(spec.renderer)
-    cache = views.cache_for(spec, models)
+    cache = views.cache_for(spec, models).nearest(tgt_c2w, RENDER_SOURCES)
     # Above the renderer's training resolution: the network at it plus the sources' detail.
     out = render_detailed(net, cache, tgt_c2w, height, quality)
     assert out is not None  # None only when told to stop
@@ -323,8 +323,8 @@ def render_perspective_view(
     prepare(method, views, models)
     assert spec.renderer is not None  # a neural method's
     net = models.renderer(spec.renderer)
-    cache = views.cache_for(spec, models)
     tgt = tgt_c2w.to(views.c2w)
+    cache = views.cache_for(spec, models).nearest(tgt, RENDER_SOURCES)
     out = render_perspective(net, cache, tgt, width, height, fov_deg, quality)
     assert out is not None  # None only when told to stop
     return out.rgb

@@ -19,7 +19,7 @@ import torch
 from panogrf.app.files.images import to_uint8
 from panogrf.model.render_net import RendererNet
 from panogrf.model.steps import apart_from_captures
-from panogrf.renderer.cache import SceneCache
+from panogrf.renderer.cache import RENDER_SOURCES, SceneCache
 from panogrf.renderer.detail import DEFAULT_DETAIL, render_detailed
 from panogrf.renderer.render import Quality, render_panorama
 
@@ -27,7 +27,7 @@ from panogrf.renderer.render import Quality, render_panorama
 #: to fine; both are shown at 512 x 1024, the network running at the fourth entry's rows and
 #: the sources giving the colour above `DEFAULT_DETAIL.cutoff` rows (`renderer/detail.py`): a quick
 #: draft from the two sources nearest the camera (what the renderer was trained with; the GL
-#: preview draws the same two), then the fast sampling from all of them, both with the
+#: preview draws the same two), then the fast sampling from `RENDER_SOURCES`, both with the
 #: network at 128 rows. Chosen on 12 validation scenes at 512 rows (`python
 #: benchmarks/detail.py --ladder ...`, 2 sources, detail above 32 rows, WS-PSNR / LPIPS /
 #: median s): draft at 128 25.61 / 0.152 / 0.22; fast at 128 26.52 / 0.121 / 0.46, at 192
@@ -39,7 +39,10 @@ from panogrf.renderer.render import Quality, render_panorama
 #: read the sources at their own depth splatted into the target (`DEFAULT_DETAIL`'s
 #: projection; detail_projection_val.json): draft 25.61 / 0.143 / 0.15 -> 26.43 / 0.109 / 0.17,
 #: fast at 128 26.66 / 0.103 / 0.31 -> 26.87 / 0.094 / 0.32.
-LEVELS = ((512, Quality.DRAFT, 2, 128, "bilinear"), (512, Quality.FAST, None, 128, "bicubic"))
+LEVELS = (
+    (512, Quality.DRAFT, 2, 128, "bilinear"),
+    (512, Quality.FAST, RENDER_SOURCES, 128, "bicubic"),
+)
 #: The live view's one level (`RenderWorker` ``live``): the last level of `LEVELS`, every frame.
 LIVE_LEVELS = LEVELS[-1:]
 
@@ -81,7 +84,6 @@ class RenderWorker:
             )
             for lv in levels
         ]
-        self._subsets: dict[tuple[int, ...], SceneCache] = {}
         self.threads = threads
         self._lock = threading.Lock()
         self._wake = threading.Condition(self._lock)
@@ -122,7 +124,6 @@ class RenderWorker:
         being refined from the old one is dropped."""
         with self._wake:
             self.cache = cache
-            self._subsets = {}
             self._generation += 1
             self._pose = None
             self._progress, self._level = 0.0, -1
@@ -162,16 +163,9 @@ class RenderWorker:
 
     def _nearest(self, pose: np.ndarray, count: int | None) -> SceneCache:
         """The cache of the ``count`` sources nearest to ``pose`` (all: None), memoised."""
-        with self._lock:  # `replace_cache` may swap both at any time
-            cache, subsets = self.cache, self._subsets
-        if count is None or count >= cache.num_views:
-            return cache
-        centres = cache.c2w[:, :3, 3].double().cpu().numpy()
-        dist = np.linalg.norm(centres - pose[:3, 3], axis=-1)
-        key = tuple(sorted(np.argsort(dist, kind="stable")[:count].tolist()))
-        if key not in subsets:
-            subsets[key] = cache.select(list(key))
-        return subsets[key]
+        with self._lock:  # `replace_cache` may swap it at any time
+            cache = self.cache
+        return cache.nearest(torch.from_numpy(pose), count)
 
     def _warm_up(self) -> None:
         """A small render of the first level before the first request: the first real one

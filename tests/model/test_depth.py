@@ -318,6 +318,29 @@ def test_the_far_source_is_compared_only_where_the_near_one_gives_little_paralla
     ]
 
 
+def test_each_view_reads_its_nearest_sources_and_three_photos_keep_every_source():
+    from panogrf.model.depth_config import view_sources
+
+    line = _on_a_line(0.0, 1.0, 3.0, 3.5, 8.0)
+    every, _ = view_sources(line, 0.05)
+    assert every[0] == [1, 2, 3, 4]
+    nearest, warnings = view_sources(line, 0.05, count=2)
+    assert nearest == [[1, 2], [0, 2], [1, 3], [1, 2], [2, 3]] and warnings == []
+    # Three photos: each view has two others, so a count of 2 changes nothing.
+    three = _on_a_line(0.0, 2.0, 4.0)
+    assert view_sources(three, 0.05, count=2) == view_sources(three, 0.05)
+    # Too close to give parallax: left out before the nearest are counted.
+    close, warnings = view_sources(_on_a_line(0.0, 0.01, 1.0, 2.0), 0.05, count=2)
+    assert close[0] == [2, 3] and "not used as sources" in warnings[0]
+
+
+def test_an_estimator_reading_two_sources_estimates_three_photos_as_before(estimator):
+    images, c2w = _images(3, 64), _poses((0, 0, 0), (0.5, 0, 0), (1.0, 0.1, 0))
+    before = estimator(images, c2w, "full")
+    after = estimator.configured(mvs_sources=2)(images, c2w, "full")
+    torch.testing.assert_close(after.depth, before.depth, rtol=0, atol=0)
+
+
 def test_mono_stages_wrap_the_monocular_network_for_one_call_only(estimator):
     """Training perturbations are a call's argument: each stage gets the network (or the stage
     inside it) and the images; the next call without them is as before."""

@@ -48,6 +48,12 @@ def test_cache_shapes_and_subset():
     c = net.config.feature_channels
     assert cache.maps.shape == (3, c + 7, 16, 32)
     assert cache.num_views == 3 and cache.select([0, 2]).num_views == 2
+    tgt = torch.eye(4)
+    tgt[0, 3] = 0.4  # the views stand at x = -0.5, 0, 0.5
+    near = cache.nearest(tgt, 2)
+    torch.testing.assert_close(near.c2w, cache.c2w[[1, 2]])
+    assert cache.nearest(tgt, 2) is near  # made once
+    assert cache.nearest(tgt, None) is cache and cache.nearest(tgt, 3) is cache
     with pytest.raises(ValueError, match="c2w"):
         build_cache(net, cache.images, cache.c2w[:2], cache.depth)
 
