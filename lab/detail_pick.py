@@ -9,7 +9,11 @@ preparation (mode full, per-scene refinement), one `fast` network pass at 256 ro
 detail above 32 rows added by each variant from that same pass:
 - ``blend``: shipped (`panogrf.renderer.detail.add_detail`);
 - ``best``: each pixel's detail from the source that agrees best with the network there;
-- ``sharpN``: the agreement weights raised to the power N, normalised (between the two).
+- ``sharpN``: the agreement weights raised to the power N, normalised (between the two);
+- ``visT`` / ``occlT``: the agreement weights times each source's geometric consistency at the
+  point: its own depth where the point projects against its distance to the point, as a log
+  ratio r, factor 0.05 + 0.95 exp(-(r / T)^2) (``vis``: both sides; ``occl``: only where the
+  source's depth is nearer, i.e. something hides the point from it), normalised.
 The gate (no detail where no source agrees) is the shipped one in every variant.
 """
 
@@ -24,6 +28,27 @@ from pathlib import Path
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
+
+
+def consistency(cache, c2w, depth_low, tau: float, one_sided: bool):
+    """[V, h, 2h] factor in (0.05, 1]: how well each source's own depth agrees with its
+    distance to the target's points at ``depth_low`` [1, h, 2h] (nearest depth texel)."""
+    from panogrf.model.erp import direction_to_pixel, erp_directions, pad_seam, sample_padded
+
+    h, w = depth_low.shape[-2:]
+    dirs = erp_directions(h, w, dtype=depth_low.dtype) @ c2w[:3, :3].T
+    points = c2w[:3, 3] + dirs * depth_low[0, ..., None]
+    w2c = cache.w2c
+    cam = points.reshape(1, -1, 3) @ w2c[:, :3, :3].transpose(1, 2) + w2c[:, None, :3, 3]
+    dist = cam.norm(dim=-1)  # [V, N]
+    hd, wd = cache.depth.shape[-2:]
+    uv = direction_to_pixel(cam, hd, wd)
+    own = sample_padded(pad_seam(cache.depth), uv, "nearest")[:, 0]  # [V, N]
+    r = torch.log(own.clamp(min=1e-3) / dist.clamp(min=1e-3))
+    if one_sided:
+        r = r.clamp(max=0.0)
+    f = 0.05 + 0.95 * torch.exp(-((r / tau) ** 2))
+    return f.reshape(-1, h, w)
 
 
 def add_detail_pick(cache, c2w, low, height, config, pick: str):
@@ -46,6 +71,12 @@ def add_detail_pick(cache, c2w, low, height, config, pick: str):
     elif pick == "best":
         blend_w = torch.nn.functional.one_hot(weight.argmax(0), weight.shape[0])
         blend_w = blend_w.permute(2, 0, 1).to(weight.dtype)
+    elif pick.startswith(("vis", "occl")):
+        tau = float(pick.removeprefix("vis").removeprefix("occl"))
+        depth_low = D.projection_depth(cache, c2w, low, config)
+        f = consistency(cache, c2w, depth_low, tau, pick.startswith("occl"))
+        p = weight * f
+        blend_w = p / p.sum(0, keepdim=True).clamp(min=1e-12)
     else:
         k = float(pick.removeprefix("sharp"))
         p = weight**k
