@@ -2,8 +2,9 @@
 
 Each subcommand module exposes ``register(subparsers)``, which adds its parser and sets
 ``func`` (called with the parsed namespace, returns an exit code). A `UserError` anywhere
-becomes a one-line message on stderr and exit status 2; a reader that goes away (``| head``)
-ends the command quietly.
+becomes a one-line message on stderr and exit status 2, running out of memory (sizes asked
+for that this machine cannot hold) one as well, with status 1; a reader that goes away
+(``| head``) ends the command quietly.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import os
+import re
 import sys
 
 from panogrf.app.errors import UserError
@@ -95,9 +97,28 @@ def main(argv: list[str] | None = None) -> int:
     except UserError as exc:
         print(f"panogrf {name}: error: {exc}", file=sys.stderr)
         return 2
+    except (MemoryError, RuntimeError) as exc:  # torch's allocators raise RuntimeError
+        if (why := _out_of_memory(exc)) is None:
+            raise
+        print(
+            f"panogrf {name}: error: {why}: ask for less (--height, --batch, ...)", file=sys.stderr
+        )
+        return 1
     except KeyboardInterrupt:
         print(f"panogrf {name}: interrupted", file=sys.stderr)
         return 130
+
+
+def _out_of_memory(exc: BaseException) -> str | None:
+    """Where ``exc`` is running out of memory (Python's, or torch's CPU or CUDA allocator): a
+    few words saying so, with the size asked for where the message gives it; else None."""
+    text = str(exc)
+    if not isinstance(exc, MemoryError) and not re.search(
+        r"can't allocate memory|out of memory", text
+    ):
+        return None
+    asked = re.search(r"allocate (\d+) bytes", text)
+    return "out of memory" + (f" ({int(asked[1]) / 2**30:.1f} GiB asked for)" if asked else "")
 
 
 if __name__ == "__main__":

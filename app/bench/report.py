@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 
@@ -97,6 +98,21 @@ def format_table(report: dict) -> str:
         + ".",
     ]
     return "\n".join(lines) + "\n"
+
+
+#: Every file `write_outputs` may write.
+OUTPUTS = ("results.json", "table.md", "frontier.png", "stability.png", "gallery.png")
+
+
+def earlier_output(out: Path) -> bool:
+    """Whether ``out`` holds only what `write_outputs` writes, with a bench's results.json."""
+    try:
+        results = json.loads((out / "results.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    if not isinstance(results, dict) or not {"config", "results"} <= results.keys():
+        return False
+    return all(p.name in OUTPUTS for p in out.iterdir() if not p.name.startswith("."))
 
 
 def write_outputs(report: dict, out: Path) -> list[Path]:

@@ -56,6 +56,13 @@ class BenchOptions:
     )
     """A dataset of real triplets (None: data/real if it holds a dataset; "none": none)."""
 
+    def __post_init__(self) -> None:
+        """Refuse a setting listed twice in ``settings``: it would run and be charted once."""
+        names = [n.strip() for n in (self.settings or "").split(",") if n.strip()]
+        twice = next((n for k, n in enumerate(names) if n in names[:k]), None)
+        if twice is not None:
+            raise UserError(f"--settings: {twice} is listed twice; give each setting once")
+
     def chosen(self) -> tuple[Setting, ...]:
         """The settings ``settings`` and ``skip`` name (`UserError` for an unknown name)."""
         try:
@@ -91,9 +98,9 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from panogrf.app.bench.report import format_table, write_outputs
+    from panogrf.app.bench.report import earlier_output, format_table, write_outputs
     from panogrf.app.bench.run import run_bench
-    from panogrf.app.files.atomic import check_output
+    from panogrf.app.files.atomic import check_output, refuse_foreign_folder
     from panogrf.app.scene import session
 
     options = from_args(BenchOptions, args)
@@ -108,6 +115,7 @@ def run(args: argparse.Namespace) -> int:
     )
     from_args(ThreadOptions, args).apply()
     check_output(options.out, folder=True)
+    refuse_foreign_folder(options.out, "bench", earlier_output)  # a scene, the photos
     models = session.default_models(resolve_device(args.device))
     report = run_bench(cfg, models, log=lambda s: print(s, flush=True))
     written = write_outputs(report, options.out)

@@ -104,12 +104,17 @@ class MakeOptions:
     """Show a progress bar."""
 
     def __post_init__(self) -> None:
-        """Refuse no scene, a height outside 8-4096, no worker, a finish outside 0-1 or
-        outside the home world, and an ``out`` that is a file."""
-        from panogrf.app.synth.make import FINISHES
+        """Refuse no scene, more scenes than one seed has, a height outside 8-4096, no worker,
+        a finish outside 0-1 or outside the home world, and an ``out`` that is a file."""
+        from panogrf.app.synth.make import FINISHES, SCENES_PER_SEED
 
         if self.count < 1:
             raise UserError(f"--count must be at least 1, got {self.count}")
+        if self.start + self.count > SCENES_PER_SEED:  # the next --seed's scenes beyond
+            raise UserError(
+                f"--start {self.start} + --count {self.count}: at most {SCENES_PER_SEED} scenes "
+                "per --seed (beyond, the scenes of the next seed repeat)"
+            )
         if self.height < 8 or self.height > 4096:
             raise UserError(f"--height must be between 8 and 4096, got {self.height}")
         if self.workers < 1:
@@ -229,10 +234,11 @@ def register(subparsers) -> None:
 
 
 def run_make(args: argparse.Namespace) -> int:
-    from panogrf.app.synth.make import make_dataset
+    from panogrf.app.synth.make import check_out, make_dataset
 
     options = from_args(MakeOptions, args)
     out = options.out
+    check_out(options.config())
     try:
         summary = make_dataset(options.config(), progress=options.progress)
     except PermissionError as exc:

@@ -67,6 +67,7 @@ def run(args: argparse.Namespace) -> int:
     from panogrf.renderer.nadir import nadir_setting
 
     nadir = nadir_setting(scene.metadata, args.nadir_cap)  # a bad value refused before any work
+    _check_out(cfg.out)  # last: it makes the folder
     target = scene.num_views // 2
     for source in (i for i in range(scene.num_views) if i != target):
         r = reprojection_check(data.images, data.c2w, data.depths, source, target)
@@ -91,6 +92,28 @@ def run(args: argparse.Namespace) -> int:
     print(f"wrote {sheet} (each panorama above its true depth, then the estimated depth)")
     _novel_view(data, cfg.out, args.cache_dir, not args.no_cache, nadir, device)
     return 0
+
+
+#: What the demo writes into its folder.
+OUTPUTS = ("demo_views.png", "novel_view.png", "walk_preview.mp4")
+
+
+def _check_out(out: Path) -> None:
+    """Refuse, before the work, an ``out`` holding files the demo did not write (a folder of
+    photos: `refuse_foreign_folder`) or that cannot be made or written (its folder made)."""
+    from panogrf.app.files.atomic import check_writable, refuse_foreign_folder
+
+    refuse_foreign_folder(out, "demo", _earlier_output)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UserError(f"--out {out}: cannot make this folder ({exc.strerror or exc})") from None
+    check_writable(out / OUTPUTS[0])
+
+
+def _earlier_output(out: Path) -> bool:
+    """Whether ``out`` holds only what the demo writes."""
+    return all(p.name in OUTPUTS for p in out.iterdir() if not p.name.startswith("."))
 
 
 def _novel_view(

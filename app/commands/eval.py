@@ -141,6 +141,11 @@ class EvalConfig:
             raise UserError(f"--baselines: expected metres, got {self.baselines!r}") from None
         if not out:
             raise UserError(f"--baselines {self.baselines!r}: no baseline given")
+        if not all(0 < b < math.inf for b in out):  # NaN too: no scene is that far apart
+            raise UserError(
+                f"--baselines {self.baselines}: expected metres, each at least 0.1 (scenes are "
+                "matched to 0.1 m)"
+            )
         return out
 
     def subset_names(self) -> set[str]:
@@ -170,7 +175,7 @@ def _any_scored(rows: dict) -> bool:
 
 
 def run(args: argparse.Namespace) -> int:
-    from panogrf.app.files.atomic import check_output
+    from panogrf.app.files.atomic import check_writable
     from panogrf.app.scene import session
     from panogrf.app.scene.datasets import triplets_by_baseline
     from panogrf.app.scene.folder import load_scene
@@ -178,7 +183,7 @@ def run(args: argparse.Namespace) -> int:
     cfg = from_args(EvalConfig, args, refine=refine_setting(args))
     methods, subset = cfg.method_list(), cfg.subset_names()
     from_args(ThreadOptions, args).apply()
-    check_output(cfg.out)  # before the work: an hour of rendering must not end unwritable
+    check_writable(cfg.out)  # before the work: an hour of rendering must not end unwritable
     nadir_setting(None, args.nadir_cap)  # a bad --nadir-cap is refused before any scene
     index = Path(cfg.dataset) / "dataset.json"
     if Path(cfg.out).resolve() == index.resolve():

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from panogrf.app.errors import UserError
+from panogrf.app.files.atomic import check_writable, nan_to_null
 from panogrf.app.options import add_options, from_args, option
 from panogrf.app.runtime import (
     RefineOptions,
@@ -35,7 +36,7 @@ from panogrf.app.scene import session
 from panogrf.app.scene.pose_check import MAX_POSITION_M
 from panogrf.app.scene.session import MAX_HEIGHT
 from panogrf.model.depth_config import DepthMode
-from panogrf.renderer.methods import METHODS
+from panogrf.renderer.methods import METHODS, Kind
 from panogrf.renderer.nadir import nadir_setting
 from panogrf.renderer.render import QUALITY, Quality
 
@@ -101,20 +102,21 @@ class RenderConfig:
     method: str = option("panogrf", "default panogrf", choices=tuple(sorted(METHODS)))
     """The method (`panogrf.renderer.methods.METHODS`)."""
     quality: Quality = option(
-        Quality.FAST,
+        None,
         "preview (GL depth-mesh warp), fast (depth-guided neural, default) or paper "
-        "(neural, 64 + 64 samples)",
+        "(neural, 64 + 64 samples); the neural methods only",
         choices=(Quality.PREVIEW, *sorted(QUALITY)),
     )
-    """The sampling, or ``preview`` (the GL depth-mesh warp)."""
+    """The sampling, or ``preview`` (the GL depth-mesh warp); given as None: fast."""
     json: bool = option(False, "print the summary as JSON")
     """Print the summary as JSON."""
 
     def __post_init__(self) -> None:
         """Refuse anything but exactly one target, a camera path with a size or sources of
-        its own, an output that is no .png or .jpg (no camera path) or whose folder does not
-        exist, the preview with another method, a height outside 8 to `MAX_HEIGHT` rows and a
-        ``c2w`` that is no rigid pose (`parse_c2w`)."""
+        its own, an output that is no .png or .jpg (no camera path) or cannot be written
+        (`check_writable`), the preview with another method, a quality given to a method that
+        does not sample (not neural), a height outside 8 to `MAX_HEIGHT` rows and a ``c2w``
+        that is no rigid pose (`parse_c2w`)."""
         given = [x is not None for x in (self.target_frame, self.c2w, self.camera_path)]
         if sum(given) != 1:
             raise UserError("give one of --target-frame, --c2w and --camera-path")
@@ -126,11 +128,17 @@ class RenderConfig:
         else:
             if self.out.suffix.lower() not in (".png", ".jpg", ".jpeg"):
                 raise UserError(f"--out must be a .png or .jpg file, got {self.out}")
-            if self.out.parent and not self.out.parent.exists():
-                raise UserError(f"--out: folder {self.out.parent} does not exist")
-        if self.quality == Quality.PREVIEW and self.method != "panogrf":
+            check_writable(self.out)  # a folder of that name, a read-only place: before any work
+        if self.quality is None:  # not given: the default, whatever the method
+            object.__setattr__(self, "quality", Quality.FAST)
+        elif self.quality == Quality.PREVIEW and self.method != "panogrf":
             raise UserError(
                 "--quality preview is the GL depth-mesh preview: use it without --method"
+            )
+        elif self.method in METHODS and METHODS[self.method].kind is not Kind.NEURAL:
+            raise UserError(
+                f"--quality {self.quality} does nothing for --method {self.method} (only the "
+                "neural methods sample): drop --quality"
             )
         if self.height is not None and not 8 <= self.height <= MAX_HEIGHT:
             raise UserError(f"--height must be between 8 and {MAX_HEIGHT}, got {self.height}")
@@ -271,8 +279,8 @@ def run_pose(cfg: RenderConfig, args: argparse.Namespace) -> int:
 def _print_summary(cfg: RenderConfig, summary: dict, prep: float, seconds: float) -> None:
     """Print a render's ``summary`` (`run_pose`; ``prep`` and ``seconds``: the preparation's
     and the render's time): as JSON with ``--json``, else in words."""
-    if cfg.json:
-        print(json.dumps(_json_safe(summary), indent=2, allow_nan=False))
+    if cfg.json:  # a score below its minimum size (NaN) as null
+        print(json.dumps(nan_to_null(summary), indent=2, allow_nan=False))
         return
     from panogrf.app.scoring import SCORE_ROWS
 
@@ -316,17 +324,6 @@ def _warn_pose(tgt: np.ndarray, sources: np.ndarray, views) -> None:
                 f"wall): {dist:.2f} m from source {k}, whose surface there is {surface:.2f} m away",
                 file=sys.stderr,
             )
-
-
-def _json_safe(data):
-    """``data`` with NaN and infinite floats (a score below its minimum size) as None: null."""
-    if isinstance(data, dict):
-        return {k: _json_safe(v) for k, v in data.items()}
-    if isinstance(data, list):
-        return [_json_safe(v) for v in data]
-    if isinstance(data, float) and not np.isfinite(data):
-        return None
-    return data
 
 
 def _check_path_size(path, name: Path) -> None:

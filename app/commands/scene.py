@@ -70,6 +70,7 @@ def _summary(report: SceneReport) -> list[str]:
         lo, hi = report.depth_range_m
         lines.append(f"  depth: {with_depth} of {scene.num_views} views, {lo:.3f} to {hi:.3f} m")
     lines += [f"  note: {n}" for n in report.notes]
+    lines += [f"  warning: {w}" for w in report.warnings]
     return lines
 
 

@@ -71,6 +71,7 @@ def run_prepare(args: argparse.Namespace) -> int:
 
     cfg = from_args(PrepareConfig, args)
     from_args(ThreadOptions, args).apply()
+    _check_cache_dir(args.cache_dir)
     refine = refine_setting(args)
     models = session.default_models(resolve_device(args.device))
     start = time.perf_counter()
@@ -108,6 +109,22 @@ def run_prepare(args: argparse.Namespace) -> int:
     if "not saved" in result.status:
         raise UserError(f"could not write the cache {result.path}: {result.status}")
     return 0
+
+
+def _check_cache_dir(cache_dir: Path | None) -> None:
+    """Refuse, before any work, a cache folder (None: the user's) that cannot be made or
+    written: the cache is this command's one output."""
+    from panogrf.app.files.atomic import check_writable
+    from panogrf.app.scene.store import default_cache_dir
+
+    folder = cache_dir or default_cache_dir()
+    if folder.exists() and not folder.is_dir():
+        raise UserError(f"--cache-dir {folder}: is a file, expected a folder")
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UserError(f"--cache-dir {folder}: cannot make it ({exc.strerror or exc})") from None
+    check_writable(folder / "cache", "--cache-dir")
 
 
 def _quiet(*_args) -> None:

@@ -116,7 +116,8 @@ class ViewConfig:
 
     def __post_init__(self) -> None:
         """Refuse a window without a display, ``frames`` under 1, ``moving_rows`` outside 16
-        to 512 and a script that does not parse (`script_keys`)."""
+        to 512, a ``screenshot_dir`` that is no folder and a script that does not parse
+        (`script_keys`)."""
         if self.window == "pyglet" and not _has_display():
             raise UserError(
                 "no display for a window: set DISPLAY (e.g. under Xvfb) or use --window headless"
@@ -129,6 +130,9 @@ class ViewConfig:
             raise UserError(f"--path-out must end in .json (a camera path), got {self.path_out}")
         if self.moving_rows is not None and not 16 <= self.moving_rows <= 512:
             raise UserError("--moving-rows must be between 16 and 512")
+        if not self.screenshot_dir.is_dir():  # said before the session, not at the first X
+            why = "is not a folder" if self.screenshot_dir.exists() else "does not exist"
+            raise UserError(f"--screenshot-dir {self.screenshot_dir}: {why}")
         self.script_keys()
 
     def script_keys(self) -> list[tuple[str, int]]:

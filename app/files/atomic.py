@@ -19,7 +19,7 @@ import re
 import shutil
 import time
 import uuid
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -272,3 +272,28 @@ def check_output(path: str | os.PathLike[str], option: str = "--out", folder: bo
     if not folder and path.is_dir():
         raise UserError(f"{option}: {path} is a folder, expected a file name")
     return path
+
+
+def refuse_foreign_folder(
+    out: str | os.PathLike[str],
+    command: str,
+    earlier: Callable[[Path], bool],
+    option: str = "--out",
+) -> None:
+    """Refuse, before any work, an output folder that is not empty and holds no earlier output
+    of ``command`` (``earlier(out)`` says whether it does): a scene folder, a folder of the
+    user's photos or another command's output, whose files the command would mix its own with
+    or write over. The message names a few of the files there; our temporaries don't count."""
+    out = Path(out)
+    if not out.is_dir():
+        return
+    try:
+        names = sorted(p.name for p in out.iterdir() if not _OURS.match(p.name))
+    except OSError as exc:
+        raise UserError(f"{option} {out}: cannot be read ({exc.strerror or exc})") from None
+    if names and not earlier(out):
+        shown = ", ".join(names[:3]) + (f" and {len(names) - 3} more" if len(names) > 3 else "")
+        raise UserError(
+            f"{option} {out} is not empty ({shown}) and holds no earlier `{command}` output: "
+            "refusing to write into it, choose an empty or new folder"
+        )

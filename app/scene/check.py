@@ -24,6 +24,7 @@ from panogrf.app.files.images import ImageReadError, read_depth, read_rgb_with_n
 from panogrf.app.scene.pose_check import (
     MAX_LISTED_PAIRS,
     _short,
+    far_apart_warning,
     number_array,
     pose_problems,
     same_position_problems,
@@ -51,6 +52,9 @@ class SceneReport:
     """Harmless findings, e.g. conversions applied on load (grayscale -> RGB)."""
     depth_range_m: tuple[float, float] | None
     """(min, max) of known depth over all depth maps, or None."""
+    warnings: tuple[str, ...] = ()
+    """Findings of a valid scene that likely spoil its renders (`far_apart_warning`); loading
+    the scene prints them (`panogrf.app.scene.folder.load_scene`)."""
 
     @property
     def ok(self) -> bool:
@@ -318,8 +322,10 @@ def _inspect(root: str | os.PathLike[str], keep_pixels: bool) -> tuple[SceneRepo
     if known:
         depth_range = (float(min(k.min() for k in known)), float(max(k.max() for k in known)))
 
-    scene = None
+    scene, warnings = None, []
     if not problems:
+        far = far_apart_warning(np.stack([f.c2w for f in found]))
+        warnings = [] if far is None else [f"{TRANSFORMS}: {far}"]
         scene = Scene(
             root=root,
             width=found[0].size[0],
@@ -335,7 +341,7 @@ def _inspect(root: str | os.PathLike[str], keep_pixels: bool) -> tuple[SceneRepo
             ),
             metadata={k: v for k, v in data.items() if k not in RESERVED_KEYS},
         )
-    report = SceneReport(root, scene, tuple(problems), tuple(notes), depth_range)
+    report = SceneReport(root, scene, tuple(problems), tuple(notes), depth_range, tuple(warnings))
     return report, found
 
 

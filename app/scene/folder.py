@@ -23,6 +23,7 @@ from __future__ import annotations
 import dataclasses
 import os
 import shutil
+import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -42,6 +43,7 @@ from panogrf.app.scene.check import (
 from panogrf.app.scene.pose_check import (
     MIN_VIEW_SEPARATION_M,
     POSE_TOLERANCE,
+    far_apart_warning,
     number_array,
     pose_problems,
 )
@@ -87,12 +89,18 @@ class SceneError(UserError):
         super().__init__(f"invalid scene{where}: {first}{rest}")
 
 
+#: The warnings `load_scene` printed in this process.
+_WARNED: set[str] = set()
+
+
 def load_scene(
     root: str | os.PathLike[str], *, load_images: bool = False, dtype: torch.dtype = torch.float32
 ) -> Scene:
     """Validate and load a scene folder; raises `SceneError` listing every problem.
 
-    With ``load_images`` the returned scene carries its pixels in ``scene.images``.
+    With ``load_images`` the returned scene carries its pixels in ``scene.images``. The
+    report's warnings (photos kilometres apart) go to stderr, one line each, naming the file,
+    once per process.
     """
     if load_images:
         report, images = inspect_and_load(root, dtype)
@@ -100,7 +108,18 @@ def load_scene(
         report, images = inspect_scene(root), None
     if report.scene is None:
         raise SceneError(report.root, report.problems)
+    _warn(report.root, report.warnings)
     return report.scene if images is None else dataclasses.replace(report.scene, images=images)
+
+
+def _warn(root: Path, warnings: Sequence[str]) -> None:
+    """Print each of a scene's ``warnings`` (each names a file of ``root``) on stderr, once
+    per process: a command loads a scene more than once."""
+    for warning in warnings:
+        line = f"warning: {root / warning}"
+        if line not in _WARNED:
+            _WARNED.add(line)
+            print(line, file=sys.stderr, flush=True)
 
 
 # --- writing -------------------------------------------------------------------------------
@@ -186,13 +205,14 @@ def write_scene(
     return Scene(root, w, h, tuple(frames), metadata)
 
 
-def write_new_scene(out: Path, *args: Any, **kwargs: Any) -> None:
+def write_new_scene(out: Path, c2w: np.ndarray, *args: Any, **kwargs: Any) -> None:
     """`write_scene` into ``out``, a folder that is absent or empty; on a failed write (a full
     disk) what was written goes again, so the same command can run again, and the error is
-    one line (UserError)."""
+    one line (UserError). Photos kilometres apart are warned about (`far_apart_warning`): a
+    unit mistake is best caught where the poses come in."""
     existed = out.exists()
     try:
-        write_scene(out, *args, **kwargs)
+        write_scene(out, c2w, *args, **kwargs)
     except OSError as exc:
         if existed:
             for item in out.iterdir():
@@ -200,3 +220,5 @@ def write_new_scene(out: Path, *args: Any, **kwargs: Any) -> None:
         else:
             shutil.rmtree(out, ignore_errors=True)
         raise UserError(f"cannot write {out}: {exc.strerror or exc}") from None
+    if (far := far_apart_warning(c2w)) is not None:
+        _warn(out, [f"{TRANSFORMS}: {far}"])

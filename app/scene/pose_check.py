@@ -1,7 +1,8 @@
 """Checks of poses shared by the scene validator (`panogrf.app.scene.check`), camera paths
 (`panogrf.app.paths.camera_path`) and every writer of a scene: one rigid pose within reach
 (`pose_problems`), views at distinct positions (`same_position_problems`), both together
-(`poses_problems`), and JSON numbers read as an array (`number_array`).
+(`poses_problems`), and JSON numbers read as an array (`number_array`); photos too far apart to
+share anything are warned about (`far_apart_warning`).
 """
 
 from __future__ import annotations
@@ -22,6 +23,9 @@ MIN_VIEW_SEPARATION_M = 1e-3
 #: Largest camera position (metres from the world's origin) a scene may hold: a geo-referenced
 #: capture is within 1e7 m of its grid's origin; far larger numbers are a broken export.
 MAX_POSITION_M = 1e9
+#: A photo farther than this (metres) from every other one shares nothing with them to render
+#: from: most likely poses in millimetres (or another unit) read as metres.
+FAR_APART_M = 1000.0
 
 
 def number_array(value: Any) -> np.ndarray:
@@ -98,6 +102,24 @@ def poses_problems(c2w: np.ndarray) -> list[str]:
             centres.append(m[:3, 3])
     problems.extend(same_position_problems(frames, centres))
     return problems
+
+
+def far_apart_warning(c2w: np.ndarray) -> str | None:
+    """A warning when a photo of poses [V, 4, 4] is more than `FAR_APART_M` from the nearest
+    other (the one farthest from its nearest named), else None. Distances between neighbours,
+    not from the origin: a geo-referenced capture sits far from its grid's origin, and a long
+    walk spans kilometres with its photos metres apart."""
+    centres = np.asarray(c2w, np.float64)[:, :3, 3]
+    if len(centres) < 2:
+        return None
+    dist, nearest = cKDTree(centres).query(centres, k=2)
+    far = int(np.argmax(dist[:, 1]))
+    if not dist[far, 1] > FAR_APART_M:
+        return None
+    return (
+        f"photos {dist[far, 1]:.0f} m apart (frames[{far}] and its nearest, "
+        f"frames[{nearest[far, 1]}]): check the units of the poses (metres expected)"
+    )
 
 
 def _short(value: Any) -> str:

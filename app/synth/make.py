@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import time
 from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 from dataclasses import dataclass
@@ -27,7 +28,7 @@ import numpy as np
 from tqdm import tqdm
 
 from panogrf.app.errors import UserError
-from panogrf.app.files.atomic import write_text_atomic
+from panogrf.app.files.atomic import refuse_foreign_folder, write_text_atomic
 from panogrf.app.files.images import write_depth, write_rgb
 from panogrf.app.scene.datasets import read_index_data
 from panogrf.app.synth.gl_render import PanoramaRenderer
@@ -40,6 +41,8 @@ WORLDS = ("classic", "home")
 FINISHES = ("trims", "coves", "sheers")
 RENDERERS = ("gl", "pyrender")
 NAMES = ["frame_000", "frame_001", "frame_002"]
+#: Scenes of one base seed (`scene_seed`): scene i of seed s + 1 is scene i + this of seed s.
+SCENES_PER_SEED = 1_000_000
 
 
 @dataclass(frozen=True)
@@ -88,7 +91,7 @@ def scene_seed(split: str, base_seed: int, index: int) -> int:
     """The seed of scene ``index`` of ``split``; even for train, odd for test."""
     if split not in SPLITS:
         raise ValueError(f"split must be one of {SPLITS}, got {split!r}")
-    return 2 * (base_seed * 1_000_000 + index) + SPLITS.index(split)
+    return 2 * (base_seed * SCENES_PER_SEED + index) + SPLITS.index(split)
 
 
 def build_textures(
@@ -312,6 +315,35 @@ def _check_joins(index: dict, index_path: Path, cfg: MakeConfig) -> None:
             f"{index_path}: holds {other[0]}, not of the {cfg.split} split; train and test "
             "scenes go to different folders"
         )
+
+
+def check_out(cfg: MakeConfig) -> None:
+    """What the command line refuses before any work besides what `make_dataset` refuses: an
+    ``out`` that is not empty and holds no earlier `dataset make` output (a scene folder, the
+    user's photos), after the index there is read (its problems named first)."""
+    index_path = Path(cfg.out) / "dataset.json"
+    if index_path.exists():
+        _check_joins(read_index_data(index_path), index_path, cfg)
+    refuse_foreign_folder(cfg.out, "dataset make", _earlier_make)
+
+
+def _earlier_make(out: Path) -> bool:
+    """Whether ``out`` holds only what `make_dataset` writes: its index and scene folders, or
+    the scene folders of a run stopped before it wrote the index."""
+    index = out / "dataset.json"
+    if index.exists():
+        try:
+            data = json.loads(index.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            return False
+        if not isinstance(data, dict) or data.get("generator") != "panogrf dataset make":
+            return False
+    scene = re.compile(rf"^({'|'.join(SPLITS)})_\d{{5,}}$")
+    return all(
+        p.name == "dataset.json" or (scene.match(p.name) and p.is_dir() and not p.is_symlink())
+        for p in out.iterdir()
+        if not p.name.startswith(".")
+    )
 
 
 def make_dataset(cfg: MakeConfig, progress: bool = True) -> dict:

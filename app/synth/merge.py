@@ -6,7 +6,7 @@ import json
 from pathlib import Path
 
 from panogrf.app.errors import UserError
-from panogrf.app.files.atomic import write_text_atomic
+from panogrf.app.files.atomic import refuse_foreign_folder, write_text_atomic
 from panogrf.app.scene.datasets import read_index_data
 
 
@@ -39,11 +39,7 @@ def merge_datasets(out: Path, sources: list[Path]) -> dict:
             entries.append(dict(entry, source=str(source)))
     if out.exists() and not out.is_dir():
         raise UserError(f"{out} exists and is not a folder")
-    if out.is_dir() and any(out.iterdir()) and not _earlier_merge(out):
-        raise UserError(
-            f"--out {out} is not empty and holds no earlier `dataset merge` output: refusing to "
-            "replace its index, choose an empty or new folder"
-        )
+    refuse_foreign_folder(out, "dataset merge", _earlier_merge)
     out.mkdir(parents=True, exist_ok=True)
     for name, target in links.items():
         link = out / name

@@ -198,8 +198,8 @@ class TrainDepthConfig(TrainRun):
         super().__post_init__()
         if self.steps < 1 or self.batch < 1:
             raise UserError("--steps and --batch must be at least 1")
-        if self.height % 32:
-            raise UserError(f"--height must be a multiple of 32, got {self.height}")
+        if self.height < 32 or self.height % 32:
+            raise UserError(f"--height must be a positive multiple of 32, got {self.height}")
         top = 3 if self.stage == "mono" else 2
         if not 0 <= self.trunk <= top:
             raise UserError(f"--trunk must be 0-{top} for stage {self.stage}, got {self.trunk}")
@@ -268,8 +268,8 @@ class TrainRendererConfig(TrainRun):
         super().__post_init__()
         if self.steps < 1 or self.scenes_per_step < 1 or self.rays < 1:
             raise UserError("--steps, --scenes and --rays must be at least 1")
-        if self.height % 64:
-            raise UserError(f"--height must be a multiple of 64, got {self.height}")
+        if self.height < 64 or self.height % 64:
+            raise UserError(f"--height must be a positive multiple of 64, got {self.height}")
         _check_device(self.device)
 
 

@@ -159,11 +159,12 @@ def test_a_failed_scene_stops_the_run(tmp_path):
     assert not (tmp_path / "dataset.json").exists()
 
 
-def test_cli_reports_an_unwritable_scene_in_one_line(tmp_path):
+def test_cli_refuses_a_folder_with_a_file_where_a_scene_goes_in_one_line(tmp_path):
     (tmp_path / "train_00000").write_text("in the way")
     cmd = [sys.executable, "-m", "panogrf.app.cli", "dataset", "make", "--out", str(tmp_path)]
     run = subprocess.run(
         [*cmd, "--count", "1", "--height", "16", "--no-progress"], capture_output=True, text=True
     )
     assert run.returncode != 0 and "Traceback" not in run.stderr
-    assert "cannot write to" in run.stderr and "train_00000" in run.stderr
+    assert "is not empty (train_00000)" in run.stderr  # refused before any work
+    assert (tmp_path / "train_00000").read_text() == "in the way"
