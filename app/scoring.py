@@ -41,12 +41,12 @@ def banded_ssim(x: torch.Tensor, y: torch.Tensor) -> float:
 def image_scores(rgb: torch.Tensor, reference: torch.Tensor) -> dict[str, float]:
     """PSNR, WS-PSNR (dB), SSIM and LPIPS (AlexNet) of a render [3, H, W] in [0, 1] against
     ``reference`` [1, 3, H', W'] (area-resized to the render's size when they differ); SSIM and
-    LPIPS at `SCORE_ROWS` rows at most, NaN below their minimum sizes. A lazy stage
+    LPIPS at `SCORE_ROWS` rows at most, NaN below their minimum sizes. A stage
     ("scoring") shows the progress when it takes a while (an 8K render)."""
     from panogrf.model.progress import stage
     from panogrf.renderer.cache import resize_erp
 
-    with stage("scoring", 3, lazy=True) as progress:
+    with stage("scoring", 3) as progress:
         rgb = rgb.detach().float().cpu()  # scored on the CPU, whatever device rendered it
         gt = resize_erp(reference.detach().float().cpu(), rgb.shape[-2]).clamp(0, 1)
         x = rgb[None].clamp(0, 1)

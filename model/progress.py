@@ -31,11 +31,8 @@ class Listener(Protocol):
 class Stage:
     """One named stage of ``total`` units (``done`` of them done so far)."""
 
-    def __init__(self, name: str, total: int, lazy: bool = False) -> None:
+    def __init__(self, name: str, total: int) -> None:
         self.name = name
-        # Shown only once it has taken a while (a step that is usually quick, like reading the
-        # photos: a quick one adds no lines before a command's answer or error).
-        self.lazy = lazy
         self.total = max(int(total), 0)
         self.done = 0
         self.start = time.perf_counter()
@@ -77,20 +74,20 @@ def _current() -> list[Listener]:
         return list(_listeners)
 
 
-def open_stage(name: str, total: int, lazy: bool = False) -> Stage:
+def open_stage(name: str, total: int) -> Stage:
     """A stage of ``total`` units, announced to the listeners; ``advance()`` it after each
     unit and ``close()`` it at the end (`stage` does both for a ``with`` block; a stage left
     open by an exception is closed by the listener's own end)."""
-    s = Stage(name, total, lazy)
+    s = Stage(name, total)
     for listener in _current():
         listener.started(s)
     return s
 
 
 @contextmanager
-def stage(name: str, total: int, lazy: bool = False) -> Iterator[Stage]:
+def stage(name: str, total: int) -> Iterator[Stage]:
     """A stage of ``total`` units for the ``with`` block; ``advance()`` it after each unit."""
-    s = open_stage(name, total, lazy)
+    s = open_stage(name, total)
     try:
         yield s
     finally:

@@ -246,14 +246,14 @@ def run_pose(cfg: RenderConfig, args: argparse.Namespace) -> int:
         if target is None:  # a pose of one's own: warned as a camera path's frame
             _warn_pose(tgt, scene.c2w[sources], views)
         start = time.perf_counter()
-        with stage("rendering", 1, lazy=True) as progress:
+        with stage("rendering", 1) as progress:
             rgb = frames.panorama(tgt, height)
             progress.advance()
         seconds = time.perf_counter() - start
     finally:
         frames.release()
     try:
-        with stage(f"writing {cfg.out.name}", 1, lazy=True) as progress:
+        with stage(f"writing {cfg.out.name}", 1) as progress:
             write_rgb(cfg.out, to_uint8(rgb))
             progress.advance()
     except OSError as exc:

@@ -57,7 +57,7 @@ def read_panoramas(paths: list[Path]) -> Panoramas:
     from panogrf.model.progress import stage
 
     images = []
-    with stage("reading the photos", len(paths), lazy=True) as progress:
+    with stage("reading the photos", len(paths)) as progress:
         for path in paths:
             img = read_rgb(path)  # ImageReadError (a UserError) names the file
             h, w = img.shape[:2]

@@ -301,7 +301,7 @@ def _inspect(root: str | os.PathLike[str], keep_pixels: bool) -> tuple[SceneRepo
     # notes keep the frames' order.
     workers = max(1, min(len(frames), os.cpu_count() or 1, 8))
     with (
-        stage("reading the panoramas", len(frames), lazy=True) as progress,
+        stage("reading the panoramas", len(frames)) as progress,
         ThreadPoolExecutor(workers) as pool,
     ):
         inspected = []
