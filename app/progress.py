@@ -131,7 +131,8 @@ class TerminalProgress:
                 self._line(entry)
 
     def _beating(self) -> None:
-        while not self._stop.wait(self.interval / 4):
+        # A few times an interval; never a busy loop (an interval of 0 shows every stage).
+        while not self._stop.wait(max(self.interval / 4, 0.05)):
             self.beat()
 
     def close(self) -> None:
