@@ -18,7 +18,7 @@ import numpy as np
 import torch
 
 from panogrf.app.errors import UserError
-from panogrf.app.files.atomic import parse_json
+from panogrf.app.files.atomic import parse_json, refuse_foreign_folder
 from panogrf.model.depth_config import DepthMode
 
 if TYPE_CHECKING:
@@ -118,11 +118,8 @@ def prepare_out_dir(scene_root: Path, out_dir: Path) -> None:
                 f"--out {out_dir} holds {foreign}, which no `panogrf depth` output has: "
                 "refusing to replace the folder, move it or choose another"
             )
-    elif out_dir.is_dir() and any(out_dir.iterdir()):
-        raise UserError(
-            f"--out {out_dir} is not empty and holds no earlier `panogrf depth` output: "
-            "refusing to replace its files, choose an empty or new folder"
-        )
+    else:
+        refuse_foreign_folder(out_dir, "panogrf depth", lambda _: False)
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
