@@ -129,10 +129,13 @@ class ThreadOptions:
 
 def folder_path(text: str) -> Path:
     """argparse type of a folder option: a path, not an empty string (which would be the
-    current folder without a word)."""
+    current folder without a word) nor a file that exists."""
     if not text.strip():
         raise argparse.ArgumentTypeError("expected a folder, got an empty string")
-    return Path(text)
+    path = Path(text)
+    if path.exists() and not path.is_dir():
+        raise argparse.ArgumentTypeError(f"{path} is a file, expected a folder")
+    return path
 
 
 def number(kind=float, low=None, high=None, low_open: bool = False):

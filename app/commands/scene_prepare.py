@@ -117,9 +117,7 @@ def _check_cache_dir(cache_dir: Path | None) -> None:
     from panogrf.app.files.atomic import check_writable
     from panogrf.app.scene.store import default_cache_dir
 
-    folder = cache_dir or default_cache_dir()
-    if folder.exists() and not folder.is_dir():
-        raise UserError(f"--cache-dir {folder}: is a file, expected a folder")
+    folder = cache_dir or default_cache_dir()  # a file given is refused by the option's parser
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as exc:

@@ -174,10 +174,12 @@ def test_outputs_that_cannot_be_written_are_refused_before_any_work(tmp_path, ca
         ["view", demo, "--window", "headless", "--screenshot-dir", str(tmp_path / "no")], capsys
     )
     assert code == 2 and line.endswith(f"--screenshot-dir {tmp_path / 'no'}: does not exist")
-    code, line = _run(
-        ["scene", "prepare", demo, "--cache-dir", str(asset_path("demo/transforms.json"))], capsys
-    )
-    assert code == 2 and "--cache-dir" in line and line.endswith("is a file, expected a folder")
+    a_file = str(asset_path("demo/transforms.json"))
+    render = ["render", demo, "--out", str(tmp_path / "p.jpg"), "--target-frame", "1"]
+    for command in (["scene", "prepare", demo], render):
+        code, line = _run([*command, "--cache-dir", a_file], capsys)
+        assert code == 2 and "--cache-dir" in line and line.endswith("is a file, expected a folder")
+    assert not (tmp_path / "p.jpg").exists()  # refused before any work
     photos = tmp_path / "photos"
     photos.mkdir()
     (photos / "a.jpg").write_bytes(b"mine")
