@@ -9,28 +9,19 @@ a full `panogrf scene from-panoramas` run verified (REPORT.json, its poses_repor
 rank among its photo's partners (the better of its two photos).
 """
 
-import glob
 import json
-import math
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import torch
 
-from panogrf.app.files.images import read_rgb
-from panogrf.app.poses import features as ft
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from pair_scores import detect_all  # noqa: E402
 
 torch.set_num_threads(2)
-paths = sorted(glob.glob(f"{sys.argv[1]}/*.jpg"))
-floor = -math.sin(math.radians(70.0))
-t0 = time.time()
-feats = []
-for p in paths:
-    f = ft.detect(read_rgb(p))
-    keep = f.bearings[:, 1] > floor
-    feats.append(ft.Features(f.bearings[keep], f.descriptors[keep]))
-print("features", time.time() - t0, flush=True)
+paths, feats = detect_all(sys.argv[1])
 r = json.load(open(sys.argv[2]))
 names = [p.split("/")[-1] for p in paths]
 idx = {n: i for i, n in enumerate(names)}
