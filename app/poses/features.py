@@ -123,6 +123,20 @@ def _squared_distances(a: Tensor, b: Tensor, sq_a: Tensor, sq_b: Tensor) -> Tens
     return dist.add_(sq_a[:, None]).clamp_(min=0)
 
 
+def _mutual(keep: Tensor, best: Tensor, d1: Tensor, col_min: Tensor) -> np.ndarray:
+    """Matches [M, 2] (row, its nearest column) of the rows ``keep`` passes whose nearest
+    column ``best`` has no nearer row (``col_min``: each column's least distance), the first
+    such row where distances tie. Each column's nearest row is found from the column minima
+    alone: a reduction over the rows without its indices is some eight times faster on a CPU
+    than one with them (it reads the rows in order)."""
+    keep = keep & (d1 <= col_min[best])
+    rows = torch.nonzero(keep).squeeze(1).numpy()
+    cols = best[keep].numpy()
+    _, first = np.unique(cols, return_index=True)
+    first.sort()
+    return np.stack((rows[first], cols[first]), 1).astype(int)
+
+
 def match(a: Features, b: Features, ratio: float = 0.8) -> np.ndarray:
     """Indices [M, 2] of mutual nearest neighbours that pass the ratio test (a -> b).
 
@@ -136,8 +150,8 @@ def match(a: Features, b: Features, ratio: float = 0.8) -> np.ndarray:
     rows = len(da)
     best = torch.empty(rows, dtype=torch.long)
     keep = torch.empty(rows, dtype=torch.bool)
+    d1 = torch.empty(rows)
     col_min = torch.full((len(db),), math.inf)
-    col_arg = torch.zeros(len(db), dtype=torch.long)
     block = 2048
     for lo in range(0, rows, block):
         hi = min(rows, lo + block)
@@ -145,13 +159,9 @@ def match(a: Features, b: Features, ratio: float = 0.8) -> np.ndarray:
         two = dist.topk(2, dim=1, largest=False)
         best[lo:hi] = two.indices[:, 0]
         keep[lo:hi] = two.values[:, 0] < ratio * ratio * two.values[:, 1]
-        m, arg = dist.min(0)
-        better = m < col_min
-        col_min = torch.where(better, m, col_min)
-        col_arg = torch.where(better, arg + lo, col_arg)
-    index = torch.arange(rows)
-    keep &= col_arg[best] == index
-    return torch.stack((index[keep], best[keep]), 1).numpy().astype(int)
+        torch.minimum(col_min, dist.amin(0), out=col_min)
+        d1[lo:hi] = two.values[:, 0]
+    return _mutual(keep, best, d1, col_min)
 
 
 def match_guided(
@@ -182,7 +192,6 @@ def match_guided(
     d1 = torch.empty(rows)
     d2 = torch.empty(rows)
     col_min = torch.full((len(db),), math.inf)
-    col_arg = torch.zeros(len(db), dtype=torch.long)
     block = 1024
     for lo in range(0, rows, block):
         hi = min(rows, lo + block)
@@ -192,10 +201,6 @@ def match_guided(
         dist.masked_fill_(sin_err > limit, math.inf)
         two = dist.topk(2, dim=1, largest=False)
         best[lo:hi], d1[lo:hi], d2[lo:hi] = two.indices[:, 0], two.values[:, 0], two.values[:, 1]
-        m, arg = dist.min(0)
-        better = m < col_min
-        col_min = torch.where(better, m, col_min)
-        col_arg = torch.where(better, arg + lo, col_arg)
-    index = torch.arange(rows)
-    keep = torch.isfinite(d1) & (d1 < ratio * ratio * d2) & (col_arg[best] == index)
-    return torch.stack((index[keep], best[keep]), 1).numpy().astype(int)
+        torch.minimum(col_min, dist.amin(0), out=col_min)
+    keep = torch.isfinite(d1) & (d1 < ratio * ratio * d2)
+    return _mutual(keep, best, d1, col_min)

@@ -65,3 +65,16 @@ def test_pooled_matching_is_the_plain_definition():
     got = {tuple(m) for m in match(a, b, 0.8).tolist()}
     assert got == want
     assert len(want) > 800 and all(i == j for i, j in want if i < 900)
+
+
+def test_a_column_nearest_to_two_equal_rows_is_matched_once_to_the_first():
+    """Mutual nearest neighbours from the columns' least distances alone: where two rows tie
+    for a column, the first row is its match and the second none (one keypoint, one match)."""
+    rng = np.random.default_rng(2)
+    a, b = _features(rng, 300), _features(rng, 200)
+    b.descriptors[:100] = a.descriptors[:100] + rng.normal(0, 1, (100, 128)).astype(np.float32)
+    a.descriptors[250] = a.descriptors[7]  # rows 7 and 250 tie for column 7
+    got = match(a, b, 0.8)
+    assert [7, 7] in got.tolist()
+    assert 250 not in got[:, 0]
+    assert len(np.unique(got[:, 1])) == len(got)
