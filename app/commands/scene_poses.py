@@ -16,7 +16,14 @@ from typing import NamedTuple
 
 import numpy as np
 
-from panogrf.app.commands.scene_poses_report import ADVICE, REPORT, _deg, _report_json, pose_report
+from panogrf.app.commands.scene_poses_report import (
+    ADVICE,
+    REPORT,
+    _baselines,
+    _deg,
+    _report_json,
+    pose_report,
+)
 from panogrf.app.errors import UserError
 from panogrf.app.files.images import read_rgb
 from panogrf.app.options import add_options, from_args, option
@@ -101,15 +108,6 @@ def _check_out(out: Path) -> None:
             out.rmdir()
         except OSError as exc:
             raise UserError(f"{out}: cannot make this folder ({exc.strerror or exc})") from None
-
-
-def _baselines(c2w: np.ndarray) -> str:
-    c = c2w[:, :3, 3]
-    return ", ".join(
-        f"{i}-{j} {np.linalg.norm(c[i] - c[j]):.3f}"
-        for i in range(len(c))
-        for j in range(i + 1, len(c))
-    )
 
 
 # --- import -------------------------------------------------------------------------------

@@ -6,7 +6,10 @@ with (`ADVICE`).
 
 from __future__ import annotations
 
+import itertools
 from pathlib import Path
+
+import numpy as np
 
 #: What to do when panoramas cannot be posed (the failure's one line ends with it).
 ADVICE = (
@@ -19,6 +22,10 @@ ADVICE = (
 REPORT = "poses_report.json"
 
 
+#: At most this many failed pairs are printed one by one.
+MAX_LISTED_FAILURES = 10
+
+
 def _deg(value: float | None) -> str:
     return "n/a" if value is None else f"{value:.3f} deg"
 
@@ -26,7 +33,11 @@ def _deg(value: float | None) -> str:
 def pose_report(files: list[Path], est) -> list[str]:
     """The printed report of a `ColmapEstimate`: a line per pair and per view."""
     lines = [f"posing (COLMAP {est.mapper or 'mappers'}, {est.seconds:.1f} s):", "pairs:"]
-    for p in est.pairs:
+    failed = [p for p in est.pairs if not p.ok]
+    # A home of many photos has hundreds of pairs that share nothing: those are counted here
+    # and each is in the report's file.
+    listed = [p for p in est.pairs if p.ok or len(failed) <= MAX_LISTED_FAILURES]
+    for p in listed:
         state = (
             f"ok, {p.inliers} inliers, {p.shared_points} shared points, "
             f"median residual {_deg(p.residual_deg)}"
@@ -39,6 +50,11 @@ def pose_report(files: list[Path], est) -> list[str]:
                 f" at its peak, at most {p.level_search[1]} elsewhere)"
             )
         lines.append(f"  {files[p.i].name} - {files[p.j].name}: {p.matches} matches; {state}")
+    if len(listed) < len(est.pairs):
+        lines.append(
+            f"  {len(failed)} other pairs: no geometry (they share too little; each, with its "
+            f"matches and why, is in {REPORT})"
+        )
     lines.append("views:")
     lines += [f"  {files[v.index].name}: {v.note}" for v in est.views]
     return lines
@@ -82,3 +98,19 @@ def _report_json(files: list[Path], est, lines: list[str]) -> dict:
         ],
         "lines": lines,
     }
+
+
+def _baselines(c2w: np.ndarray) -> str:
+    """Every pair's distance for up to five views; for more, each view's nearest one."""
+    c = c2w[:, :3, 3]
+    if len(c) <= 5:
+        pairs = itertools.combinations(range(len(c)), 2)
+        return ", ".join(f"{i}-{j} {np.linalg.norm(c[i] - c[j]):.3f}" for i, j in pairs)
+    dist = np.linalg.norm(c[:, None] - c[None], axis=-1)
+    largest = dist.max()
+    np.fill_diagonal(dist, np.inf)
+    near = dist.min(axis=1)
+    return (
+        f"to each view's nearest min {near.min():.3f}, median {np.median(near):.3f}, "
+        f"max {near.max():.3f}; largest pairwise {largest:.3f}"
+    )
