@@ -114,13 +114,43 @@ def detect(
     return Features(np.concatenate(bearings), np.concatenate(descs).astype(np.float32))
 
 
-def _squared_distances(a: Tensor, b: Tensor, sq_a: Tensor, sq_b: Tensor) -> Tensor:
-    """Squared L2 distances [Na, Nb] of descriptors ``a`` [Na, D] and ``b`` [Nb, D] (``sq_*``:
-    their squared norms): one matrix product and one pass in place. The matching compares
-    squared distances (the ratio test squared): a square root over every pair of keypoints
-    would only cost a pass."""
-    dist = torch.addmm(sq_b.expand(len(a), -1), a, b.T, alpha=-2.0)
-    return dist.add_(sq_a[:, None]).clamp_(min=0)
+class _Distances:
+    """Squared L2 distances of two sets of descriptors, a block of rows at a time.
+
+    SIFT's descriptors (OpenCV) are whole numbers 0-255, and every such distance is a whole
+    number under 2^24: single precision computes them exactly, and so does an 8-bit integer
+    product (each descriptor shifted by 128 into a signed byte; the shift's terms added back
+    per row and column): a pair of panoramas of 17,000-21,000 keypoints matched in 0.45 times
+    the time on 2 cores of a CPU with 8-bit dot products (AVX-512 VNNI). The integer
+    product serves whole-number descriptors of 0-255, single precision any others: the two
+    give the same distances to the last bit.
+    """
+
+    def __init__(self, a: np.ndarray, b: np.ndarray) -> None:
+        self.whole = _bytes(a) and _bytes(b)
+        da, db = torch.from_numpy(a).float(), torch.from_numpy(b).float()
+        sq_a, sq_b = (da * da).sum(1), (db * db).sum(1)
+        if self.whole:  # a.b = a'.b' + 128 (sum a' + sum b') + 128^2 D, with x' = x - 128
+            a8, b8 = (da - 128).to(torch.int8), (db - 128).to(torch.int8)
+            shift = 2 * 128 * 128 * a.shape[1]
+            self.a, self.b_t = a8, b8.T.contiguous()
+            self.row = (sq_a - 256 * a8.sum(1)).long().sub_(shift).int()
+            self.col = (sq_b - 256 * b8.sum(1)).long().int()
+        else:
+            self.a, self.b_t, self.row, self.col = da, db.T, sq_a, sq_b
+
+    def block(self, lo: int, hi: int) -> Tensor:
+        """Squared distances [hi - lo, Nb] of rows lo..hi (int32 or float32)."""
+        if self.whole:
+            dot = torch._int_mm(self.a[lo:hi], self.b_t)
+            return dot.mul_(-2).add_(self.col[None]).add_(self.row[lo:hi, None])
+        dist = torch.addmm(self.col.expand(hi - lo, -1), self.a[lo:hi], self.b_t, alpha=-2.0)
+        return dist.add_(self.row[lo:hi, None]).clamp_(min=0)
+
+
+def _bytes(d: np.ndarray) -> bool:
+    """Whether descriptors [N, D] are whole numbers 0-255 (and there is a D to multiply)."""
+    return bool(d.size) and d.min() >= 0 and d.max() <= 255 and bool(np.all(d == np.rint(d)))
 
 
 def _mutual(keep: Tensor, best: Tensor, d1: Tensor, col_min: Tensor) -> np.ndarray:
@@ -140,27 +170,27 @@ def _mutual(keep: Tensor, best: Tensor, d1: Tensor, col_min: Tensor) -> np.ndarr
 def match(a: Features, b: Features, ratio: float = 0.8) -> np.ndarray:
     """Indices [M, 2] of mutual nearest neighbours that pass the ratio test (a -> b).
 
-    Exact L2 distances in blocks of rows, single precision (torch): the same matches as a brute
+    Exact L2 distances in blocks of rows (`_Distances`): the same matches as a brute
     force k-nearest-neighbour search, some 20 times faster on two panoramas of 20,000 keypoints
     than OpenCV's brute-force matcher on two cores."""
     if len(a.descriptors) < 2 or len(b.descriptors) < 2:
         return np.zeros((0, 2), int)
-    da, db = torch.from_numpy(a.descriptors).float(), torch.from_numpy(b.descriptors).float()
-    sq_a, sq_b = (da * da).sum(1), (db * db).sum(1)
-    rows = len(da)
+    distances = _Distances(a.descriptors, b.descriptors)
+    rows = len(a.descriptors)
     best = torch.empty(rows, dtype=torch.long)
     keep = torch.empty(rows, dtype=torch.bool)
     d1 = torch.empty(rows)
-    col_min = torch.full((len(db),), math.inf)
+    col_min = torch.full((len(b.descriptors),), math.inf)
     block = 2048
     for lo in range(0, rows, block):
         hi = min(rows, lo + block)
-        dist = _squared_distances(da[lo:hi], db, sq_a[lo:hi], sq_b)
+        dist = distances.block(lo, hi)
         two = dist.topk(2, dim=1, largest=False)
+        values = two.values.float()
         best[lo:hi] = two.indices[:, 0]
-        keep[lo:hi] = two.values[:, 0] < ratio * ratio * two.values[:, 1]
-        torch.minimum(col_min, dist.amin(0), out=col_min)
-        d1[lo:hi] = two.values[:, 0]
+        keep[lo:hi] = values[:, 0] < ratio * ratio * values[:, 1]
+        torch.minimum(col_min, dist.amin(0).float(), out=col_min)
+        d1[lo:hi] = values[:, 0]
     return _mutual(keep, best, d1, col_min)
 
 
@@ -184,20 +214,19 @@ def match_guided(
     nb = bb @ et  # and in view a, [Nb, 3]
     inv_na = 1.0 / na.norm(dim=1).clamp(min=1e-12)
     inv_nb = 1.0 / nb.norm(dim=1).clamp(min=1e-12)
-    da, db = torch.from_numpy(a.descriptors).float(), torch.from_numpy(b.descriptors).float()
-    sq_a, sq_b = (da * da).sum(1), (db * db).sum(1)
+    distances = _Distances(a.descriptors, b.descriptors)
     limit = math.sin(threshold)
-    rows = len(da)
+    rows = len(a.descriptors)
     best = torch.empty(rows, dtype=torch.long)
     d1 = torch.empty(rows)
     d2 = torch.empty(rows)
-    col_min = torch.full((len(db),), math.inf)
+    col_min = torch.full((len(b.descriptors),), math.inf)
     block = 1024
     for lo in range(0, rows, block):
         hi = min(rows, lo + block)
         num = (na[lo:hi] @ bb.T).abs_()
         sin_err = torch.maximum(num * inv_na[lo:hi, None], num.mul_(inv_nb[None]))
-        dist = _squared_distances(da[lo:hi], db, sq_a[lo:hi], sq_b)
+        dist = distances.block(lo, hi).float()
         dist.masked_fill_(sin_err > limit, math.inf)
         two = dist.topk(2, dim=1, largest=False)
         best[lo:hi], d1[lo:hi], d2[lo:hi] = two.indices[:, 0], two.values[:, 0], two.values[:, 1]

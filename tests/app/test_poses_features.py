@@ -78,3 +78,30 @@ def test_a_column_nearest_to_two_equal_rows_is_matched_once_to_the_first():
     assert [7, 7] in got.tolist()
     assert 250 not in got[:, 0]
     assert len(np.unique(got[:, 1])) == len(got)
+
+
+def test_whole_number_descriptors_match_by_the_integer_product_as_by_the_definition():
+    """SIFT's descriptors are whole numbers 0-255: the 8-bit integer product gives the same
+    distances, and so the same matches, as the plain definition (0 and 255 included)."""
+    from panogrf.app.poses.features import _Distances
+
+    rng = np.random.default_rng(3)
+    a = Features(np.zeros((2300, 3)), rng.integers(0, 256, (2300, 128)).astype(np.float32))
+    noisy = a.descriptors[:1500] + rng.normal(0, 6, (1500, 128))
+    b = Features(np.zeros((1500, 3)), np.clip(np.rint(noisy), 0, 255).astype(np.float32))
+    b.descriptors[0] = 255
+    a.descriptors[1] = 0
+    distances = _Distances(a.descriptors, b.descriptors)
+    assert distances.whole
+    da, db = a.descriptors.astype(np.float64), b.descriptors.astype(np.float64)
+    exact = (da**2).sum(1)[:, None] + (db**2).sum(1)[None] - 2 * da @ db.T
+    assert np.array_equal(distances.block(0, 2300).numpy(), exact)
+    dist = np.sqrt(exact)
+    order = np.argsort(dist, axis=1)[:, :2]
+    rows = np.arange(len(dist))
+    d1, d2 = dist[rows, order[:, 0]], dist[rows, order[:, 1]]
+    keep = (d1 < 0.8 * d2) & (dist.argmin(0)[order[:, 0]] == rows)
+    want = {(int(i), int(order[i, 0])) for i in rows[keep]}
+    assert {tuple(m) for m in match(a, b, 0.8).tolist()} == want
+    assert len(want) > 1000
+    assert not _Distances(a.descriptors + 0.5, b.descriptors).whole
