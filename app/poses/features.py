@@ -147,6 +147,14 @@ class _Distances:
         dist = torch.addmm(self.col.expand(hi - lo, -1), self.a[lo:hi], self.b_t, alpha=-2.0)
         return dist.add_(self.row[lo:hi, None]).clamp_(min=0)
 
+    def at(self, lo: int, hi: int, rows: Tensor, cols: Tensor) -> Tensor:
+        """Squared distances [K] (float32) of the pairs (rows, cols), rows within lo..hi: the
+        integer product's block, its shift added back at those pairs only."""
+        if not self.whole:
+            return self.block(lo, hi)[rows - lo, cols]
+        dot = torch._int_mm(self.a[lo:hi], self.b_t)[rows - lo, cols]
+        return (dot.mul_(-2) + self.col[cols] + self.row[rows]).float()
+
 
 def _bytes(d: np.ndarray) -> bool:
     """Whether descriptors [N, D] are whole numbers 0-255 (and there is a D to multiply)."""
@@ -201,35 +209,122 @@ def match_guided(
     are those within ``threshold`` radians of its epipolar plane in both views; among them the
     nearest descriptor wins if it passes the ratio test and the choice is mutual.
 
-    Computed in blocks of rows, in single precision: the descriptor distances and the sines of
-    the epipolar angles of all pairs at once, in double precision, take up to 4.6 GB per array
-    for two panoramas of 24,000 keypoints (4000 per face).
+    The candidates are a few percent of all pairs: `_epipolar_band` lists a superset of them
+    from the keypoints sorted around the epipole, and each is then tested as the definition
+    says (single precision); distances are computed for all pairs by the integer product and
+    read at the candidates (`_Distances.at`). Ten times faster on two cores than testing every
+    pair, which also took up to 4.6 GB per array in double precision for two panoramas of
+    24,000 keypoints.
     """
     if len(b.descriptors) < 2 or len(a.descriptors) == 0:
         return np.zeros((0, 2), int)
+    e = np.asarray(e, np.float64)
     ba = torch.from_numpy(a.bearings).float()
     bb = torch.from_numpy(b.bearings).float()
-    et = torch.from_numpy(np.asarray(e, np.float64)).float()
+    et = torch.from_numpy(e).float()
     na = ba @ et.T  # epipolar plane normals in view b, [Na, 3]
     nb = bb @ et  # and in view a, [Nb, 3]
     inv_na = 1.0 / na.norm(dim=1).clamp(min=1e-12)
     inv_nb = 1.0 / nb.norm(dim=1).clamp(min=1e-12)
     distances = _Distances(a.descriptors, b.descriptors)
     limit = math.sin(threshold)
+    band = _epipolar_band(a.bearings, b.bearings, e, limit)
     rows = len(a.descriptors)
-    best = torch.empty(rows, dtype=torch.long)
-    d1 = torch.empty(rows)
-    d2 = torch.empty(rows)
+    best = torch.zeros(rows, dtype=torch.long)
+    d1 = torch.full((rows,), math.inf)
+    d2 = torch.full((rows,), math.inf)
     col_min = torch.full((len(b.descriptors),), math.inf)
     block = 1024
     for lo in range(0, rows, block):
         hi = min(rows, lo + block)
-        num = (na[lo:hi] @ bb.T).abs_()
-        sin_err = torch.maximum(num * inv_na[lo:hi, None], num.mul_(inv_nb[None]))
-        dist = distances.block(lo, hi).float()
-        dist.masked_fill_(sin_err > limit, math.inf)
-        two = dist.topk(2, dim=1, largest=False)
-        best[lo:hi], d1[lo:hi], d2[lo:hi] = two.indices[:, 0], two.values[:, 0], two.values[:, 1]
-        torch.minimum(col_min, dist.amin(0), out=col_min)
+        r, c = band(lo, hi)
+        num = (na[r] * bb[c]).sum(1).abs_()
+        near = torch.maximum(num * inv_na[r], num * inv_nb[c]) <= limit
+        r, c = r[near], c[near]
+        if len(r) == 0:
+            continue
+        dist = distances.at(lo, hi, r, c)
+        col_min.scatter_reduce_(0, c, dist, "amin")
+        # Each row's two nearest: the pairs sorted by row, then distance (whole numbers under
+        # 2^24 for SIFT; the order of a float's bits otherwise, as both are non-negative).
+        key = r * (1 << 32) + dist.view(torch.int32).long()
+        order = torch.sort(key).indices
+        r, c, dist = r[order], c[order], dist[order]
+        first = torch.ones(len(r), dtype=torch.bool)
+        first[1:] = r[1:] != r[:-1]
+        start = torch.nonzero(first).squeeze(1)
+        best[r[start]], d1[r[start]] = c[start], dist[start]
+        pair = torch.nonzero(start + 1 < len(r)).squeeze(1)  # rows with a second candidate
+        pair = pair[r[start[pair] + 1] == r[start[pair]]]
+        d2[r[start[pair]]] = dist[start[pair] + 1]
     keep = torch.isfinite(d1) & (d1 < ratio * ratio * d2)
     return _mutual(keep, best, d1, col_min)
+
+
+def _epipolar_band(bearings_a: np.ndarray, bearings_b: np.ndarray, e: np.ndarray, limit: float):
+    """``band(lo, hi)`` -> (rows, cols) [K] int64: a superset of the pairs of keypoints (rows
+    lo..hi of a) whose b-bearing lies within ``limit`` (a sine) of the row's epipolar plane.
+
+    Every epipolar plane in b contains the epipole e_b (E^T e_b = 0). A bearing at angle psi
+    from it and azimuth w around it is sin(psi) |sin(w - theta)| out of the plane of azimuth
+    theta + 90 degrees (theta: where the plane's normal E b_a points). So the b-keypoints are
+    banded by sin(psi) (doubling from ``limit``) and sorted by azimuth (modulo 180 degrees,
+    a plane's two halves); a row's candidates in a band of sin(psi) >= s are those within
+    asin(limit / s) of its theta, found by binary search. A degenerate E (no epipole): every
+    pair."""
+    n_b = len(bearings_b)
+    u_e, sing, _ = np.linalg.svd(e)
+    if not sing[1] > 1e-9 * sing[0]:
+        return lambda lo, hi: _all_pairs(lo, hi, n_b)
+    pole = u_e[:, 2]  # e_b
+    x = np.cross(pole, [1.0, 0.0, 0.0] if abs(pole[0]) < 0.9 else [0.0, 1.0, 0.0])
+    x /= np.linalg.norm(x)
+    y = np.cross(pole, x)
+    sin_psi = np.linalg.norm(np.cross(bearings_b, pole), axis=1)
+    azimuth = np.mod(np.arctan2(bearings_b @ y, bearings_b @ x), math.pi)
+    normals = bearings_a @ e.T  # E b_a, [Na, 3]
+    theta = np.mod(np.arctan2(normals @ y, normals @ x) - math.pi / 2, math.pi)
+    # A keypoint at (or within a milliradian of) a's epipole has no plane of its own: the
+    # single-precision test sees a plane of rounding errors there, so every b-keypoint is its
+    # candidate.
+    length = np.linalg.norm(normals, axis=1)
+    wild = (length < 1e-3 * sing[0]) | (np.abs(normals @ pole) > 1e-6 * length)
+    slack = 1e-4  # rounding of the single-precision test and of E's own null space
+    bands = []
+    edge = limit
+    lower = 0.0
+    while lower < 1.0:
+        upper = edge if lower == 0.0 else 2.0 * lower
+        members = np.nonzero((sin_psi >= lower) & (sin_psi < upper))[0]
+        if len(members):
+            width = math.pi / 2 if lower <= limit else math.asin(limit / lower) + slack
+            order = members[np.argsort(azimuth[members], kind="stable")]
+            bands.append((order, azimuth[order], width))
+        lower = upper
+
+    def band(lo: int, hi: int) -> tuple[Tensor, Tensor]:
+        ids = np.arange(lo, hi)
+        odd, ids = ids[wild[lo:hi]], ids[~wild[lo:hi]]
+        rows, cols = [np.repeat(odd, n_b)], [np.tile(np.arange(n_b), len(odd))]
+        t = theta[ids]
+        for order, az, width in bands:
+            if width >= math.pi / 2 - slack:
+                rows.append(np.repeat(ids, len(order)))
+                cols.append(np.tile(order, len(ids)))
+                continue
+            ext = np.concatenate([az - math.pi, az, az + math.pi])
+            first = np.searchsorted(ext, t - width, "left")
+            last = np.searchsorted(ext, t + width, "right")
+            counts = last - first
+            r = np.repeat(ids, counts)
+            offset = np.arange(len(r)) - np.repeat(np.cumsum(counts) - counts, counts)
+            rows.append(r)
+            cols.append(np.tile(order, 3)[np.repeat(first, counts) + offset])
+        return torch.from_numpy(np.concatenate(rows)), torch.from_numpy(np.concatenate(cols))
+
+    return band
+
+
+def _all_pairs(lo: int, hi: int, n_b: int) -> tuple[Tensor, Tensor]:
+    rows = torch.arange(lo, hi).repeat_interleave(n_b)
+    return rows, torch.arange(n_b).repeat(hi - lo)

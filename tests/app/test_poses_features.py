@@ -105,3 +105,44 @@ def test_whole_number_descriptors_match_by_the_integer_product_as_by_the_definit
     assert {tuple(m) for m in match(a, b, 0.8).tolist()} == want
     assert len(want) > 1000
     assert not _Distances(a.descriptors + 0.5, b.descriptors).whole
+
+
+def _turn(angle: float) -> np.ndarray:
+    c, s = math.cos(angle), math.sin(angle)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]]) @ np.array(
+        [[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]]
+    )
+
+
+def test_guided_matching_of_turned_cameras_is_the_plain_definition():
+    """The candidates listed around the epipole are the definition's: a turned and tilted
+    second camera, whole-number descriptors (the integer product), keypoints near both
+    epipoles included."""
+    rng = np.random.default_rng(4)
+    a = _features(rng, 2600)
+    rot, t = _turn(0.7), np.array([0.3, -0.2, 0.9])
+    t /= np.linalg.norm(t)
+    # 20 keypoints 0.5-3 degrees from the direction of b's centre (the epipole: exactly there,
+    # the test's sines are 0/0 in any precision)
+    near = -rot.T @ t + rng.normal(0, 0.03, (20, 3))
+    a.bearings[:20] = near / np.linalg.norm(near, axis=1, keepdims=True)
+    points = a.bearings[:1200] * rng.uniform(1, 6, (1200, 1))
+    b = _features(rng, 1800)
+    seen = points @ rot.T + t  # x_b = R x_a + t
+    b.bearings[:1200] = seen / np.linalg.norm(seen, axis=1, keepdims=True)
+    b.descriptors[:1200] = np.clip(a.descriptors[:1200] + rng.integers(-2, 3, (1200, 128)), 0, 255)
+    skew = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
+    e = skew @ rot
+    for threshold in (0.004, 0.02, 0.2):
+        got = match_guided(a, b, e, threshold, 0.8)
+        assert {tuple(m) for m in got.tolist()} == _dense(a, b, e, threshold, 0.8)
+    assert len(got) > 900
+
+
+def test_guided_matching_without_an_epipole_is_pooled_matching():
+    rng = np.random.default_rng(5)
+    a, b = _features(rng, 1500), _features(rng, 1100)
+    b.descriptors[:700] = a.descriptors[:700]
+    got = match_guided(a, b, np.zeros((3, 3)), 0.01, 0.8)
+    assert np.array_equal(got, match(a, b, 0.8))
+    assert len(got) >= 600
