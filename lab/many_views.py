@@ -29,8 +29,47 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
 from depth_stages import estimator_as  # noqa: E402
 
 
-def _count(text: str) -> int | None:
-    return None if text == "all" else int(text)
+def _count(text: str) -> int | str | None:
+    """``all`` (None), a count of nearest sources, or ``seenX``: the sources that see at least
+    a share X of what the target sees (`seen_sources`)."""
+    if text == "all":
+        return None
+    return text if text.startswith("seen") else int(text)
+
+
+def seen_sources(cache, c2w, share: float, rows: int = 64, keep: int = 2, tol: float = 0.05):
+    """Indices of the sources of ``cache`` that see at least ``share`` of what a camera at
+    ``c2w`` sees, and always its ``keep`` nearest.
+
+    What the camera sees: every source's depth (at ``rows``) splatted into it, the nearest
+    surface per pixel. A source sees a point of it where the point's distance from the source
+    is within ``tol`` (relative) of the source's own depth at the point's pixel."""
+    import torch.nn.functional as F
+
+    from panogrf.model.erp import erp_to_world, world_to_erp
+    from panogrf.model.splat import splat_zbuffer
+
+    h, w = rows, 2 * rows
+    depth = F.interpolate(cache.depth, size=(h, w), mode="nearest")[:, 0]  # [V, h, w]
+    surface = splat_zbuffer(depth[:, None], cache.c2w, c2w, h, w)
+    valid = surface.reshape(-1) > 0
+    points = erp_to_world(surface, c2w)[valid]  # [N, 3]
+    uv, dist = world_to_erp(points, cache.c2w[:, None], h, w)  # [V, N, 2], [V, N]
+    u = torch.remainder(uv[..., 0].round().long(), w)
+    v = uv[..., 1].round().long().clamp(0, h - 1)
+    own = depth[torch.arange(len(depth))[:, None], v, u]
+    seen = ((dist - own).abs() < tol * own).float().mean(1)  # [V]
+    near = torch.argsort((cache.centres - c2w[:3, 3]).norm(dim=-1))[:keep]
+    chosen = (seen >= share).clone()
+    chosen[near] = True
+    return torch.nonzero(chosen).squeeze(1).tolist()
+
+
+def subset(cache, c2w, k):
+    """The cache a render reads: every source, the ``k`` nearest, or those that see enough."""
+    if isinstance(k, str):
+        return cache.select(seen_sources(cache, c2w, float(k[4:])))
+    return cache.nearest(c2w, k)
 
 
 def prepare(images, c2w, models, mvs_sources):
@@ -82,8 +121,8 @@ def main() -> int:
                 continue
             cache, seconds = prepare(images[others], c2w[others], models, mvs)
             for k in renders:
-                sub = cache.nearest(c2w[target], k)
                 t0 = time.perf_counter()
+                sub = subset(cache, c2w[target], k)
                 with torch.no_grad():
                     out = render_detailed(net, sub, c2w[target], args.rows, "fast")
                 render_s = time.perf_counter() - t0
@@ -93,6 +132,7 @@ def main() -> int:
                     "target": target,
                     "mvs_sources": mvs or "all",
                     "render_sources": k or "all",
+                    "sources_read": sub.num_views,
                     "prepare_s": seconds,
                     "render_s": render_s,
                     "nearest_m": near,
