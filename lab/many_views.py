@@ -54,7 +54,7 @@ def seen_sources(cache, c2w, share: float, rows: int = 64, keep: int = 2, tol: f
     surface = splat_zbuffer(depth[:, None], cache.c2w, c2w, h, w)
     valid = surface.reshape(-1) > 0
     points = erp_to_world(surface, c2w)[valid]  # [N, 3]
-    uv, dist = world_to_erp(points, cache.c2w[:, None], h, w)  # [V, N, 2], [V, N]
+    uv, dist = world_to_erp(points[None], cache.c2w, h, w)  # [V, N, 2], [V, N]
     u = torch.remainder(uv[..., 0].round().long(), w)
     v = uv[..., 1].round().long().clamp(0, h - 1)
     own = depth[torch.arange(len(depth))[:, None], v, u]
@@ -142,7 +142,7 @@ def main() -> int:
                     f"target {target:2d} mvs {row['mvs_sources']!s:>3} "
                     f"render {row['render_sources']!s:>3}: "
                     f"{s['ws_psnr']:.2f} dB SSIM {s['ssim']:.3f} LPIPS {s['lpips']:.3f}  "
-                    f"prep {seconds:.1f} s render {render_s:.2f} s",
+                    f"prep {seconds:.1f} s render {render_s:.2f} s ({sub.num_views} sources)",
                     flush=True,
                 )
             args.out.write_text(json.dumps({"machine": platform.node(), "rows": rows}, indent=1))
