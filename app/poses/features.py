@@ -212,9 +212,9 @@ def match_guided(
     The candidates are a few percent of all pairs: `_epipolar_band` lists a superset of them
     from the keypoints sorted around the epipole, and each is then tested as the definition
     says (single precision); distances are computed for all pairs by the integer product and
-    read at the candidates (`_Distances.at`). Ten times faster on two cores than testing every
-    pair, which also took up to 4.6 GB per array in double precision for two panoramas of
-    24,000 keypoints.
+    read at the candidates (`_Distances.at`). The same matches as testing every pair, in 0.28
+    times the time on two cores for real panoramas of 18,000 keypoints (testing every pair in
+    double precision took up to 4.6 GB per array for two panoramas of 24,000).
     """
     if len(b.descriptors) < 2 or len(a.descriptors) == 0:
         return np.zeros((0, 2), int)
