@@ -99,9 +99,9 @@ def _grid(b1: np.ndarray, b2: np.ndarray, cfg: UprightConfig) -> tuple[np.ndarra
     A match supports a centre c when d2 = R_yaw b2 is within the tolerance of the epipolar
     plane through c and b1 (c . (b1 x d2) = 0 exactly on it) and both rays' depths are
     positive: for each yaw,
-    three [C, 3] x [3, M] products over all centres C at once (single precision: the test is
-    on sines of a degree or so). Matches with less parallax than the tolerance fit every
-    heading and are not counted."""
+    one [C, 3] x [3, M] product over all centres C at once (single precision: the test is
+    on sines of a degree or so), the depths' signs only where a match is on the plane. Matches
+    with less parallax than the tolerance fit every heading and are not counted."""
     import torch
 
     centres = torch.from_numpy(_centres(cfg).reshape(-1, 3)).float()
@@ -114,12 +114,16 @@ def _grid(b1: np.ndarray, b2: np.ndarray, cfg: UprightConfig) -> tuple[np.ndarra
     for k, r in enumerate(_rot_y(yaws)):
         d2 = torch.from_numpy(b2 @ r.T).float()
         n = torch.linalg.cross(tb1, d2)  # [M, 3]; |n| = sine of the parallax
-        moved = n.norm(dim=1) > limit
         off = (centres @ n.T).square_() < side1
-        front = (centres @ torch.linalg.cross(d2, n).T > 0) & (
-            centres @ torch.linalg.cross(tb1, n).T > 0
+        off &= n.norm(dim=1) > limit
+        # A few percent of (centre, match) lie on the epipolar plane: only those are tested
+        # for the depths' signs.
+        at, of = torch.nonzero(off, as_tuple=True)
+        c = centres[at]
+        front = ((c * torch.linalg.cross(d2, n)[of]).sum(1) > 0) & (
+            (c * torch.linalg.cross(tb1, n)[of]).sum(1) > 0
         )
-        out[k] = (off & front & moved).sum(1).numpy()
+        out[k] = torch.bincount(at[front], minlength=len(centres)).numpy()
     score = out.reshape(len(yaws), -1, len(yaws))  # [Y, E, H]
     return score.max(1), score.argmax(1)
 
