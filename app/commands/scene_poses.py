@@ -16,14 +16,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from panogrf.app.commands.scene_poses_report import (
-    ADVICE,
-    REPORT,
-    _baselines,
-    _deg,
-    _report_json,
-    pose_report,
-)
+from panogrf.app.commands import scene_poses_report as rep
 from panogrf.app.errors import UserError
 from panogrf.app.files.images import read_rgb
 from panogrf.app.options import add_options, from_args, option
@@ -96,7 +89,11 @@ def _view_names(paths: list[Path]) -> list[str]:
 
 
 def _check_out(out: Path) -> None:
-    if (out / "transforms.json").exists():
+    try:
+        held = (out / "transforms.json").exists()
+    except OSError as exc:  # a name too long for the file system
+        raise UserError(f"--out {out}: {exc.strerror or exc}") from None
+    if held:
         raise UserError(f"{out}: already holds a scene (transforms.json); choose another --out")
     if out.exists() and not out.is_dir():
         raise UserError(f"{out}: exists and is not a folder")
@@ -165,9 +162,10 @@ def run_import(parsed: argparse.Namespace) -> int:
     if note := read.note(files):
         lines.append(note)
     if not args.keep_world:
-        up = sc.camera_up(c2w)
-        tilt = [np.degrees(np.arccos(np.clip(m[:3, 1] @ up, -1, 1))) for m in c2w]
-        c2w = sc.canonical_frame(c2w, up)
+        with np.errstate(all="ignore"):  # absurd positions: refused below, in one line
+            up = sc.camera_up(c2w)
+            tilt = [np.degrees(np.arccos(np.clip(m[:3, 1] @ up, -1, 1))) for m in c2w]
+            c2w = sc.canonical_frame(c2w, up)
         lines.append(
             "levelled: world up = the cameras' mean up axis; camera tilts from it (deg): "
             + ", ".join(f"{t:.2f}" for t in tilt)
@@ -194,7 +192,7 @@ def run_import(parsed: argparse.Namespace) -> int:
     names = _view_names([Path(f) for f in files])
     write_new_scene(args.out, c2w, images, names=names, metadata=meta, files=copies)
     lines += [f"  {n}" for n in poses.notes]
-    lines.append(f"baselines (m): {_baselines(c2w)}")
+    lines.append(f"baselines (m): {rep._baselines(c2w)}")
     lines.append(f"wrote {args.out}")
     print("\n".join(lines))
     return 0
@@ -270,7 +268,7 @@ def run_from_panoramas(parsed: argparse.Namespace) -> int:
     heights = sc.parse_heights(args.camera_height, n) if args.camera_height else None
     distance = sc.parse_distance(args.distance, n) if args.distance else None
     est = estimate_poses_colmap([img.transpose(1, 2, 0) for img in images])
-    lines = [f"{n} panoramas ({images.shape[3]}x{images.shape[2]})", *pose_report(files, est)]
+    lines = [f"{n} panoramas ({images.shape[3]}x{images.shape[2]})", *rep.pose_report(files, est)]
     if note := read.note(files):
         lines.insert(1, note)
     keep = np.flatnonzero(est.registered)
@@ -285,7 +283,7 @@ def run_from_panoramas(parsed: argparse.Namespace) -> int:
         raise UserError(
             f"{files[best.i]}, {files[best.j]}: no pair of the {n} panoramas could be posed "
             f"(at best {best.inliers} of {best.matches} matches agree, between these two); "
-            + ADVICE
+            + rep.ADVICE
         )
     if distance is not None:
         i, j, m = distance
@@ -321,32 +319,32 @@ def run_from_panoramas(parsed: argparse.Namespace) -> int:
         by = f"{given} {args.distance or args.camera_height}: " if given else ""
         raise UserError(f"{by}the scaled poses make no scene: {problems[0]}")
     lines += metric.lines
-    lines.append(f"median residual over all points: {_deg(est.residual_deg)}")
+    lines.append(f"median residual over all points: {rep._deg(est.residual_deg)}")
     names = _view_names([files[k] for k in keep])
-    lines.append(f"baselines (m): {_baselines(metric.c2w)}")
+    lines.append(f"baselines (m): {rep._baselines(metric.c2w)}")
     if len(keep) < n:
         left = [files[k].name for k in range(n) if not est.registered[k]]
         lines.append(
             f"left out {n - len(keep)} panorama(s) that could not be posed: {', '.join(left)}; "
-            + ADVICE
+            + rep.ADVICE
         )
     kept = read.kept(keep)  # at the smallest kept photo's size
     size = f"{kept.images.shape[3]}x{kept.images.shape[2]}"
-    lines.append(f"wrote {args.out} ({size}; the report: {args.out / REPORT})")
+    lines.append(f"wrote {args.out} ({size}; the report: {args.out / rep.REPORT})")
     meta = {
         "poses": {
             "estimated_from": [str(files[k]) for k in keep],
             "residual_deg": None if est.residual_deg is None else round(est.residual_deg, 4),
             "scale": next(x for x in metric.lines if x.startswith("scale:")),
-            "report": REPORT,
+            "report": rep.REPORT,
         }
     }
     copies = [None if r else files[k] for k, r in zip(keep, kept.resized, strict=True)]
     write_new_scene(args.out, metric.c2w, kept.images, names=names, metadata=meta, files=copies)
-    report = _report_json(files, est, lines)
+    report = rep._report_json(files, est, lines)
     report["scale"] = metric.lines
     try:
-        write_json_atomic(args.out / REPORT, report)
+        write_json_atomic(args.out / rep.REPORT, report)
     except OSError as exc:
         lines[-1] = f"wrote {args.out} (the report could not be saved: {exc.strerror or exc})"
     print("\n".join(lines))

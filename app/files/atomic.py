@@ -263,6 +263,10 @@ def check_output(path: str | os.PathLike[str], option: str = "--out", folder: bo
     folder, or a folder where a file is wanted (and a file where a folder is wanted)."""
     path = Path(path)
     parent = path.parent
+    try:
+        path.exists()  # a name too long for the file system: said here, not as a traceback
+    except OSError as exc:
+        raise UserError(f"{option} {path}: {exc.strerror or exc}") from None
     if not parent.is_dir():
         raise UserError(f"{option}: folder {parent} does not exist")
     if not os.access(parent, os.W_OK | os.X_OK):

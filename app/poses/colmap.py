@@ -276,8 +276,8 @@ def _run(images, cfg: ColmapConfig, say, work: Path) -> ColmapEstimate:
             if db.exists_two_view_geometry(a, b):
                 tvg = db.read_two_view_geometry(a, b)
                 inl = len(tvg.inlier_matches)
-                if inl >= cfg.min_pair_inliers:
-                    pose = tvg.cam2_from_cam1
+                pose = tvg.cam2_from_cam1
+                if inl >= cfg.min_pair_inliers and pose is not None:
                     rel = (
                         CV_TO_GL @ np.asarray(pose.rotation.matrix()) @ CV_TO_GL,
                         CV_TO_GL @ np.asarray(pose.translation).reshape(3),
@@ -317,7 +317,9 @@ def _seed(db, a: int, b: int, cfg: ColmapConfig) -> tuple[np.ndarray | None, boo
         kind.PLANAR,  # a wall or the floor dominates: the pose is from the homography
     ):
         return None, verified
-    pose = tvg.cam2_from_cam1
+    pose = tvg.cam2_from_cam1  # None where the matches fit no camera motion
+    if pose is None:
+        return None, verified
     t_cv = np.asarray(pose.translation).reshape(3)
     if not np.linalg.norm(t_cv) > 0:
         return None, verified

@@ -127,6 +127,14 @@ def _two_view(db_path, image_ids, feats, counts, cfg: ColmapConfig, pair_ij=(0, 
         return est
     m = np.asarray(tvg.inlier_matches)
     pose = tvg.cam2_from_cam1
+    if pose is None:  # e.g. one photo upside down or mirrored: no camera motion fits
+        pair.reason = (
+            f"{inliers} matches agree on a geometry, but no camera motion fits it: is one "
+            "photo upside down or mirrored?"
+        )
+        for v in views:
+            v.note = "not registered: no camera motion fits its matches with the other panorama"
+        return est
     rot_cv = np.asarray(pose.rotation.matrix())
     t_cv = np.asarray(pose.translation).reshape(3)
     # OpenGL camera frames: x_gl = F x_cv on both sides.

@@ -120,11 +120,13 @@ def read_opensfm(path: str | Path) -> ImportedPoses:
         data = parse_json(_read_text(path))
     except json.JSONDecodeError as exc:
         raise UserError(f"{path}: not JSON ({exc.msg}, line {exc.lineno})") from None
+    except RecursionError:
+        raise UserError(f"{path}: nested too deeply to be an OpenSfM reconstruction") from None
     if isinstance(data, dict):
         data = [data]
     if not isinstance(data, list) or not all(isinstance(r, dict) for r in data) or not data:
         raise UserError(f"{path}: expected a list of reconstructions")
-    sizes = [len(r.get("shots") or {}) for r in data]
+    sizes = [len(r["shots"]) if isinstance(r.get("shots"), dict) else 0 for r in data]
     rec = data[int(np.argmax(sizes))]
     notes = []
     if len(data) > 1:
@@ -188,19 +190,33 @@ def _chordal_mean(rots: np.ndarray) -> np.ndarray:
     return u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
 
 
+def _number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
 def read_colmap(path: str | Path) -> ImportedPoses:
     """COLMAP images.txt of cube-face views -> one pose per panorama, sorted by stem."""
     path = Path(path)
     lines = [x for x in _read_text(path).splitlines() if not x.startswith("#")]
     faces = face_rotations(torch.float64).numpy()
     per_pano: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {}
-    skipped = []
+    skipped, seen = [], set()
     for k in range(0, len(lines), 2):
         parts = lines[k].split()
         if not parts:
             continue
         if len(parts) < 10:
             raise UserError(f"{path}: expected 'IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME'")
+        after = lines[k + 1].split() if k + 1 < len(lines) else []
+        if len(after) >= 10 and not _number(after[9]):  # POINTS2D lines are all numbers
+            raise UserError(
+                f"{path}: image {parts[0]} is followed by another image line where its POINTS2D "
+                "line belongs (images.txt has two lines per image; the second may be empty)"
+            )
         try:
             qw, qx, qy, qz, tx, ty, tz = (float(x) for x in parts[1:8])
         except ValueError:
@@ -211,6 +227,9 @@ def read_colmap(path: str | Path) -> ImportedPoses:
         if abs(np.linalg.norm(values[:4]) - 1) > 1e-3:
             raise UserError(f"{path}: image {parts[0]}: the quaternion is not unit length")
         name = " ".join(parts[9:])
+        if name in seen:
+            raise UserError(f"{path}: {name} is listed twice")
+        seen.add(name)
         match = _FACE_NAME.match(name)
         if match is None:
             skipped.append(name)

@@ -1,0 +1,103 @@
+"""Hostile input, round 49: a pair whose matches fit no camera motion, names too long for the
+file system, malformed pose files (deep nesting, shots that are a number, a COLMAP images.txt
+without its POINTS2D lines or with a face listed twice, positions near the float limit). Each
+one line and a non-zero exit, nothing written."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from helpers.cli import run_cli as _run
+
+from panogrf.app.poses import colmap
+from panogrf.app.poses.importers import read_colmap, read_opensfm, write_colmap
+from panogrf.assets import path as asset_path
+
+DEMO = asset_path("demo")
+PHOTOS = [str(DEMO / "images" / f"frame_00{k}.png") for k in range(2)]
+
+
+class _Geometry:
+    """A verified pair as COLMAP's database returns it, with no camera motion."""
+
+    inlier_matches = np.zeros((500, 2), np.uint32)
+    cam2_from_cam1 = None
+
+    def __init__(self) -> None:
+        self.config = colmap.load_pycolmap().TwoViewGeometryConfiguration.CALIBRATED
+
+
+class _Database:
+    def exists_two_view_geometry(self, a: int, b: int) -> bool:
+        return True
+
+    def read_two_view_geometry(self, a: int, b: int) -> _Geometry:
+        return _Geometry()
+
+
+def test_a_verified_pair_without_a_camera_motion_seeds_nothing():
+    """An upside-down or mirrored photo: COLMAP verifies the matches (a homography or a
+    fundamental matrix) but gives no pose; the pair is verified, seeds no guided matching."""
+    essential, verified = colmap._seed(_Database(), 1, 2, colmap.ColmapConfig())
+    assert essential is None and verified
+
+
+def test_names_too_long_for_the_file_system_are_one_line(tmp_path, capsys):
+    long = tmp_path / ("x" * 300)
+    code, line = _run(["scene", "from-panoramas", *PHOTOS, "--out", str(long)], capsys)
+    assert code == 2 and "too long" in line.lower() and line.startswith("panogrf")
+    args = ["render", str(DEMO), "--target-frame", "1", "--method", "nearest", "--height", "16"]
+    code, line = _run([*args, "--out", f"{long}.png"], capsys)
+    assert code == 2 and "too long" in line.lower()
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_an_opensfm_file_nested_too_deeply_or_with_shots_that_are_a_number(tmp_path, capsys):
+    deep = tmp_path / "deep.json"
+    deep.write_text("[" * 100000 + "]" * 100000)
+    number = tmp_path / "number.json"
+    number.write_text(json.dumps([{"cameras": {}, "shots": 5}]))
+    for path, words in ((deep, "nested too deeply"), (number, "must be objects keyed by name")):
+        out = tmp_path / "out"
+        argv = ["scene", "import", "--format", "opensfm", str(path), "--out", str(out)]
+        code, line = _run([*argv, "--images", *PHOTOS], capsys)
+        assert code == 2 and words in line and str(path) in line and not out.exists()
+    with pytest.raises(Exception, match="nested too deeply"):
+        read_opensfm(deep)
+
+
+def test_a_colmap_file_without_points_lines_or_with_a_face_twice(tmp_path, capsys):
+    c2w = np.tile(np.eye(4), (2, 1, 1))
+    c2w[1, 0, 3] = 1.0
+    full = tmp_path / "images.txt"
+    write_colmap(full, ["a", "b"], c2w)
+    assert read_colmap(full).names == ["a", "b"]  # as written: two lines per image
+    lines = full.read_text().splitlines()
+    stripped = tmp_path / "no_points.txt"
+    stripped.write_text("\n".join(x for x in lines if x.strip()) + "\n")
+    twice = tmp_path / "twice.txt"
+    image = next(x for x in lines if x and not x.startswith("#"))
+    twice.write_text(full.read_text() + "99 " + image.split(" ", 1)[1] + "\n\n")
+    for path, words in ((stripped, "POINTS2D"), (twice, "a/front.png is listed twice")):
+        out = tmp_path / "out"
+        argv = ["scene", "import", "--format", "colmap", str(path), "--out", str(out)]
+        code, line = _run([*argv, "--images", *PHOTOS], capsys)
+        assert code == 2 and words in line and str(path) in line and not out.exists()
+
+
+def test_positions_near_the_float_limit_are_one_line_without_warnings(tmp_path, capsys):
+    poses = tmp_path / "huge.txt"
+    poses.write_text("0 0 0 0 0 0 0 1\n1 1e308 -1e308 1e308 0 0 0 1\n")
+    out = tmp_path / "out"
+    argv = ["scene", "import", "--format", "tum", str(poses), "--out", str(out)]
+    try:
+        from panogrf.app.cli import main
+
+        code = main([*argv, "--images", *PHOTOS])
+    except SystemExit as exc:
+        code = int(exc.code or 0)
+    err = capsys.readouterr().err
+    assert code == 2 and not out.exists()
+    assert "Warning" not in err and len(err.strip().splitlines()) == 1, err
