@@ -268,7 +268,8 @@ def check_output(path: str | os.PathLike[str], option: str = "--out", folder: bo
     except OSError as exc:
         raise UserError(f"{option} {path}: {exc.strerror or exc}") from None
     if not parent.is_dir():
-        raise UserError(f"{option}: folder {parent} does not exist")
+        what = "is a file, not a folder" if parent.exists() else "does not exist"
+        raise UserError(f"{option}: folder {parent} {what}")
     if not os.access(parent, os.W_OK | os.X_OK):
         raise UserError(f"{option}: folder {parent} is not writable")
     if folder and path.exists() and not path.is_dir():

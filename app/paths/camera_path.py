@@ -200,6 +200,8 @@ def _raise(path: Path, problems: list[str]) -> None:
 def read_camera_path(path: str | os.PathLike[str]) -> CameraPath:
     """Read and validate a nerfstudio ``camera_path.json``; `UserError` lists every problem."""
     path = Path(path)
+    if path.is_dir():
+        raise UserError(f"{path}: a folder, not a camera path file")
     if not path.is_file():
         raise UserError(f"{path}: camera path file not found")
     try:

@@ -101,3 +101,16 @@ def test_positions_near_the_float_limit_are_one_line_without_warnings(tmp_path, 
     err = capsys.readouterr().err
     assert code == 2 and not out.exists()
     assert "Warning" not in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_a_folder_as_a_camera_path_and_an_output_under_a_file_say_so(tmp_path, capsys):
+    args = ["render", str(DEMO), "--method", "nearest"]
+    code, line = _run([*args, "--camera-path", str(tmp_path), "--out", str(tmp_path / "v.mp4")],
+                      capsys)  # fmt: skip
+    assert code == 2 and line.endswith(f"{tmp_path}: a folder, not a camera path file")
+    keep = tmp_path / "keep.mp4"
+    keep.write_bytes(b"an older video")
+    args += ["--height", "16", "--target-frame", "1"]
+    code, line = _run([*args, "--out", str(keep / "x.png")], capsys)
+    assert code == 2 and line.endswith(f"folder {keep} is a file, not a folder")
+    assert keep.read_bytes() == b"an older video"
