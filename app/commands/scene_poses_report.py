@@ -11,6 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
+from panogrf.app.poses.colmap import ColmapConfig
+
 #: What to do when panoramas cannot be posed (the failure's one line ends with it).
 ADVICE = (
     "try a photo between the two (each pair should share most of the room: 1-3 m apart "
@@ -33,10 +35,12 @@ def _deg(value: float | None) -> str:
 def pose_report(files: list[Path], est) -> list[str]:
     """The printed report of a `ColmapEstimate`: a line per pair and per view."""
     lines = [f"posing (COLMAP {est.mapper or 'mappers'}, {est.seconds:.1f} s):", "pairs:"]
-    failed = [p for p in est.pairs if not p.ok]
     # A home of many photos has hundreds of pairs that share nothing: those are counted here
-    # and each is in the report's file.
-    listed = [p for p in est.pairs if p.ok or len(failed) <= MAX_LISTED_FAILURES]
+    # and each is in the report's file. A pair that failed for another reason is printed.
+    least = ColmapConfig.min_pair_inliers
+    few = [p for p in est.pairs if not p.ok and p.inliers < least]
+    hidden = {(p.i, p.j) for p in few} if len(few) > MAX_LISTED_FAILURES else set()
+    listed = [p for p in est.pairs if (p.i, p.j) not in hidden]
     for p in listed:
         state = (
             f"ok, {p.inliers} inliers, {p.shared_points} shared points, "
@@ -50,10 +54,10 @@ def pose_report(files: list[Path], est) -> list[str]:
                 f" at its peak, at most {p.level_search[1]} elsewhere)"
             )
         lines.append(f"  {files[p.i].name} - {files[p.j].name}: {p.matches} matches; {state}")
-    if len(listed) < len(est.pairs):
+    if hidden:
         lines.append(
-            f"  {len(failed)} other pairs: no geometry (they share too little; each, with its "
-            f"matches and why, is in {REPORT})"
+            f"  {len(hidden)} other pairs: fewer than {least} matches agree on a geometry (they "
+            f"share too little; each, with its matches, is in {REPORT})"
         )
     lines.append("views:")
     lines += [f"  {files[v.index].name}: {v.note}" for v in est.views]

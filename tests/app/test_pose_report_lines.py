@@ -36,10 +36,15 @@ def _estimate(views: int, ok: set[tuple[int, int]]) -> ColmapEstimate:
 def test_a_home_of_many_photos_prints_its_posed_pairs_and_counts_the_rest():
     files = [Path(f"p{k:02d}.jpg") for k in range(12)]
     est = _estimate(12, {(0, 1), (1, 2), (5, 9)})
+    odd = next(p for p in est.pairs if (p.i, p.j) == (0, 4))  # many inliers, yet failed
+    odd.inliers, odd.reason = 95, "its place in the reconstruction disagrees with its geometry"
     lines = pose_report(files, est)
-    assert sum("FAILED" in line for line in lines) == 0
+    assert [line for line in lines if "FAILED" in line] == [
+        "  p00.jpg - p04.jpg: 100 matches; FAILED: its place in the reconstruction disagrees "
+        "with its geometry"
+    ]
     assert sum(": 100 matches; ok" in line for line in lines) == 3
-    assert "  63 other pairs: no geometry" in "\n".join(lines)  # 66 pairs, 3 posed
+    assert "  62 other pairs: fewer than 30 matches agree" in "\n".join(lines)  # 66, 3 posed
 
 
 def test_a_triplet_prints_every_failed_pair():
