@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from panogrf.app.commands import scene_faces, scene_poses, scene_prepare
+from panogrf.app.commands import scene_faces, scene_poses, scene_poses_report, scene_prepare
 from panogrf.app.errors import UserError
 from panogrf.app.options import add_options, from_args, option
 from panogrf.app.scene.folder import TRANSFORMS, SceneReport, inspect_scene
@@ -42,15 +42,7 @@ def _baseline_lines(report: SceneReport) -> list[str]:
             f"    {names[a]} - {names[b]}: {np.linalg.norm(centres[a] - centres[b]):.3f}"
             for a, b in pairs
         ]
-    dist = np.linalg.norm(centres[:, None] - centres[None], axis=-1)
-    np.fill_diagonal(dist, np.inf)
-    nearest = dist.min(axis=1)
-    dist[np.isinf(dist)] = 0.0
-    return [
-        f"  nearest-neighbour baselines (m): min {nearest.min():.3f}, "
-        f"median {np.median(nearest):.3f}, max {nearest.max():.3f}; "
-        f"largest pairwise {dist.max():.3f}"
-    ]
+    return [f"  nearest-neighbour baselines (m): {scene_poses_report.nearest_baselines(centres)}"]
 
 
 def _summary(report: SceneReport) -> list[str]:

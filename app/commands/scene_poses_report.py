@@ -110,11 +110,17 @@ def _baselines(c2w: np.ndarray) -> str:
     if len(c) <= 5:
         pairs = itertools.combinations(range(len(c)), 2)
         return ", ".join(f"{i}-{j} {np.linalg.norm(c[i] - c[j]):.3f}" for i, j in pairs)
-    dist = np.linalg.norm(c[:, None] - c[None], axis=-1)
+    return f"to each view's nearest {nearest_baselines(c)}"
+
+
+def nearest_baselines(centres: np.ndarray) -> str:
+    """The distance from each of the centres [V, 3] (two or more) to its nearest: its least,
+    median and greatest, and the greatest distance of any two."""
+    dist = np.linalg.norm(centres[:, None] - centres[None], axis=-1)
     largest = dist.max()
     np.fill_diagonal(dist, np.inf)
     near = dist.min(axis=1)
     return (
-        f"to each view's nearest min {near.min():.3f}, median {np.median(near):.3f}, "
-        f"max {near.max():.3f}; largest pairwise {largest:.3f}"
+        f"min {near.min():.3f}, median {np.median(near):.3f}, max {near.max():.3f}; "
+        f"largest pairwise {largest:.3f}"
     )
