@@ -100,12 +100,17 @@ def estimate_poses_colmap(
 def load_pycolmap():
     """``pycolmap``, imported after the system's zlib: the wheel's extension brings zlib
     symbols of its own, and a process that loads it first and then writes a PNG with Pillow
-    (matplotlib, the viewer's screenshots) aborts in ``deflateEnd``."""
+    (matplotlib, the viewer's screenshots) aborts in ``deflateEnd``. Its logging library takes
+    over SIGTERM to print a page of C++ stack trace; the default (end quietly) is put back."""
+    import signal
+    import threading
     import zlib  # noqa: F401 - loads the system's libz first
 
     import PIL.Image  # noqa: F401
     import pycolmap
 
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, signal.getsignal(signal.SIGTERM))
     return pycolmap
 
 

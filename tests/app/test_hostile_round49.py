@@ -114,3 +114,17 @@ def test_a_folder_as_a_camera_path_and_an_output_under_a_file_say_so(tmp_path, c
     code, line = _run([*args, "--out", str(keep / "x.png")], capsys)
     assert code == 2 and line.endswith(f"folder {keep} is a file, not a folder")
     assert keep.read_bytes() == b"an older video"
+
+
+def test_a_process_that_loaded_colmap_ends_quietly_on_sigterm():
+    """`timeout` or a service manager stopping a posing: no page of C++ stack trace from
+    COLMAP's logging library, the signal's default end."""
+    import subprocess
+    import sys
+
+    code = (
+        "from panogrf.app.poses.colmap import load_pycolmap; load_pycolmap(); "
+        "import os, signal; os.kill(os.getpid(), signal.SIGTERM)"
+    )
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert run.returncode == -15 and run.stderr == ""
