@@ -292,13 +292,13 @@ def _run(images, cfg: ColmapConfig, say, work: Path) -> ColmapEstimate:
     say("mapping", 0, 1)
     pano_of = {image_ids[k]: k for k in range(v_count)}
     if v_count == 2:  # COLMAP's mappers want more than one pair: the verified pair is it
-        est = _two_view(db_path, image_ids, feats, counts, cfg)
+        est = _two_view(db_path, image_ids, feats, counts, cfg, w)
     else:
         recs = _map(db_path, image_dir, work, cfg)
         est = _collect(recs, v_count, pano_of, counts, cfg, w, relatives)
         if est.registered.sum() < 2:  # no graph of pairs: the best pair alone, if it holds
             best = max(counts, key=lambda ij: counts[ij][1])
-            est = _two_view(db_path, image_ids, feats, counts, cfg, best)
+            est = _two_view(db_path, image_ids, feats, counts, cfg, w, best)
     for p in est.pairs:
         p.level_search = level.get((p.i, p.j))
     say("mapping", 1, 1)

@@ -24,7 +24,10 @@ if TYPE_CHECKING:
 
 #: Median angle (degrees) by which a verified pair's matches miss a turn alone, below which the
 #: two were taken from one spot: a step of 0.1 m in a small room already gives about 2 degrees.
+#: Or half a pixel at the equator, if that is more: a copy of a 512-column photo saved again
+#: with fewer colours moves its keypoints by 0.2 degrees.
 NO_PARALLAX_DEG = 0.2
+NO_PARALLAX_PX = 0.5
 
 
 @dataclass
@@ -80,7 +83,7 @@ class ColmapEstimate:
         return [v.note for v in self.views]
 
 
-def _two_view(db_path, image_ids, feats, counts, cfg: ColmapConfig, pair_ij=(0, 1)):
+def _two_view(db_path, image_ids, feats, counts, cfg: ColmapConfig, width: int, pair_ij=(0, 1)):
     """One pair of the panoramas (the only pair, or the best one when COLMAP's mappers, which
     want a graph of pairs, build nothing): COLMAP's verified relative pose, its inliers
     triangulated, and both poses refined together on angular residuals. The other panoramas
@@ -141,9 +144,12 @@ def _two_view(db_path, image_ids, feats, counts, cfg: ColmapConfig, pair_ij=(0, 
     rot, t = CV_TO_GL @ rot_cv @ CV_TO_GL, CV_TO_GL @ t_cv
     t = t / max(np.linalg.norm(t), 1e-12)
     b1, b2 = feats[i].bearings[m[:, 0]], feats[j].bearings[m[:, 1]]
-    # The same spot twice (a turned or re-saved copy): a turn alone explains the matches.
-    off = float(np.median(np.degrees(np.arccos(np.clip(((b1 @ rot.T) * b2).sum(1), -1, 1)))))
-    if off < NO_PARALLAX_DEG:
+    # The same spot twice (a turned or re-saved copy): a turn alone explains the matches. The
+    # turn that fits them best, not COLMAP's, whose rotation is ill-posed without a baseline.
+    u, _, vt = np.linalg.svd(b2.T @ b1)
+    turn = u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt  # b2 ~ turn b1
+    off = float(np.median(np.degrees(np.arccos(np.clip(((b1 @ turn.T) * b2).sum(1), -1, 1)))))
+    if off < max(NO_PARALLAX_DEG, NO_PARALLAX_PX * 360.0 / width):
         pair.reason = (
             f"no parallax: {len(m)} verified matches agree with a turn alone (median "
             f"{off:.3f} deg off it): taken from one spot"

@@ -128,3 +128,18 @@ def test_a_process_that_loaded_colmap_ends_quietly_on_sigterm():
     )
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert run.returncode == -15 and run.stderr == ""
+
+
+def test_a_photo_saved_again_with_fewer_colours_is_taken_from_one_spot(tmp_path, capsys):
+    """A re-encoded copy moves its keypoints by a fifth of a degree at 512 columns: still one
+    spot (the turn that fits the matches best, within half a pixel), not a pose 3 cm away or
+    points behind a camera."""
+    from PIL import Image
+
+    photo = Image.open(PHOTOS[0]).convert("RGB")
+    photo.save(tmp_path / "a.png")
+    photo.convert("P").convert("RGB").save(tmp_path / "a_copy.png")
+    out = tmp_path / "out"
+    argv = ["scene", "from-panoramas", str(tmp_path / "a.png"), str(tmp_path / "a_copy.png")]
+    code, line = _run([*argv, "--out", str(out)], capsys)
+    assert code == 2 and "taken from one spot" in line and not out.exists()
