@@ -63,6 +63,8 @@ def read_panoramas(paths: list[Path]) -> Panoramas:
             h, w = img.shape[:2]
             if w != 2 * h:
                 raise UserError(f"{path}: {w}x{h} is not a 2:1 equirectangular panorama")
+            if h < 32:  # its cube faces would be a few pixels: nothing to match
+                raise UserError(f"{path}: {w}x{h} is too small to pose (at least 64x32)")
             images.append(img)
             progress.advance()
     return _at_smallest(images)

@@ -205,7 +205,7 @@ def read_camera_path(path: str | os.PathLike[str]) -> CameraPath:
     if not path.is_file():
         raise UserError(f"{path}: camera path file not found")
     try:
-        data = parse_json(path.read_text(encoding="utf-8"))
+        data = parse_json(path.read_text(encoding="utf-8-sig"))
     except UnicodeDecodeError:
         raise UserError(f"{path}: not UTF-8 text") from None
     except OSError as exc:

@@ -67,7 +67,7 @@ def _pose(rot_c2w_cv: np.ndarray, centre: np.ndarray) -> np.ndarray:
 
 def _read_text(path: Path) -> str:
     try:
-        return Path(path).read_text()
+        return Path(path).read_text(encoding="utf-8-sig")
     except (OSError, UnicodeDecodeError) as exc:
         raise UserError(f"{path}: cannot read ({exc.__class__.__name__})") from None
 

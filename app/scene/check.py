@@ -230,7 +230,7 @@ def _read_transforms(root: Path, problems: list[str]) -> dict | None:
         problems.append(f"{TRANSFORMS}: file not found in {root}")
         return None
     try:
-        data = parse_json(path.read_text(encoding="utf-8"))
+        data = parse_json(path.read_text(encoding="utf-8-sig"))
     except UnicodeDecodeError:
         problems.append(f"{TRANSFORMS}: not UTF-8 text")
         return None

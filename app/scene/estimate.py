@@ -213,7 +213,7 @@ def estimate_scene(
     clamped = [float(x) for x in out_of_range.flatten(1).float().mean(dim=1)]
     sources = [[names[j] for j in src] for src in est.sources]
     stems = _unique_stems(names)
-    raw = parse_json((scene_root / TRANSFORMS).read_text(encoding="utf-8"))
+    raw = parse_json((scene_root / TRANSFORMS).read_text(encoding="utf-8-sig"))
     meta = {
         "mode": mode,
         "weights": dict(weights or {}),

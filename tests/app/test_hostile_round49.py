@@ -6,6 +6,7 @@ one line and a non-zero exit, nothing written."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -143,3 +144,33 @@ def test_a_photo_saved_again_with_fewer_colours_is_taken_from_one_spot(tmp_path,
     argv = ["scene", "from-panoramas", str(tmp_path / "a.png"), str(tmp_path / "a_copy.png")]
     code, line = _run([*argv, "--out", str(out)], capsys)
     assert code == 2 and "taken from one spot" in line and not out.exists()
+
+
+def test_a_camera_path_or_a_scene_saved_with_a_byte_order_mark_is_read(tmp_path, capsys):
+    """Windows editors save UTF-8 with a byte order mark: JSON files the user hands over are
+    read with or without one."""
+    import shutil
+
+    from panogrf.app.paths.camera_path import read_camera_path
+    from panogrf.app.scene.folder import load_scene
+
+    scene = Path(shutil.copytree(DEMO, tmp_path / "scene"))
+    text = (scene / "transforms.json").read_text(encoding="utf-8")
+    (scene / "transforms.json").write_text("\ufeff" + text, encoding="utf-8")
+    assert load_scene(scene).num_views == 3
+    c2w = load_scene(scene).c2w[0].reshape(-1).tolist()
+    path = {"camera_type": "equirectangular", "render_height": 16, "render_width": 32, "fps": 1,
+            "seconds": 1, "camera_path": [{"camera_to_world": c2w}]}  # fmt: skip
+    bom = tmp_path / "path.json"
+    bom.write_text("\ufeff" + json.dumps(path), encoding="utf-8")
+    assert len(read_camera_path(bom).poses) == 1
+
+
+def test_a_panorama_of_a_few_pixels_is_too_small_to_pose(tmp_path, capsys):
+    from panogrf.app.files.images import write_rgb
+
+    tiny = tmp_path / "tiny.png"
+    write_rgb(tiny, np.zeros((1, 2, 3), np.uint8))
+    out = tmp_path / "out"
+    code, line = _run(["scene", "from-panoramas", PHOTOS[0], str(tiny), "--out", str(out)], capsys)
+    assert code == 2 and line.endswith(f"{tiny}: 2x1 is too small to pose (at least 64x32)")
