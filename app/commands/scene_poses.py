@@ -50,10 +50,10 @@ class Panoramas(NamedTuple):
         return f"resized to the smallest photo's {w}x{h}: {names}"
 
 
-def read_panoramas(paths: list[Path]) -> Panoramas:
+def read_panoramas(paths: list[Path], least_rows: int = 1) -> Panoramas:
     """Panorama files -> uint8 [V, 3, H, W] at the smallest one's size (larger ones
     area-averaged down: photos from two cameras, or one re-exported, still make a scene);
-    UserError naming the file for any bad one."""
+    UserError naming the file for any bad one (or one under ``least_rows``)."""
     from panogrf.model.progress import stage
 
     images = []
@@ -63,7 +63,7 @@ def read_panoramas(paths: list[Path]) -> Panoramas:
             h, w = img.shape[:2]
             if w != 2 * h:
                 raise UserError(f"{path}: {w}x{h} is not a 2:1 equirectangular panorama")
-            if h < 32:  # its cube faces would be a few pixels: nothing to match
+            if h < least_rows:
                 raise UserError(f"{path}: {w}x{h} is too small to pose (at least 64x32)")
             images.append(img)
             progress.advance()
@@ -263,7 +263,7 @@ def run_from_panoramas(parsed: argparse.Namespace) -> int:
     if len(files) < 2:
         raise UserError(f"{files[0]}: one panorama; poses need at least two of the same place")
     _check_out(args.out)
-    read = read_panoramas(files)
+    read = read_panoramas(files, least_rows=32)  # smaller: cube faces of a few pixels
     images = read.images
     _refuse_repeats(files, images)
     n = len(files)
