@@ -44,17 +44,13 @@ def top_k_pairs(score: np.ndarray, k: int) -> set[tuple[int, int]]:
 
 def linked(pairs: list[tuple[int, int]], v: int) -> int:
     """Photos in the largest group the pairs link."""
-    group = list(range(v))
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
 
-    def root(k: int) -> int:
-        while group[k] != k:
-            k = group[k]
-        return k
-
-    for i, j in pairs:
-        group[root(i)] = root(j)
-    roots = [root(k) for k in range(v)]
-    return max(roots.count(r) for r in set(roots))
+    rows, cols = zip(*pairs, strict=True) if pairs else ((), ())
+    graph = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(v, v))
+    _, labels = connected_components(graph, directed=False)
+    return int(np.bincount(labels).max())
 
 
 def main() -> None:

@@ -64,7 +64,8 @@ def read_panoramas(paths: list[Path], least_rows: int = 1) -> Panoramas:
             if w != 2 * h:
                 raise UserError(f"{path}: {w}x{h} is not a 2:1 equirectangular panorama")
             if h < least_rows:
-                raise UserError(f"{path}: {w}x{h} is too small to pose (at least 64x32)")
+                least = f"{2 * least_rows}x{least_rows}"
+                raise UserError(f"{path}: {w}x{h} is too small to pose (at least {least})")
             images.append(img)
             progress.advance()
     return _at_smallest(images)
