@@ -4,7 +4,9 @@ Each subcommand module exposes ``register(subparsers)``, which adds its parser a
 ``func`` (called with the parsed namespace, returns an exit code). A `UserError` anywhere
 becomes a one-line message on stderr and exit status 2, running out of memory (sizes asked
 for that this machine cannot hold) one as well, with status 1; a reader that goes away
-(``| head``) ends the command quietly.
+(``| head``) ends the command quietly. SIGTERM and SIGHUP (a service manager, a closed
+terminal, ``timeout``) end it as Ctrl-C does, through every ``finally`` (temporary folders
+removed, half-written outputs undone), and then by the signal itself.
 """
 
 from __future__ import annotations
@@ -13,7 +15,9 @@ import argparse
 import importlib
 import os
 import re
+import signal
 import sys
+import threading
 
 from panogrf.app.errors import UserError
 from panogrf.app.runtime import keep_freed_memory
@@ -65,7 +69,38 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     return args
 
 
+class _Stopped(BaseException):
+    """SIGTERM or SIGHUP, raised in the main thread so that every ``finally`` runs."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signum)
+        self.signum = signum
+
+
+def _raise_stopped(signum: int, _frame) -> None:
+    raise _Stopped(signum)
+
+
 def main(argv: list[str] | None = None) -> int:
+    """The command line; SIGTERM and SIGHUP are caught while it runs (`_Stopped`), where they
+    would end the process at once (not where the user ignores them: ``nohup``)."""
+    caught = {}
+    if threading.current_thread() is threading.main_thread():
+        for sig in (signal.SIGTERM, signal.SIGHUP):
+            if signal.getsignal(sig) is signal.SIG_DFL:
+                caught[sig] = signal.signal(sig, _raise_stopped)
+    try:
+        return _main(argv)
+    except _Stopped as stop:
+        signal.signal(stop.signum, signal.SIG_DFL)
+        os.kill(os.getpid(), stop.signum)  # ends as the signal would have, after the cleanup
+        return 128 + stop.signum
+    finally:
+        for sig, old in caught.items():
+            signal.signal(sig, old)
+
+
+def _main(argv: list[str] | None) -> int:
     # A file name that is not valid text (a lone surrogate from the file system or a JSON
     # escape) prints escaped rather than failing in the middle of a report.
     for stream in (sys.stdout, sys.stderr):

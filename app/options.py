@@ -23,10 +23,12 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import os
 import types
 import typing
 from collections.abc import Callable
 from enum import StrEnum
+from pathlib import Path
 from typing import Any
 
 _KEY = "panogrf.option"
@@ -139,7 +141,15 @@ def _parse(cls: type, field: dataclasses.Field, opt: Option) -> Callable[[str], 
     if opt.parse is not None:
         return opt.parse
     kind = _value_type(cls, field.name)
+    if kind is Path:
+        return user_path
     return _member_of(kind) if isinstance(kind, type) and issubclass(kind, StrEnum) else kind
+
+
+def user_path(text: str) -> Path:
+    """A path as typed, ``~`` and ``~user`` at its start expanded as a shell would: the shell
+    leaves ``--out=~/scene`` as it is, and a folder named ``~`` is never what was meant."""
+    return Path(os.path.expanduser(text)) if text.startswith("~") else Path(text)
 
 
 def _choices(opt: Option) -> tuple | None:

@@ -130,11 +130,17 @@ class ThreadOptions:
 def folder_path(text: str) -> Path:
     """argparse type of a folder option: a path, not an empty string (which would be the
     current folder without a word) nor a file that exists."""
+    from panogrf.app.options import user_path
+
     if not text.strip():
         raise argparse.ArgumentTypeError("expected a folder, got an empty string")
-    path = Path(text)
+    path = user_path(text)
     if path.exists() and not path.is_dir():
         raise argparse.ArgumentTypeError(f"{path} is a file, expected a folder")
+    if path.is_symlink() and not path.exists():  # a cache on a drive that is not mounted
+        raise argparse.ArgumentTypeError(
+            f"{path} is a link to {path.readlink()}, which does not exist"
+        )
     return path
 
 

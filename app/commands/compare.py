@@ -18,6 +18,7 @@ import torch
 from panogrf.app.errors import UserError
 from panogrf.app.files.images import ImageReadError, read_pixels
 from panogrf.app.options import add_options, from_args, option
+from panogrf.app.runtime import resolve_device
 from panogrf.model.lpips import MIN_SIZE as LPIPS_MIN_SIZE
 from panogrf.model.metrics import psnr, ssim, ws_psnr
 
@@ -58,7 +59,7 @@ class CompareConfig:
     """The second image."""
     json: bool = option(False, "print one JSON object instead")
     """Print one JSON object instead of lines of text."""
-    device: str = option("cpu", "torch device for LPIPS, e.g. cuda (default: cpu)")
+    device: str = option("cpu", "device for LPIPS: auto, cpu, cuda or cuda:N (default: cpu)")
     """The torch device LPIPS runs on."""
 
     def __post_init__(self) -> None:
@@ -66,8 +67,9 @@ class CompareConfig:
         self.torch_device()
 
     def torch_device(self) -> str:
-        """The device LPIPS runs on, if torch can use it here; `UserError` otherwise."""
-        return _check_device(self.device)
+        """The device LPIPS runs on, if this tool can use it here (as every command's
+        ``--device``: `panogrf.app.runtime.resolve_device`); `UserError` otherwise."""
+        return str(resolve_device(self.device))
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -178,17 +180,6 @@ def _format_text(path_a: Path, path_b: Path, a: LoadedImage, b: LoadedImage, res
     ]
     lines += [f"note: {n}" for n in result["notes"]]
     return "\n".join(lines)
-
-
-def _check_device(name: str) -> str:
-    """The --device argument, if torch can use it here; UserError otherwise."""
-    try:
-        device = torch.device(name)
-    except RuntimeError as exc:
-        raise UserError(f"unknown device {name!r} (try cpu or cuda)") from exc
-    if device.type == "cuda" and not torch.cuda.is_available():
-        raise UserError(f"device {name!r} requested but CUDA is not available here")
-    return str(device)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -13,7 +13,7 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 
 from panogrf.app.errors import UserError
-from panogrf.app.options import add_options, from_args, option
+from panogrf.app.options import add_options, from_args, option, user_path
 from panogrf.app.runtime import metres_list, number
 
 
@@ -181,7 +181,9 @@ class MergeOptions:
 
     out: Path = option(help="the merged dataset folder")
     """The merged dataset folder."""
-    sources: list = option(help="dataset folders to merge", positional=True, nargs="+", parse=Path)
+    sources: list = option(
+        help="dataset folders to merge", positional=True, nargs="+", parse=user_path
+    )
     """The dataset folders to merge."""
 
 

@@ -47,7 +47,7 @@ MAX_FRAME = (2 * MAX_HEIGHT, MAX_HEIGHT)
 def parse_c2w(text: str) -> np.ndarray:
     """16 numbers (row-major 4x4 camera-to-world) -> a validated rigid [4, 4] float64."""
     try:
-        values = [float(x) for x in text.replace(",", " ").split()]
+        values = [float(x) for x in text.translate(str.maketrans("[](),;", "      ")).split()]
     except ValueError:
         raise UserError(f"--c2w: expected 16 numbers, got {text!r}") from None
     if len(values) != 16:
@@ -58,8 +58,10 @@ def parse_c2w(text: str) -> np.ndarray:
     rot = m[:3, :3]
     if not np.allclose(m[3], [0, 0, 0, 1], atol=1e-6):
         raise UserError(f"--c2w: the last row must be 0 0 0 1, got {m[3].tolist()}")
-    if not np.allclose(rot.T @ rot, np.eye(3), atol=1e-4) or np.linalg.det(rot) < 0:
-        raise UserError("--c2w: the upper-left 3x3 is not a rotation")
+    off, det = np.abs(rot.T @ rot - np.eye(3)).max(), np.linalg.det(rot)
+    if off > 1e-4 or det < 0:  # a rotation typed to 3 decimals is off by about 1e-3
+        why = f"max |R^T R - I| = {off:.2g}, det {det:.3g}; rotations to 6 decimals, no scale"
+        raise UserError(f"--c2w: the upper-left 3x3 is not a rotation ({why})")
     if np.abs(m[:3, 3]).max() > MAX_POSITION_M:
         raise UserError(f"--c2w: the position is farther than {MAX_POSITION_M:g} m from the origin")
     return m

@@ -11,7 +11,7 @@ from pathlib import Path
 
 from panogrf.app.commands.scene_poses import read_panoramas
 from panogrf.app.errors import UserError
-from panogrf.app.options import add_options, from_args, option
+from panogrf.app.options import add_options, from_args, option, user_path
 from panogrf.app.runtime import number
 
 
@@ -58,7 +58,7 @@ class FacesOptions:
     """`panogrf scene faces`' options."""
 
     panoramas: list[Path] = option(
-        help="", positional=True, metavar="PANORAMA", nargs="+", parse=Path
+        help="", positional=True, metavar="PANORAMA", nargs="+", parse=user_path
     )
     out: Path = option(help="output folder")
     size: int = option(0, help="face size in px (default W / 4)", parse=number(int, 0, 8192))

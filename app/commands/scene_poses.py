@@ -18,8 +18,8 @@ import numpy as np
 
 from panogrf.app.commands import scene_poses_report as rep
 from panogrf.app.errors import UserError
-from panogrf.app.files.images import read_rgb
-from panogrf.app.options import add_options, from_args, option
+from panogrf.app.files.images import read_rgb, turned_note
+from panogrf.app.options import add_options, from_args, option, user_path
 from panogrf.app.poses import scale as sc
 from panogrf.app.runtime import number
 
@@ -62,7 +62,7 @@ def read_panoramas(paths: list[Path], least_rows: int = 1) -> Panoramas:
             img = read_rgb(path)  # ImageReadError (a UserError) names the file
             h, w = img.shape[:2]
             if w != 2 * h:
-                raise UserError(f"{path}: {w}x{h} is not a 2:1 equirectangular panorama")
+                raise UserError(f"{path}: {w}x{h} is not a 2:1 panorama{turned_note(path)}")
             if h < least_rows:
                 least = f"{2 * least_rows}x{least_rows}"
                 raise UserError(f"{path}: {w}x{h} is too small to pose (at least {least})")
@@ -211,7 +211,7 @@ class ImportOptions:
         None,
         help="the panoramas: TUM in line order; OpenSfM by file name (default: images/ beside "
         "the JSON); COLMAP by stem (the <panorama> of <panorama>/<face>.png)",
-        parse=Path,
+        parse=user_path,
         nargs="+",
     )
     out: Path = option(help="scene folder to write")
@@ -359,7 +359,7 @@ class FromPanoramasOptions:
     """`panogrf scene from-panoramas`' options."""
 
     panoramas: list[Path] = option(
-        help="", positional=True, metavar="PANORAMA", nargs="+", parse=Path
+        help="", positional=True, metavar="PANORAMA", nargs="+", parse=user_path
     )
     out: Path = option(help="scene folder to write")
     camera_height: str | None = option(

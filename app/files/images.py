@@ -68,6 +68,21 @@ def read_pixels(path: Path) -> np.ndarray:
     return pixels
 
 
+def turned_note(path: Path) -> str:
+    """`` (...)`` where the file's EXIF orientation tag turns it by 90 degrees (viewers show
+    it turned; its pixels are stored as they are and read so), else ``""``."""
+    try:
+        from PIL import Image
+
+        with Image.open(path) as img:
+            tag = img.getexif().get(0x0112)
+    except Exception:  # noqa: BLE001 - no tag to tell of
+        return ""
+    if tag not in (5, 6, 7, 8):
+        return ""
+    return " (its EXIF orientation tag turns it by 90 degrees for viewers: save it turned)"
+
+
 #: Largest image decoded (a 16K panorama): a header can declare a size its few compressed
 #: bytes expand to (a 40000x20000 PNG of 2 MB took 30 s and 5 GB to decode).
 MAX_SIDE = 16384

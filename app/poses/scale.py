@@ -12,6 +12,7 @@ between two capture centres, or from a stated assumed camera height.
 
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass
 
 import numpy as np
@@ -162,6 +163,10 @@ def parse_distance(text: str, views: int) -> tuple[int, int, float]:
     return i, j, m
 
 
+#: Camera heights above this many metres are warned about (a unit mistake, most likely).
+HIGH_CAMERA_M = 5.0
+
+
 def parse_heights(text: str, views: int) -> np.ndarray:
     """``"1.6"`` (every view) or ``"1.6,1.62,1.7"`` (one per view) -> heights [V] in metres."""
     try:
@@ -175,6 +180,13 @@ def parse_heights(text: str, views: int) -> np.ndarray:
     heights = np.array(values)
     if not np.all(np.isfinite(heights) & (heights > 0)):
         raise UserError(f"--camera-height {text}: heights must be positive metres")
+    if heights.max() > HIGH_CAMERA_M:  # 160 for a camera 160 cm up: a scene 100 times too big
+        print(
+            f"warning: --camera-height {text}: {heights.max():g} m above the floor; heights "
+            f"are in metres ({heights.max() / 100:g} for {heights.max():g} cm)",
+            file=sys.stderr,
+            flush=True,
+        )
     return heights
 
 

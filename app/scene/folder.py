@@ -206,19 +206,21 @@ def write_scene(
 
 
 def write_new_scene(out: Path, c2w: np.ndarray, *args: Any, **kwargs: Any) -> None:
-    """`write_scene` into ``out``, a folder that is absent or empty; on a failed write (a full
-    disk) what was written goes again, so the same command can run again, and the error is
-    one line (UserError). Photos kilometres apart are warned about (`far_apart_warning`): a
-    unit mistake is best caught where the poses come in."""
+    """`write_scene` into ``out``, a folder that is absent or empty; on a failed or interrupted
+    write (a full disk, Ctrl-C) what was written goes again, so the same command can run
+    again; a failed write's error is one line (UserError). Photos kilometres apart are warned
+    about (`far_apart_warning`): a unit mistake is best caught where the poses come in."""
     existed = out.exists()
     try:
         write_scene(out, c2w, *args, **kwargs)
-    except OSError as exc:
+    except BaseException as exc:  # a full disk, Ctrl-C, SIGTERM: no half scene is left
         if existed:
             for item in out.iterdir():
-                shutil.rmtree(item) if item.is_dir() else item.unlink()
+                shutil.rmtree(item, ignore_errors=True) if item.is_dir() else item.unlink()
         else:
             shutil.rmtree(out, ignore_errors=True)
-        raise UserError(f"cannot write {out}: {exc.strerror or exc}") from None
+        if isinstance(exc, OSError):
+            raise UserError(f"cannot write {out}: {exc.strerror or exc}") from None
+        raise
     if (far := far_apart_warning(c2w)) is not None:
         _warn(out, [f"{TRANSFORMS}: {far}"])

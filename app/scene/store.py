@@ -18,8 +18,11 @@ renderer's objects; the caller hands what it returns to them.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
+import re
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -201,6 +204,8 @@ class DiskStore:
         path = self.where(key)
         if not path.exists():
             return None
+        if not os.access(path, os.R_OK):  # safetensors would call it a missing file
+            raise Unusable("unreadable (no permission to read it)")
         try:
             tensors = load_file(str(path))
             meta = _metadata(path)
@@ -223,8 +228,37 @@ class DiskStore:
         tensors["__key__"] = torch.tensor(list(key.encode()), dtype=torch.uint8)
         path = self.where(key)
         path.parent.mkdir(parents=True, exist_ok=True)
+        _sweep_safetensors_temporaries(path.parent)
         with atomic_output(path) as tmp:
+            Path(tmp).touch()  # made as open() makes a file: its mode follows the umask
+            mode = os.stat(tmp).st_mode & 0o777
             save_file(tensors, str(tmp), metadata=meta)
+            with contextlib.suppress(OSError):  # a file system without modes keeps its own
+                os.chmod(tmp, mode)  # safetensors writes through a private temporary (0600)
+
+
+#: safetensors writes through a temporary of its own (``.tmpXXXXXX``, renamed when complete):
+#: one a killed process left in the cache folder is removed once it is this old.
+_SAFETENSORS_TMP = re.compile(r"^\.tmp[A-Za-z0-9]{6}$")
+_SAFETENSORS_TMP_AGE_S = 3600.0
+
+
+def _sweep_safetensors_temporaries(folder: Path) -> None:
+    now = time.time()
+    try:
+        entries = list(os.scandir(folder))
+    except OSError:
+        return
+    for entry in entries:
+        if not _SAFETENSORS_TMP.match(entry.name):
+            continue
+        try:
+            if entry.is_file(follow_symlinks=False) and (
+                now - entry.stat(follow_symlinks=False).st_mtime > _SAFETENSORS_TMP_AGE_S
+            ):
+                os.unlink(entry.path)
+        except OSError:
+            pass
 
 
 def checksum(tensors: Tensors) -> str:

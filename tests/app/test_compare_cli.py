@@ -98,11 +98,12 @@ def test_non_2to1_reports_null_ws_psnr(tmp_path, capsys):
     assert any("2:1" in n for n in result["notes"])
 
 
-def _one_line_error(capsys, argv: list[str], match: str) -> None:
+def _one_line_error(capsys, argv: list[str], match: str) -> str:
     assert main(["compare", *argv]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "Traceback" not in err
     assert err.startswith("panogrf compare: error:") and match in err
+    return err
 
 
 def test_missing_file_is_one_line_error(pair, tmp_path, capsys):
@@ -123,7 +124,11 @@ def test_unreadable_and_size_mismatch_are_errors(pair, tmp_path, capsys):
 
 def test_bad_device_is_an_error(pair, capsys):
     pa, pb, _, _ = pair
-    _one_line_error(capsys, [str(pa), str(pb), "--device", "bogus"], "unknown device 'bogus'")
+    _one_line_error(capsys, [str(pa), str(pb), "--device", "bogus"], "--device 'bogus'")
+    # Devices torch names but this tool does not run on: one line, as every command says it.
+    for name in ("mps", "xpu", "meta", "hpu"):
+        line = _one_line_error(capsys, [str(pa), str(pb), "--device", name], f"--device {name!r}")
+        assert "cpu or cuda" in line
 
 
 def test_help_describes_the_metrics(capsys):

@@ -13,7 +13,7 @@ import pytest
 
 from panogrf.app.cli import main
 from panogrf.app.errors import UserError
-from panogrf.app.options import add_options, flag_of, from_args, option, options
+from panogrf.app.options import add_options, flag_of, from_args, option, options, user_path
 from panogrf.app.runtime import number
 from panogrf.app.train import configs
 
@@ -52,13 +52,13 @@ def test_a_field_becomes_an_option_with_its_default_help_and_choices():
     actions = _actions(_parser(Toy))
     assert set(actions) == {"data", "steps", "mode", "weights", "augment", "shared"}
     assert actions["data"].option_strings == ["--data"] and actions["data"].required
-    assert actions["data"].type is Path
+    assert actions["data"].type is user_path  # a Path, with ~ expanded
     steps = actions["steps"]
     assert (steps.default, steps.help, steps.required) == (10, "steps (default 10)", False)
     assert actions["mode"].choices == ("a", "b") and actions["mode"].default == "a"
     weights = actions["weights"]
     assert weights.option_strings == ["--from"] and weights.metavar == "FROM"
-    assert weights.type is Path and weights.default is None
+    assert weights.type is user_path and weights.default is None
     assert actions["augment"].option_strings == ["--no-augment"]
     assert actions["augment"].default is True and actions["shared"].default is False
     assert flag_of(Toy, "augment") == "--no-augment" and flag_of(Toy, "weights") == "--from"
