@@ -29,7 +29,8 @@ PHOTOS = [str(DEMO / "images" / f"frame_00{k}.png") for k in range(2)]
 
 #: A posing that hangs once COLMAP's work folder exists (the marker file says so).
 _HANGING_POSING = """
-import sys, time
+import signal, sys, time
+signal.signal(signal.SIGHUP, signal.SIG_DFL)  # as in a terminal, whatever ran the tests (nohup)
 from pathlib import Path
 from panogrf.app import cli
 from panogrf.app.poses import colmap
