@@ -30,7 +30,6 @@ operators by device time written to DIR. Prints a table last and writes JSON.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import platform
 import statistics
@@ -133,7 +132,7 @@ def chunk_sweep(views, target, models, device, chunks, rows_list) -> list[dict]:
     return out
 
 
-def refine_graphs(views, models, device, settles=(0.0,), repeats=3) -> dict:
+def refine_graphs(views, models, device, repeats=3) -> dict:
     """The refinement of the same estimate with and without CUDA graphs, and on the CPU."""
     from panogrf.model import refine
     from panogrf.model.depth_config import compared_sources
@@ -155,34 +154,29 @@ def refine_graphs(views, models, device, settles=(0.0,), repeats=3) -> dict:
     out["l1_graphs_vs_launches_m"] = float((depths[True] - depths[False]).abs().mean())
     out["l1_graphs_repeat_m"] = float((depths[True] - again).abs().mean())
     # The same estimate refined on the CPU, and there moved by one part in a million (the
-    # refinement's own sensitivity), for each ``settle`` of the learning rate.
+    # refinement's own sensitivity).
     est = default_models_cpu().estimator("full")
     c2w = views.c2w.cpu()
     sources = compared_sources(est.config, c2w, est.view_sources(c2w)[0])
     plain = views.plain.cpu()
-    out["parity"] = []
-    for settle in settles:
-        config = dataclasses.replace(views.refine, settle=settle)
-        args = (c2w.to(plain.dtype), plain, sources, config, (0.05, est.d_max))
-        with torch.enable_grad():
-            gpu = refine_depth(
-                views.images,
-                views.c2w.to(views.plain.dtype),
-                views.plain,
-                sources,
-                config,
-                (0.05, est.d_max),
-            )
-            cpu = refine_depth(views.images.cpu(), *args)
-            moved = refine_depth(views.images.cpu(), args[0], plain * (1 + 1e-6), *args[2:])
-        out["parity"].append(
-            {
-                "settle": settle,
-                "l1_device_vs_cpu_m": float((gpu.cpu() - cpu).abs().mean()),
-                "l1_cpu_vs_cpu_moved_1e-6_m": float((moved - cpu).abs().mean()),
-                "l1_cpu_vs_plain_m": float((cpu - plain).abs().mean()),
-            }
+    config = views.refine
+    args = (c2w.to(plain.dtype), plain, sources, config, (0.05, est.d_max))
+    with torch.enable_grad():
+        gpu = refine_depth(
+            views.images,
+            views.c2w.to(views.plain.dtype),
+            views.plain,
+            sources,
+            config,
+            (0.05, est.d_max),
         )
+        cpu = refine_depth(views.images.cpu(), *args)
+        moved = refine_depth(views.images.cpu(), args[0], plain * (1 + 1e-6), *args[2:])
+    out["parity"] = {
+        "l1_device_vs_cpu_m": float((gpu.cpu() - cpu).abs().mean()),
+        "l1_cpu_vs_cpu_moved_1e-6_m": float((moved - cpu).abs().mean()),
+        "l1_cpu_vs_plain_m": float((cpu - plain).abs().mean()),
+    }
     print(f"refinement: {json.dumps(out)}", flush=True)
     return out
 
@@ -345,12 +339,6 @@ def main() -> int:
     )
     parser.add_argument("--live", action="store_true", help="the viewer's live worker's rate")
     parser.add_argument("--sweep", action="store_true", help="the sweep batched and not")
-    parser.add_argument(
-        "--settles",
-        type=lambda s: tuple(float(x) for x in s.split(",")),
-        default=(0.0,),
-        help="with --graphs: the refinement's settle values compared with the CPU",
-    )
     parser.add_argument("--out", type=Path, default=Path("lab/results/gpu.json"))
     args = parser.parse_args()
 
@@ -420,7 +408,7 @@ def main() -> int:
                 row["sweep_batch"] = sweep_compare(r["data"], models, device)
             if args.graphs:
                 try:
-                    row["refine_graphs"] = refine_graphs(r["views"], models, device, args.settles)
+                    row["refine_graphs"] = refine_graphs(r["views"], models, device)
                 except Exception as exc:  # the rest of the run still reports
                     row["refine_graphs"] = {"error": f"{type(exc).__name__}: {exc}"}
                     print(f"refinement comparison failed: {row['refine_graphs']}", flush=True)

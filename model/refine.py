@@ -22,7 +22,6 @@ resolution, h w the depth's resolution.
 from __future__ import annotations
 
 import itertools
-import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -76,11 +75,6 @@ class RefineConfig:
     free_space_shrink: int = 1
     """The free-space term is computed at the stage's rows divided by this (its cost grows with
     the pixels; the corrections it makes are large and smooth)."""
-    settle: float = 0.0
-    """The fraction of all the steps, at the end, over which the learning rate falls from
-    ``lr`` to 0 (a half cosine); 0: constant. At a constant rate Adam ends hovering about a
-    minimum by up to ``lr`` per pixel, where rounding decides the side: a depth moved by one
-    part in a million came out 7 mm away (mean; 19 % of the pixels more than 1 cm)."""
     damping: float = 0.0
     """Adam's epsilon for the loss summed over the correction's pixels (the loss is their mean:
     epsilon = damping / pixels, the same at any resolution). Adam moves every pixel by about
@@ -89,8 +83,6 @@ class RefineConfig:
     decide millimetre steps. 0: torch's 1e-8."""
 
     def __post_init__(self) -> None:
-        if not 0.0 <= self.settle <= 1.0:
-            raise ValueError(f"settle must be in [0, 1], got {self.settle}")
         if not self.damping >= 0.0:
             raise ValueError(f"damping must be >= 0, got {self.damping}")
 
@@ -227,8 +219,7 @@ def refine_depth(
             _loss(problem, stage).backward()
             opt.step()
 
-        rate = _rate(config, done, total)
-        if not OptimisationSteps(step, opt, graphs, rate).run(steps, should_stop, progress.advance):
+        if not OptimisationSteps(step, opt, graphs).run(steps, should_stop, progress.advance):
             progress.close()
             return None
         done += steps
@@ -294,20 +285,6 @@ def _loss(p: _Problem, stage: _Stage) -> Tensor:
         fs = _free_space_at(log_d, log_full, hh, p.c2w, p.all_pairs, config)
         loss = loss + config.free_space * fs
     return loss
-
-
-def _rate(config: RefineConfig, done: int, total: int) -> Callable[[int], float] | None:
-    """The learning rate of a stage's i-th step when ``done`` of ``total`` steps came before
-    (``config.settle``); None: constant."""
-    if config.settle == 0.0:
-        return None
-    start = (1.0 - config.settle) * total
-
-    def rate(i: int) -> float:
-        t = max(0.0, done + i - start) / (total - start)
-        return config.lr * 0.5 * (1.0 + math.cos(math.pi * t))
-
-    return rate
 
 
 def _photometric_sum(

@@ -86,8 +86,7 @@ def adam(params: list[Tensor], lr: float, eps: float = 1e-8) -> Optimiser:
 
 class OptimisationSteps:
     """``steps`` optimisation steps of ``step`` (forward, backward and the optimiser's update;
-    gradients are set to None before each), the optimiser's learning rate set to ``rate(i)``
-    before the i-th when given. With ``graph`` (CUDA): the first `WARM_UP` steps
+    gradients are set to None before each). With ``graph`` (CUDA): the first `WARM_UP` steps
     run on a side stream (the optimiser's state is made, the kernels chosen), the next one is
     captured into a CUDA graph, and the graph is replayed for it and the rest: the same
     arithmetic, one launch per step."""
@@ -99,19 +98,8 @@ class OptimisationSteps:
         step: Callable[[], None],
         opt: Optimiser,
         graph: bool,
-        rate: Callable[[int], float] | None = None,
     ) -> None:
-        self.step, self.opt, self.graph, self.rate = step, opt, graph, rate
-
-    def _set_rate(self, i: int) -> None:
-        """The learning rate of the i-th step (``rate``; a graph reads it from its tensor)."""
-        if self.rate is None:
-            return
-        for group in self.opt.param_groups:
-            if isinstance(group["lr"], torch.Tensor):
-                group["lr"].fill_(self.rate(i))
-            else:
-                group["lr"] = self.rate(i)
+        self.step, self.opt, self.graph = step, opt, graph
 
     def run(
         self, steps: int, should_stop: Callable[[], bool] | None, advance: Callable[[], None]
@@ -122,10 +110,9 @@ class OptimisationSteps:
         if stream is not None:
             stream.wait_stream(torch.cuda.current_stream())
         with torch.cuda.stream(stream) if stream is not None else contextlib.nullcontext():
-            for i in range(warm):
+            for _ in range(warm):
                 if should_stop is not None and should_stop():
                     return False
-                self._set_rate(i)
                 self.opt.zero_grad(set_to_none=True)
                 self.step()
                 advance()
@@ -137,10 +124,9 @@ class OptimisationSteps:
         self.opt.zero_grad(set_to_none=True)
         with CAPTURE_LOCK, torch.cuda.graph(graph, capture_error_mode="thread_local"):
             self.step()  # captured, not run: the gradients it makes stay in the graph's pool
-        for i in range(warm, steps):
+        for _ in range(warm, steps):
             if should_stop is not None and should_stop():
                 return False
-            self._set_rate(i)
             graph.replay()
             advance()
         return True

@@ -3,7 +3,6 @@ inside a textured sphere, whose depth is known exactly."""
 
 from __future__ import annotations
 
-import dataclasses
 import math
 
 import pytest
@@ -331,22 +330,9 @@ def test_the_steps_run_each_once_and_stop_when_told():
 PREP = RefineConfig(smooth=1.0, coarse=10, iterations=10, free_space=1.0, free_space_shrink=2)
 
 
-def test_the_rate_settles_to_zero_over_the_last_steps():
-    from panogrf.model.refine import _rate
-
-    assert _rate(RefineConfig(settle=0.0), 0, 60) is None
-    rate = _rate(RefineConfig(lr=0.02, settle=0.5), 30, 60)  # the second stage of 30 + 30
-    assert rate is not None
-    assert rate(0) == pytest.approx(0.02) and rate(15) == pytest.approx(0.01)
-    assert rate(29) < 0.0002 and all(rate(i) >= rate(i + 1) for i in range(29))
-    with pytest.raises(ValueError, match="settle"):
-        _rate(RefineConfig(settle=1.5), 0, 60)
-
-
 @pytest.mark.gpu
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
-@pytest.mark.parametrize("settle", [0.0, 0.5])
-def test_cuda_graphs_give_the_launches_refinement(scene, monkeypatch, settle):
+def test_cuda_graphs_give_the_launches_refinement(scene, monkeypatch):
     """The steps replayed from CUDA graphs do the arithmetic of the steps launched one
     operation at a time: they differ from them no more than two launched runs differ from each
     other (a GPU's resampling gradients add up in any order); a stop is heard between
@@ -355,7 +341,7 @@ def test_cuda_graphs_give_the_launches_refinement(scene, monkeypatch, settle):
 
     images, c2w, depth = (t.cuda() for t in scene)
     wrong = torch.nn.functional.interpolate(depth, size=(32, 64), mode="area") * 1.1
-    config = dataclasses.replace(PREP, settle=settle)
+    config = PREP
     graphs = refine_depth(images, c2w, wrong, [[1], [0]], config)
     monkeypatch.setattr(refine, "CUDA_GRAPHS", False)
     launches = [refine_depth(images, c2w, wrong, [[1], [0]], config) for _ in range(2)]
