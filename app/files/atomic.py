@@ -60,8 +60,12 @@ def _remove(path: Path) -> None:
         pass
 
 
-def sweep_stale(folder: str | os.PathLike[str]) -> list[Path]:
-    """Remove the temporaries of our own naming in ``folder`` left by dead processes."""
+def sweep_stale(
+    folder: str | os.PathLike[str], foreign: re.Pattern[str] | None = None
+) -> list[Path]:
+    """Remove the temporaries of our own naming in ``folder`` left by dead processes, and
+    those named as ``foreign`` says (another library's, which carry no process id) once they
+    are an hour old."""
     folder = Path(folder)
     removed: list[Path] = []
     try:
@@ -81,7 +85,8 @@ def sweep_stale(folder: str | os.PathLike[str]) -> list[Path]:
             pid = int(m["pid"])
             stale = pid != os.getpid() and (not _alive(pid) or age > _STALE_AGE_S)
         else:
-            stale = _LEGACY.match(entry.name) is not None and age > _LEGACY_AGE_S
+            other = _LEGACY.match(entry.name) or (foreign is not None and foreign.match(entry.name))
+            stale = bool(other) and age > _LEGACY_AGE_S
         if stale:
             _remove(Path(entry.path))
             removed.append(Path(entry.path))

@@ -22,7 +22,6 @@ import contextlib
 import hashlib
 import os
 import re
-import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,7 +32,7 @@ from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 from torch import Tensor
 
-from panogrf.app.files.atomic import atomic_output
+from panogrf.app.files.atomic import atomic_output, sweep_stale
 from panogrf.model.depth_config import DepthConfig
 
 #: Format of the entries: part of every name, so a new format never reads an old entry.
@@ -228,7 +227,7 @@ class DiskStore:
         tensors["__key__"] = torch.tensor(list(key.encode()), dtype=torch.uint8)
         path = self.where(key)
         path.parent.mkdir(parents=True, exist_ok=True)
-        _sweep_safetensors_temporaries(path.parent)
+        sweep_stale(path.parent, foreign=_SAFETENSORS_TMP)
         with atomic_output(path) as tmp:
             Path(tmp).touch()  # made as open() makes a file: its mode follows the umask
             mode = os.stat(tmp).st_mode & 0o777
@@ -238,27 +237,8 @@ class DiskStore:
 
 
 #: safetensors writes through a temporary of its own (``.tmpXXXXXX``, renamed when complete):
-#: one a killed process left in the cache folder is removed once it is this old.
+#: one a killed process left in the cache folder is removed once it is an hour old.
 _SAFETENSORS_TMP = re.compile(r"^\.tmp[A-Za-z0-9]{6}$")
-_SAFETENSORS_TMP_AGE_S = 3600.0
-
-
-def _sweep_safetensors_temporaries(folder: Path) -> None:
-    now = time.time()
-    try:
-        entries = list(os.scandir(folder))
-    except OSError:
-        return
-    for entry in entries:
-        if not _SAFETENSORS_TMP.match(entry.name):
-            continue
-        try:
-            if entry.is_file(follow_symlinks=False) and (
-                now - entry.stat(follow_symlinks=False).st_mtime > _SAFETENSORS_TMP_AGE_S
-            ):
-                os.unlink(entry.path)
-        except OSError:
-            pass
 
 
 def checksum(tensors: Tensors) -> str:
