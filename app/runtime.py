@@ -8,7 +8,7 @@ import ctypes.util
 from dataclasses import dataclass
 from pathlib import Path
 
-from panogrf.app.options import option
+from panogrf.app.options import option, user_path
 
 _M_TRIM_THRESHOLD, _M_TOP_PAD, _M_MMAP_THRESHOLD, _M_ARENA_MAX = -1, -2, -3, -8
 _MB = 1 << 20
@@ -130,8 +130,6 @@ class ThreadOptions:
 def folder_path(text: str) -> Path:
     """argparse type of a folder option: a path, not an empty string (which would be the
     current folder without a word) nor a file that exists."""
-    from panogrf.app.options import user_path
-
     if not text.strip():
         raise argparse.ArgumentTypeError("expected a folder, got an empty string")
     path = user_path(text)
