@@ -98,7 +98,8 @@ class RefineConfig:
 #: does not steer"). A rate settling over the last half with 20 + 20 steps (0.58x the time)
 #: shipped for a while: on 18 new validation scenes it lost 0.06 dB and 1.4 % depth L1 against
 #: 30 + 30 without settling (26.90 / 0.1011 / 0.0772 against 26.96 / 0.1002 / 0.0761 m;
-#: `lab/analysis.md`, round 50), past the rule that had admitted it, and left.
+#: `lab/analysis.md`, "the refinement's schedule checked on new scenes"), past the rule that
+#: had admitted it, and left.
 PREPARE_REFINE = RefineConfig(
     smooth=1.0,
     coarse=30,
