@@ -153,12 +153,14 @@ def discard(tmp: Path) -> None:
 
 
 @contextmanager
-def atomic_output(path: str | os.PathLike[str], directory: bool = False) -> Iterator[Path]:
+def atomic_output(
+    path: str | os.PathLike[str], directory: bool = False, foreign: re.Pattern[str] | None = None
+) -> Iterator[Path]:
     """``with atomic_output(out) as tmp:`` write ``tmp`` (a file, or with ``directory`` a new
     empty folder); on a clean exit it replaces ``out``, on any error it is removed and ``out``
-    is untouched."""
+    is untouched. ``foreign``: other temporaries the writer leaves, swept (`sweep_stale`)."""
     path = Path(os.path.abspath(path))  # "." and "a/.." have no name of their own
-    sweep_stale(path.parent)
+    sweep_stale(path.parent, foreign)
     tmp = temp_path(path)
     try:
         if directory:

@@ -32,7 +32,7 @@ from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 from torch import Tensor
 
-from panogrf.app.files.atomic import atomic_output, sweep_stale
+from panogrf.app.files.atomic import atomic_output
 from panogrf.model.depth_config import DepthConfig
 
 #: Format of the entries: part of every name, so a new format never reads an old entry.
@@ -227,8 +227,7 @@ class DiskStore:
         tensors["__key__"] = torch.tensor(list(key.encode()), dtype=torch.uint8)
         path = self.where(key)
         path.parent.mkdir(parents=True, exist_ok=True)
-        sweep_stale(path.parent, foreign=_SAFETENSORS_TMP)
-        with atomic_output(path) as tmp:
+        with atomic_output(path, foreign=_SAFETENSORS_TMP) as tmp:
             Path(tmp).touch()  # made as open() makes a file: its mode follows the umask
             mode = os.stat(tmp).st_mode & 0o777
             save_file(tensors, str(tmp), metadata=meta)
