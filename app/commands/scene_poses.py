@@ -139,7 +139,9 @@ def _refuse_repeats(files: list[Path], images: np.ndarray) -> None:
     for a in range(len(files)):
         for b in range(a + 1, len(files)):
             if np.array_equal(images[a], images[b]):
-                raise UserError(f"{files[b]}: the same image as {files[a]} (no parallax)")
+                same = files[a].resolve() == files[b].resolve()
+                what = "given twice" if same else f"the same image as {files[a]} (no parallax)"
+                raise UserError(f"{files[b]}: {what}")
 
 
 def run_import(parsed: argparse.Namespace) -> int:
@@ -306,8 +308,7 @@ def run_from_panoramas(parsed: argparse.Namespace) -> int:
     problems = poses_problems(metric.c2w)  # never write a scene its own check rejects
     same = re.match(r"frames\[(\d+)\] and frames\[(\d+)\]: views at the same position",
                     problems[0] if problems else "")  # fmt: skip
-    # As posed, before the scale: a copy sits on its photo (within a hundredth of the views'
-    # spread; a scale that shrinks the whole scene under a millimetre is the other case).
+    # As posed, before the scale, a copy sits on its photo (within 1 % of the views' spread).
     centres = est.c2w[keep][:, :3, 3]
     spread = np.ptp(centres, axis=0).max()
     if same and np.linalg.norm(np.subtract(*centres[[int(same[1]), int(same[2])]])) < 1e-2 * spread:

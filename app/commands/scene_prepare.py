@@ -101,7 +101,9 @@ def run_prepare(args: argparse.Namespace) -> int:
         what = f"sources {','.join(map(str, cfg.sources))}"
     if result.path == Path("-"):  # e.g. missing weights were reported before; belt and braces
         raise UserError(f"the scene was prepared but not cached: {result.status}")
-    refined = "refined depth" if refine is not None else "unrefined depth"
+    # One source has no other to refine its depth against.
+    alone = cfg.sources is not None and len(cfg.sources) == 1
+    refined = "refined depth" if refine is not None and not alone else "unrefined depth"
     print(
         f"prepared {cfg.dir} ({what}, {refined}): scene cache {result.status} in "
         f"{time.perf_counter() - start:.2f} s ({result.path})"

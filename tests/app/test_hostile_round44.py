@@ -131,7 +131,7 @@ def test_the_same_photograph_at_several_poses_is_refused_by_import(tmp_path, cap
     out = tmp_path / "imp"
     argv = ["scene", "import", "--format", "tum", str(poses), "--out", str(out)]
     code, line = _run([*argv, "--images", photo, photo], capsys)
-    assert code == 2 and "the same image" in line and not out.exists()
+    assert code == 2 and "given twice" in line and not out.exists()
 
 
 def test_a_one_view_scene_says_so(tmp_path, capsys):

@@ -79,7 +79,10 @@ def test_bad_panoramas_are_one_line_errors_naming_the_file(tmp_path, capsys):
     out = ["--out", str(tmp_path / "s")]
     cmd = ["scene", "from-panoramas"]
     assert "one panorama" in _one_line_error(capsys, [*cmd, a, *out], a)
-    assert "same image" in _one_line_error(capsys, [*cmd, a, a, *out], a)
+    assert "given twice" in _one_line_error(capsys, [*cmd, a, a, *out], a)
+    copy = tmp_path / "copy.png"
+    copy.write_bytes(frames[0].image_path.read_bytes())
+    assert f"same image as {a}" in _one_line_error(capsys, [*cmd, a, str(copy), *out], copy)
     square = tmp_path / "square.png"
     write_rgb(square, np.zeros((16, 16, 3), np.uint8))
     assert "2:1" in _one_line_error(capsys, [*cmd, a, str(square), *out], square)

@@ -324,3 +324,12 @@ def test_a_stage_speaks_only_once_it_takes_long(tty):
         assert lines[0].startswith("reading the photos: 0/2") and lines[-1].startswith(
             "reading the photos: 2/2"
         )
+
+
+def test_prepare_of_one_source_says_its_depth_is_unrefined(small_demo, tmp_path, capsys):
+    """One source has no other to refine its depth against: the summary says so."""
+    prep = ["scene", "prepare", str(small_demo), "--cache-dir", str(tmp_path / "c"), "--quiet"]
+    assert cli.main([*prep, "--sources", "1"]) == 0
+    assert "(sources 1, unrefined depth)" in capsys.readouterr().out
+    assert cli.main([*prep, "--sources", "0,2"]) == 0
+    assert "(sources 0,2, refined depth)" in capsys.readouterr().out
