@@ -74,6 +74,11 @@ class DetailConfig:
     own depth maps splatted into the target) or "network" (the render's expected depth)."""
     median: int = 7
     """Side of the median over the splatted depth, in pixels of the network's rows."""
+    proximity: float = 2.0
+    """Each source's agreement weight in the blend is multiplied by (1 / (d + 1 cm)) to this
+    power, d its distance from the target's centre (0: agreement alone): the nearer photo's
+    projection, less displaced by an error in depth, gives the detail, and at a photo's own
+    pose that photo is the view. Halfway between two photos the weights are as before."""
 
 
 #: Chosen on 12 validation scenes at 512 rows generated from the train split's generator with
@@ -198,6 +203,15 @@ def _projected_rows(
     return colour.reshape(-1, 3, h, w), None if masked is None else masked.reshape(-1, 1, h, w)
 
 
+def proximity_weights(cache: SceneCache, c2w: Tensor, power: float) -> Tensor:
+    """[V] (1 / (d + 1 cm)) ** ``power``, d each source's distance from the target's centre
+    (`DetailConfig.proximity`), scaled to a largest weight of 1."""
+    centres = cache.c2w[:, :3, 3]
+    d = torch.linalg.vector_norm(centres - c2w[:3, 3].to(centres.dtype), dim=-1)
+    w: Tensor = (0.01 / (d + 0.01)).pow(power)
+    return w / w.amax()
+
+
 def add_detail(
     cache: SceneCache,
     c2w: Tensor,
@@ -219,7 +233,8 @@ def add_detail(
     if masked is not None:  # a source gives no detail where its rig hides the point
         weight = weight * mask_factor(resize_erp(masked, h)[:, 0])
     total = weight.sum(0, keepdim=True)
-    blend_w = weight / total.clamp(min=1e-6)
+    near = weight * proximity_weights(cache, c2w, config.proximity)[:, None, None]
+    blend_w = near / near.sum(0, keepdim=True).clamp(min=1e-12)
     gate = total.clamp(max=1.0)  # no source agrees: no detail
     # One upsampling for the network's colour, the gate and the sources' weights.
     up = upsample_erp(torch.cat((low.rgb, gate, blend_w)), size)

@@ -7,7 +7,7 @@ import torch
 from helpers.room import erp_ray_directions, pose, ray_distance
 
 from panogrf.renderer.cache import SceneCache, resize_erp
-from panogrf.renderer.detail import DetailConfig, add_detail, project_sources
+from panogrf.renderer.detail import DetailConfig, add_detail, project_sources, proximity_weights
 from panogrf.renderer.render import RenderOutput
 
 H = 96
@@ -204,3 +204,30 @@ def test_projection_band_by_band_is_the_same_as_whole(monkeypatch):
     monkeypatch.setattr(detail, "BAND_PIXELS", 5 * 2 * h)  # bands of 5 rows, the last of 4
     banded = detail._projected(cache, target, d, "bicubic")
     assert torch.equal(whole[0], banded[0]) and torch.equal(whole[1], banded[1])
+
+
+def test_at_a_photos_pose_the_view_is_that_photo_even_on_wrong_depth():
+    """The nearer photo gives the detail: at its own pose its projection is exact at any
+    depth, while the other photo's, read at a depth 30 % off, is displaced."""
+    cache, _, _, _ = _scene()
+    wrong = SceneCache(cache.images, cache.c2w, cache.depth * 1.3, cache.maps, 1)
+    photo = cache.images[0]
+    low = _low_pass(photo, wrong.depth[0], H // 2)
+    scores = {}
+    for power in (0.0, 2.0):
+        out = add_detail(
+            wrong, cache.c2w[0], low, H, DetailConfig(net_height=H // 2, proximity=power)
+        )
+        scores[power] = _psnr(out, photo)
+    assert scores[2.0] > 40 and scores[2.0] > scores[0.0] + 3, scores
+
+
+def test_halfway_between_two_photos_both_weigh_the_same():
+    cache, _, _, _ = _scene()
+    halfway = cache.c2w[0].clone()
+    halfway[:3, 3] = cache.c2w[:, :3, 3].mean(0)
+    assert torch.allclose(proximity_weights(cache, halfway, 2.0), torch.ones(2))
+    near = cache.c2w[0].clone()
+    near[:3, 3] += 0.1 * (cache.c2w[1, :3, 3] - cache.c2w[0, :3, 3])  # a tenth of the way
+    w = proximity_weights(cache, near, 2.0)
+    assert w[0] == 1 and 0.01 < float(w[1]) < 1 / 64  # (1/9)^2 less the 1 cm

@@ -32,7 +32,7 @@ def test_rendering_an_input_pose_reproduces_the_input(demo, quality):
     rgb = render_view("panogrf", views, data.c2w[0], height, models, quality)
     assert torch.isfinite(rgb).all()
     ref = torch.nn.functional.interpolate(data.images[0:1], size=rgb.shape[-2:], mode="area")
-    assert float(ws_psnr(rgb[None], ref)) >= 30.0
+    assert float(ws_psnr(rgb[None], ref)) >= 35.0  # the photo itself, detail from it alone
 
 
 def test_novel_view_is_finite_with_a_continuous_seam(demo):
