@@ -51,6 +51,21 @@ def consistency(cache, c2w, depth_low, tau: float, one_sided: bool):
     return f.reshape(-1, h, w)
 
 
+def ray_angles(cache, c2w, depth_low):
+    """[V, h, 2h] angle (radians) at each of the target's points at ``depth_low`` [1, h, 2h]
+    between the target's ray and each source's ray to it (unstructured lumigraph's penalty)."""
+    from panogrf.model.erp import erp_directions
+
+    h, w = depth_low.shape[-2:]
+    dirs = erp_directions(h, w, dtype=depth_low.dtype) @ c2w[:3, :3].T  # [h, w, 3] unit
+    points = c2w[:3, 3] + dirs * depth_low[0, ..., None]
+    centres = cache.c2w[:, :3, 3]  # [V, 3]
+    to_point = points[None] - centres[:, None, None]  # [V, h, w, 3]
+    to_point = to_point / to_point.norm(dim=-1, keepdim=True).clamp(min=1e-6)
+    cos = (to_point * dirs[None]).sum(-1).clamp(-1.0, 1.0)
+    return torch.arccos(cos)
+
+
 def add_detail_pick(cache, c2w, low, height, config, pick: str):
     from panogrf.renderer import detail as D
     from panogrf.renderer.cache import resize_erp
@@ -76,6 +91,17 @@ def add_detail_pick(cache, c2w, low, height, config, pick: str):
         depth_low = D.projection_depth(cache, c2w, low, config)
         f = consistency(cache, c2w, depth_low, tau, pick.startswith("occl"))
         p = weight * f
+        blend_w = p / p.sum(0, keepdim=True).clamp(min=1e-12)
+    elif pick.startswith("ulr"):
+        power = float(pick.removeprefix("ulr"))
+        depth_low = D.projection_depth(cache, c2w, low, config)
+        theta = ray_angles(cache, c2w, depth_low)
+        p = weight * (1.0 / (theta + 0.0175)) ** power  # 1 degree: the source's own pose
+        blend_w = p / p.sum(0, keepdim=True).clamp(min=1e-12)
+    elif pick.startswith("dist"):
+        power = float(pick.removeprefix("dist"))
+        d = (cache.c2w[:, :3, 3] - c2w[:3, 3]).norm(dim=-1)  # [V] metres from the target
+        p = weight * ((1.0 / (d + 0.01)) ** power)[:, None, None]  # 1 cm: the source's pose
         blend_w = p / p.sum(0, keepdim=True).clamp(min=1e-12)
     else:
         k = float(pick.removeprefix("sharp"))
