@@ -99,7 +99,7 @@ def add_detail_pick(cache, c2w, low, height, config, pick: str):
         p = weight * (1.0 / (theta + 0.0175)) ** power  # 1 degree: the source's own pose
         blend_w = p / p.sum(0, keepdim=True).clamp(min=1e-12)
     elif pick.startswith("dist"):
-        power = float(pick.removeprefix("dist"))
+        power = float(pick.removeprefix("dist").removesuffix("lp"))
         d = (cache.c2w[:, :3, 3] - c2w[:3, 3]).norm(dim=-1)  # [V] metres from the target
         p = weight * ((1.0 / (d + 0.01)) ** power)[:, None, None]  # 1 cm: the source's pose
         blend_w = p / p.sum(0, keepdim=True).clamp(min=1e-12)
@@ -113,7 +113,14 @@ def add_detail_pick(cache, c2w, low, height, config, pick: str):
     blend = (up_w[:, None] * proj).sum(0)
     cut = min(config.cutoff or h, h)
     diff = blend - up_rgb if cut < h else blend
-    detail = diff - D.upsample_erp(resize_erp(diff[None], cut)[0], size)
+    low_share = 1.0
+    if pick.endswith("lp"):  # near a photo the blend's low band too, halfway the network's
+        d = (cache.c2w[:, :3, 3] - c2w[:3, 3]).norm(dim=-1)
+        p = (1.0 / (d + 0.01)) ** float(pick.removeprefix("dist").removesuffix("lp"))
+        share = float(p.max() / p.sum())
+        v = p.numel()
+        low_share = min(1.0, max(0.0, (1.0 - share) / (1.0 - 1.0 / v)))
+    detail = diff - low_share * D.upsample_erp(resize_erp(diff[None], cut)[0], size)
     return (up_rgb + up_gate * detail).clamp(0, 1)
 
 
