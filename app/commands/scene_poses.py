@@ -327,7 +327,7 @@ def run_from_panoramas(parsed: argparse.Namespace) -> int:
     names = _view_names([files[k] for k in keep])
     lines.append(f"baselines (m): {rep._baselines(metric.c2w)}")
     if len(keep) < n:
-        left = [files[k].name for k in range(n) if not est.registered[k]]
+        left = [rep.shown_names(files)[k] for k in range(n) if not est.registered[k]]
         lines.append(
             f"left out {n - len(keep)} panorama(s) that could not be posed: {', '.join(left)}; "
             + rep.ADVICE

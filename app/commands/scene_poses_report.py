@@ -32,8 +32,20 @@ def _deg(value: float | None) -> str:
     return "n/a" if value is None else f"{value:.3f} deg"
 
 
+def shown_names(files: list[Path]) -> list[str]:
+    """How the report names each photo: its file name, or as many of its last path parts as
+    tell it from another photo of the same name (``a/x.jpg``, ``b/x.jpg``)."""
+    for k in range(1, max(len(f.parts) for f in files) + 1):
+        names = ["/".join(f.parts[-k:]) for f in files]
+        clash = {n for n in names if names.count(n) > 1}
+        if not clash:
+            return names
+    return [str(f) for f in files]  # the same path twice: refused before any report
+
+
 def pose_report(files: list[Path], est) -> list[str]:
     """The printed report of a `ColmapEstimate`: a line per pair and per view."""
+    names = shown_names(files)
     lines = [f"posing (COLMAP {est.mapper or 'mappers'}, {est.seconds:.1f} s):", "pairs:"]
     # A home of many photos has hundreds of pairs that share nothing: those are counted here
     # and each is in the report's file. A pair that failed for another reason is printed.
@@ -53,18 +65,19 @@ def pose_report(files: list[Path], est) -> list[str]:
                 f" (matches grown from the level-camera search: {p.level_search[0]} agree"
                 f" at its peak, at most {p.level_search[1]} elsewhere)"
             )
-        lines.append(f"  {files[p.i].name} - {files[p.j].name}: {p.matches} matches; {state}")
+        lines.append(f"  {names[p.i]} - {names[p.j]}: {p.matches} matches; {state}")
     if hidden:
         lines.append(
             f"  {len(hidden)} other pairs: fewer than {least} matches agree on a geometry (they "
             f"share too little; each, with its matches, is in {REPORT})"
         )
     lines.append("views:")
-    lines += [f"  {files[v.index].name}: {v.note}" for v in est.views]
+    lines += [f"  {names[v.index]}: {v.note}" for v in est.views]
     return lines
 
 
 def _report_json(files: list[Path], est, lines: list[str]) -> dict:
+    names = shown_names(files)
     return {
         "method": (
             "SIFT on cube faces, pooled and guided matching, a level-camera search for pairs"
@@ -74,8 +87,8 @@ def _report_json(files: list[Path], est, lines: list[str]) -> dict:
         "median_residual_deg": est.residual_deg,
         "pairs": [
             {
-                "a": files[p.i].name,
-                "b": files[p.j].name,
+                "a": names[p.i],
+                "b": names[p.j],
                 "matches": p.matches,
                 "inliers": p.inliers,
                 "shared_points": p.shared_points,

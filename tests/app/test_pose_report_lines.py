@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from panogrf.app.commands.scene_poses_report import _baselines, pose_report
+from panogrf.app.commands.scene_poses_report import _baselines, pose_report, shown_names
 from panogrf.app.poses.colmap_report import ColmapEstimate, PairReport, ViewReport
 
 
@@ -64,3 +64,11 @@ def test_baselines_of_a_few_views_each_pair_and_of_many_each_views_nearest():
     assert _baselines(many) == (
         "to each view's nearest min 0.500, median 0.750, max 2.000; largest pairwise 11.000"
     )
+
+
+def test_photos_of_one_name_from_two_folders_are_told_apart():
+    files = [Path("/home/u/day1/pano.jpg"), Path("/home/u/day2/pano.jpg"), Path("/x/other.jpg")]
+    assert shown_names(files) == ["day1/pano.jpg", "day2/pano.jpg", "x/other.jpg"]
+    assert shown_names([Path("a/p.jpg"), Path("a/q.jpg")]) == ["p.jpg", "q.jpg"]
+    lines = pose_report(files, _estimate(3, {(0, 1), (1, 2)}))
+    assert "  day1/pano.jpg - day2/pano.jpg: 100 matches; ok" in "\n".join(lines)
