@@ -122,6 +122,11 @@ class ViewConfig:
             raise UserError(
                 "no display for a window: set DISPLAY (e.g. under Xvfb) or use --window headless"
             )
+        if self.window == "pyglet" and (shown := _unreachable_display()) is not None:
+            raise UserError(
+                f"cannot open a window on DISPLAY={shown}: no X server answers there; start "
+                "one (e.g. Xvfb) or set DISPLAY to it, or use --window headless"
+            )
         if self.live == "on" and self.no_refine:
             raise UserError("--live on shows the neural view: it cannot go with --no-refine")
         if self.frames is not None and self.frames < 1:
@@ -298,6 +303,29 @@ def _closed(config, worker, start: float) -> int:
         print(f"panogrf view: error: {n} write{'s' if n > 1 else ''} failed", file=sys.stderr)
         return 1
     return 0
+
+
+def _unreachable_display() -> str | None:
+    """``$DISPLAY`` when it names an X display that cannot be opened (as the window would
+    open it, with libX11's XOpenDisplay, before minutes of preparation); None when it opens
+    or there is no libX11 to ask."""
+    import ctypes
+    import ctypes.util
+    import os
+
+    shown = os.environ.get("DISPLAY")
+    lib = ctypes.util.find_library("X11") if shown and sys.platform == "linux" else None
+    if shown is None or lib is None:
+        return None
+    x11 = ctypes.cdll.LoadLibrary(lib)
+    x11.XOpenDisplay.restype = ctypes.c_void_p
+    x11.XOpenDisplay.argtypes = [ctypes.c_char_p]
+    x11.XCloseDisplay.argtypes = [ctypes.c_void_p]
+    handle = x11.XOpenDisplay(shown.encode())
+    if not handle:
+        return shown
+    x11.XCloseDisplay(handle)
+    return None
 
 
 def _has_display() -> bool:

@@ -10,6 +10,7 @@ has died. Permissions follow the umask, as for a plain ``open()``.
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import errno
 import json
@@ -187,18 +188,28 @@ def write_text_atomic(path: str | os.PathLike[str], text: str) -> None:
 
 
 def save_tensors_atomic(
-    path: str | os.PathLike[str], tensors: dict, metadata: dict[str, str] | None = None
+    path: str | os.PathLike[str],
+    tensors: dict,
+    metadata: dict[str, str] | None = None,
+    foreign: re.Pattern[str] | None = None,
 ) -> None:
-    """Write a safetensors file atomically. A full disk raises OSError (safetensors reports
-    it as its own error type, which callers would otherwise have to know)."""
+    """Write a safetensors file atomically, its mode following the umask as for ``open()``
+    (safetensors writes through a private temporary of its own, mode 0600, which a shared
+    pack or cache could not be read from). A full disk raises OSError (safetensors reports
+    it as its own error type, which callers would otherwise have to know). ``foreign``: as
+    for `atomic_output` (the names of safetensors' own temporaries, swept when stale)."""
     from safetensors import SafetensorError
     from safetensors.torch import save_file
 
-    with atomic_output(path) as tmp:
+    with atomic_output(path, foreign=foreign) as tmp:
+        Path(tmp).touch()  # made as open() makes a file: its mode follows the umask
+        mode = os.stat(tmp).st_mode & 0o777
         try:
             save_file(tensors, str(tmp), metadata=metadata)
         except SafetensorError as exc:
             raise OSError(f"cannot write {path}: {exc}") from exc
+        with contextlib.suppress(OSError):  # a file system without modes keeps its own
+            os.chmod(tmp, mode)
 
 
 # An innermost JSON list of plain scalars, as json.dumps indents it. The raw newline after "["

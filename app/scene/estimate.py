@@ -9,6 +9,7 @@ with the input's poses and metadata plus a ``panogrf_depth`` key describing the 
 from __future__ import annotations
 
 import json
+import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -81,7 +82,7 @@ def _foreign_entry(out_dir: Path, earlier: dict) -> Path | None:
 
 
 def prepare_out_dir(scene_root: Path, out_dir: Path) -> None:
-    """Create ``out_dir``; one-line errors for a missing scene or an output folder that cannot
+    """Check ``out_dir``: one-line errors for a missing scene or an output folder that cannot
     or must not be written (the input itself, another scene)."""
     from panogrf.app.scene.folder import TRANSFORMS
 
@@ -120,10 +121,11 @@ def prepare_out_dir(scene_root: Path, out_dir: Path) -> None:
             )
     else:
         refuse_foreign_folder(out_dir, "panogrf depth", lambda _: False)
-    try:
-        out_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise UserError(f"cannot write to {out_dir}: {exc.strerror or exc}") from None
+    # Nothing is created until the output is written: a run refused later (a scene image
+    # missing) or stopped leaves no empty folders behind.
+    there = next(p for p in (out_dir, *out_dir.parents) if p.exists())
+    if not there.is_dir() or not os.access(there, os.W_OK | os.X_OK):
+        raise UserError(f"cannot write to {out_dir}: {there} is not a writable folder")
 
 
 def _unique_stems(names: list[str]) -> list[str]:
@@ -227,6 +229,7 @@ def estimate_scene(
     try:
         # The whole output is written beside it and swapped in at once: a full disk or a kill
         # leaves the earlier output whole, never views of two runs (issue 57, D1).
+        out_dir.parent.mkdir(parents=True, exist_ok=True)
         with atomic_output(out_dir, directory=True) as tmp:
             for sub in ("images", "depth", "preview"):
                 (tmp / sub).mkdir()

@@ -18,7 +18,6 @@ renderer's objects; the caller hands what it returns to them.
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import os
 import re
@@ -29,10 +28,10 @@ from typing import Protocol
 
 import torch
 from safetensors import SafetensorError
-from safetensors.torch import load_file, save_file
+from safetensors.torch import load_file
 from torch import Tensor
 
-from panogrf.app.files.atomic import atomic_output
+from panogrf.app.files.atomic import save_tensors_atomic
 from panogrf.model.depth_config import DepthConfig
 
 #: Format of the entries: part of every name, so a new format never reads an old entry.
@@ -227,12 +226,7 @@ class DiskStore:
         tensors["__key__"] = torch.tensor(list(key.encode()), dtype=torch.uint8)
         path = self.where(key)
         path.parent.mkdir(parents=True, exist_ok=True)
-        with atomic_output(path, foreign=_SAFETENSORS_TMP) as tmp:
-            Path(tmp).touch()  # made as open() makes a file: its mode follows the umask
-            mode = os.stat(tmp).st_mode & 0o777
-            save_file(tensors, str(tmp), metadata=meta)
-            with contextlib.suppress(OSError):  # a file system without modes keeps its own
-                os.chmod(tmp, mode)  # safetensors writes through a private temporary (0600)
+        save_tensors_atomic(path, tensors, meta, foreign=_SAFETENSORS_TMP)
 
 
 #: safetensors writes through a temporary of its own (``.tmpXXXXXX``, renamed when complete):

@@ -18,6 +18,7 @@ def merge_datasets(out: Path, sources: list[Path]) -> dict:
     out = Path(out)
     entries, links = [], {}
     seen: set[Path] = set()
+    heights: dict[object, Path] = {}
     for source in sources:
         source = Path(source).resolve()
         if source in seen:
@@ -26,7 +27,15 @@ def merge_datasets(out: Path, sources: list[Path]) -> dict:
         index_path = source / "dataset.json"
         if not index_path.exists():
             raise UserError(f"{source}: no dataset.json (make one with `panogrf dataset make`)")
-        for entry in read_index_data(index_path)["scenes"]:
+        index = read_index_data(index_path)
+        heights.setdefault(index.get("height"), source)
+        if len(heights) > 1:  # a training reads every scene at one height
+            (a, first), (b, _) = heights.items()
+            raise UserError(
+                f"{source}: panoramas of {b} rows, {first} of {a}: merge datasets of one "
+                "height (make them with the same --height)"
+            )
+        for entry in index["scenes"]:
             name = entry["folder"]
             if name in links:
                 raise UserError(

@@ -62,6 +62,8 @@ class TrainRun:
 
         if self.out.suffix != ".safetensors":
             raise UserError(f"--out must end in .safetensors, got {self.out}")
+        if self.limit_scenes is not None and self.limit_scenes < 1:
+            raise UserError(f"--limit-scenes must be at least 1, got {self.limit_scenes}")
         refuse_training_inputs(self.out, self, "--out")
         check_writable(self.out)
 
@@ -205,14 +207,12 @@ class TrainDepthConfig(TrainRun):
             raise UserError(f"--trunk must be 0-{top} for stage {self.stage}, got {self.trunk}")
         mono = ("mono_noise", "mono_shift", "mono_features_shift", "mono_heights", "mono_warp")
         self._fractions(mono, "pairs")
-        if self.stage == "mvs" and self.mvs_preset == "full" and not _exists(self.mono_weights):
+        if self.stage == "mvs" and self.mvs_preset == "full" and self.mono_weights is None:
             raise UserError("--stage mvs --preset full needs --mono PATH to trained mono weights")
+        if self.mono_weights is not None and not self.mono_weights.is_file():
+            why = "is not a file" if self.mono_weights.exists() else "not found"
+            raise UserError(f"--mono {self.mono_weights}: {why}")
         _check_device(self.device)
-
-
-def _exists(path: Path | None) -> bool:
-    """Whether ``path`` is given and exists."""
-    return path is not None and path.exists()
 
 
 @dataclass(frozen=True, kw_only=True)

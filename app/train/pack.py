@@ -63,6 +63,7 @@ def pack_scenes(
 
     blobs: dict[str, list[np.ndarray]] = {"jpeg": [], "depth": []} if depth else {"jpeg": []}
     c2w, names = [], []
+    taken: dict[Path, set[int]] = {}
     for folder, first, count in sources:
         index = Path(folder) / "dataset.json"
         if not index.exists():
@@ -71,6 +72,13 @@ def pack_scenes(
         stop = len(entries) if count < 0 else first + count
         if first < 0 or stop > len(entries) or first >= stop:
             raise UserError(f"{folder}: has {len(entries)} scenes; cannot take [{first}, {stop})")
+        done = taken.setdefault(Path(folder).resolve(), set())
+        if again := done & set(range(first, stop)):
+            raise UserError(
+                f"{folder}: scene {min(again)} listed twice (a training would see it twice, and "
+                "a held-back scene among its training scenes); give each scene once"
+            )
+        done.update(range(first, stop))
         data = load_triplets(folder, height, limit=stop - first, start=first)
         for i in range(len(data)):
             for v in range(3):

@@ -83,12 +83,29 @@ def _unreadable(exc: Exception) -> str:
     )
 
 
+def _restore_advice(path: Path) -> str:
+    """What to do about a weights file that is missing or wrong: where ``$PANOGRF_WEIGHTS``
+    chose it, that folder is named (a retraining is not the fix); else retrain."""
+    folder = os.environ.get("PANOGRF_WEIGHTS")
+    if folder and Path(path).parent == Path(folder):
+        state = (
+            "a folder without this file"
+            if Path(folder).is_dir()
+            else ("not a folder" if Path(folder).exists() else "no such folder")
+        )
+        return (
+            f"$PANOGRF_WEIGHTS is {folder} ({state}): put the weights files there, or unset it "
+            "to use the shipped ones"
+        )
+    return "restore the file, or reproduce it with `panogrf train` (see docs/weights.md)"
+
+
 def read_weights(path: Path) -> dict[str, torch.Tensor]:
     """The tensors of the weights file ``path``, checked: there, readable, complete and finite
     (NaN or infinite weights give NaN-free but meaningless outputs: refused); a `UserError`
     naming the file otherwise."""
     if not path.exists():
-        raise UserError(f"missing weights {path}: reproduce them with `panogrf train` (see README)")
+        raise UserError(f"missing weights {path}: {_restore_advice(path)}")
     try:
         tensors = load_file(str(path))
     except (SafetensorError, OSError, ValueError, RuntimeError) as exc:
@@ -150,11 +167,14 @@ def _load(module: torch.nn.Module, path: Path, expected_config: dict) -> None:
     # Tuples become lists in JSON; compare as JSON. A field added to a config after the weights
     # were trained is absent from their metadata: it matches when the code has it at its default.
     expected = json.loads(json.dumps(expected_config))
-    if stored and any(k not in expected for k in stored):
-        raise UserError(f"{path}: trained with config {stored}, the code expects {expected}")
     stored = {**{k: v for k, v in ADDED_DEFAULTS.items() if k in expected}, **stored}
     if stored and expected != stored:
-        raise UserError(f"{path}: trained with config {stored}, the code expects {expected_config}")
+        differ = sorted(k for k in {*stored, *expected} if stored.get(k) != expected.get(k))
+        raise UserError(
+            f"{path}: not the weights of this network (its settings differ in "
+            f"{', '.join(differ[:4])}{' and more' if len(differ) > 4 else ''}); "
+            + _restore_advice(path)
+        )
     module.load_state_dict(tensors)
     module.eval().requires_grad_(False)
 

@@ -42,5 +42,8 @@ def test_the_settings_check_themselves_when_built_directly(monkeypatch):
     monkeypatch.setattr("sys.platform", "linux")
     with pytest.raises(UserError, match="^no display for a window: set DISPLAY"):
         ViewConfig(scene)
-    monkeypatch.setenv("DISPLAY", ":1")
+    monkeypatch.setenv("DISPLAY", ":97")  # no X server answers there
+    with pytest.raises(UserError, match="^cannot open a window on DISPLAY=:97: no X server"):
+        ViewConfig(scene)
+    monkeypatch.setattr("panogrf.app.commands.view._unreachable_display", lambda: None)
     assert ViewConfig(scene).window == "pyglet"

@@ -1,0 +1,110 @@
+"""Hostile input, round 51: a depth run refused or stopped leaves no empty output folders;
+`train` names a missing --mono file and a --limit-scenes of 0; a wrong ``$PANOGRF_WEIGHTS``
+is named, not blamed on the weights; another network's weights say so; packs and weights are
+as readable as the umask says; a pack that lists a scene twice and a merge of two heights are
+refused."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import stat
+
+import pytest
+
+from panogrf.app import cli
+from panogrf.app.synth.make import MakeConfig, make_dataset
+from panogrf.assets import path as asset_path
+
+DEMO = asset_path("demo")
+
+
+def _error(capsys, argv: list[str]) -> str:
+    """The error a refused command ends with (exit status 2), after any progress bars."""
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    last = err.strip().splitlines()[-1]
+    assert last.startswith("panogrf"), last
+    return last.split("\r")[-1]
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    """Two datasets of two scenes: at 32 rows and at 48."""
+    root = tmp_path_factory.mktemp("tiny")
+    for rows in (32, 48):
+        make_dataset(MakeConfig(out=root / f"d{rows}", count=2, height=rows, seed=3))
+    return root
+
+
+def test_a_depth_run_refused_late_leaves_no_output_folders(tmp_path, capsys):
+    scene = tmp_path / "scene"
+    shutil.copytree(DEMO, scene)
+    meta = json.loads((scene / "transforms.json").read_text())
+    meta["frames"][1]["file_path"] = "images/missing.png"
+    (scene / "transforms.json").write_text(json.dumps(meta))
+    out = tmp_path / "deep" / "x" / "y"
+    line = _error(capsys, ["depth", str(scene), "--out", str(out), "--no-cache"])
+    assert "images/missing.png" in line and not (tmp_path / "deep").exists()
+
+
+def test_train_names_a_missing_mono_file_and_a_limit_of_no_scenes(tiny, tmp_path, capsys):
+    base = ["train", "depth", "--data", str(tiny / "d32"), "--steps", "1", "--height", "32"]
+    out = ["--out", str(tmp_path / "w.safetensors")]
+    missing = tmp_path / "nope.safetensors"
+    line = _error(capsys, [*base, *out, "--stage", "mvs", "--mono", str(missing)])
+    assert line.endswith(f"--mono {missing}: not found")
+    line = _error(capsys, [*base, *out, "--stage", "mono", "--limit-scenes", "0"])
+    assert line.endswith("--limit-scenes must be at least 1, got 0")
+
+
+def test_a_wrong_weights_folder_is_named_not_blamed_on_the_weights(tmp_path, capsys, monkeypatch):
+    argv = ["render", str(DEMO), "--target-frame", "1", "--height", "32", "--no-cache"]
+    argv += ["--out", str(tmp_path / "v.png")]
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    for folder, state in ((empty, "a folder without this file"), (tmp_path / "nope", "no such")):
+        monkeypatch.setenv("PANOGRF_WEIGHTS", str(folder))
+        line = _error(capsys, argv)
+        assert f"$PANOGRF_WEIGHTS is {folder} ({state}" in line and "unset it" in line
+        assert "panogrf train" not in line
+    swapped = tmp_path / "swapped"
+    shutil.copytree(asset_path("depth_mono.safetensors").parent, swapped, ignore=_no_demo)
+    shutil.copy(swapped / "lpips_alex.safetensors", swapped / "depth_mono.safetensors")
+    monkeypatch.setenv("PANOGRF_WEIGHTS", str(swapped))
+    line = _error(capsys, argv)
+    assert "depth_mono.safetensors: not the weights of this network (its settings differ in" in line
+    assert len(line) < 400
+
+
+def _no_demo(folder, names):
+    return [n for n in names if not n.endswith(".safetensors")]
+
+
+def test_packs_follow_the_umask_and_list_each_scene_once(tiny, tmp_path, capsys):
+    old = os.umask(0o022)
+    try:
+        out = tmp_path / "p.safetensors"
+        assert (
+            cli.main(["dataset", "pack", "--out", str(out), str(tiny / "d32"), "--height", "32"])
+            == 0
+        )
+        assert stat.S_IMODE(out.stat().st_mode) == 0o644
+    finally:
+        os.umask(old)
+    twice = [str(tiny / "d32"), f"{tiny / 'd32'}:1:1"]
+    line = _error(
+        capsys,
+        ["dataset", "pack", "--out", str(tmp_path / "q.safetensors"), *twice, "--height", "32"],
+    )
+    assert "scene 1 listed twice" in line and not (tmp_path / "q.safetensors").exists()
+
+
+def test_a_merge_of_two_heights_is_refused(tiny, tmp_path, capsys):
+    out = tmp_path / "m"
+    line = _error(
+        capsys, ["dataset", "merge", "--out", str(out), str(tiny / "d32"), str(tiny / "d48")]
+    )
+    assert "panoramas of 48 rows" in line and "32" in line and not out.exists()
