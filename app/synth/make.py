@@ -33,6 +33,7 @@ from panogrf.app.files.images import write_depth, write_rgb
 from panogrf.app.scene.datasets import read_index_data
 from panogrf.app.synth.gl_render import PanoramaRenderer
 from panogrf.app.synth.layout import LayoutConfig, SynthScene, generate_layout
+from panogrf.app.synth.make_index import keep_written, write_index
 from panogrf.app.synth.textures import texture_bank
 
 SPLITS = ("train", "test")
@@ -224,11 +225,12 @@ def _pbr_worker_scene(i: int) -> tuple[dict, dict, float]:
     return entry, transforms_dict(scene, cfg.height, NAMES), seconds
 
 
-def _make_pyrender(cfg: MakeConfig, progress: bool) -> tuple[list[dict], float]:
-    """Scenes rendered by pyrender in ``cfg.workers`` spawned processes; (entries, render s)."""
+def _make_pyrender(cfg: MakeConfig, progress: bool, entries: list[dict]) -> float:
+    """Scenes rendered by pyrender in ``cfg.workers`` spawned processes, each entry appended to
+    ``entries`` once written; the render seconds."""
     import multiprocessing
 
-    entries, render_s = [], 0.0
+    render_s = 0.0
     context = multiprocessing.get_context("spawn")
     with (
         ProcessPoolExecutor(
@@ -256,12 +258,12 @@ def _make_pyrender(cfg: MakeConfig, progress: bool) -> tuple[list[dict], float]:
             for fut in futures:
                 fut.cancel()
             raise
-    return entries, render_s / max(1, cfg.workers)  # the workers' render time, in parallel
+    return render_s / max(1, cfg.workers)  # the workers' render time, in parallel
 
 
-def _make_gl(cfg: MakeConfig, progress: bool) -> tuple[list[dict], float]:
-    """Scenes rendered by the moderngl renderer in this process; (entries, render s)."""
-    entries = []
+def _make_gl(cfg: MakeConfig, progress: bool, entries: list[dict]) -> float:
+    """Scenes rendered by the moderngl renderer in this process, each entry appended to
+    ``entries`` (its transforms.json may follow with the next scene); the render seconds."""
     render_s = 0.0
     with (
         PanoramaRenderer() as renderer,
@@ -297,7 +299,7 @@ def _make_gl(cfg: MakeConfig, progress: bool) -> tuple[list[dict], float]:
             entries.append(_entry(scene, folder, renderer.triangles))
         if previous is not None:
             finish(previous)
-    return entries, render_s
+    return render_s
 
 
 def _check_joins(index: dict, index_path: Path, cfg: MakeConfig) -> None:
@@ -367,24 +369,17 @@ def make_dataset(cfg: MakeConfig, progress: bool = True) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
     make = _make_pyrender if cfg.renderer == "pyrender" else _make_gl
-    entries, render_s = make(cfg, progress)
+    entries: list[dict] = []
+    try:
+        render_s = make(cfg, progress, entries)
+    except BaseException:
+        # Stopped (Ctrl-C, a signal) or failed: the scenes written are listed, the one being
+        # written is removed, so the dataset is usable and the same command can go on.
+        keep_written(cfg, entries, index_path)
+        raise
     triangles = [e["triangles"] for e in entries]
     elapsed = time.perf_counter() - start
-    index = read_index_data(index_path) if index_path.exists() else {"scenes": []}
-    known = {e["folder"] for e in entries}
-    index["scenes"] = [e for e in index.get("scenes", []) if e["folder"] not in known] + entries
-    index["scenes"].sort(key=lambda e: e["folder"])
-    index.update(
-        {
-            "generator": "panogrf dataset make",
-            "world": cfg.world,
-            "renderer": cfg.renderer,
-            **{name: getattr(cfg, name) for name in FINISHES if getattr(cfg, name) > 0},
-            "height": cfg.height,
-            "width": 2 * cfg.height,
-        }
-    )
-    _write_json_atomic(index_path, index)
+    write_index(cfg, entries, index_path)
     n = 3 * cfg.count
     return {
         "scenes": cfg.count,

@@ -108,3 +108,28 @@ def test_a_merge_of_two_heights_is_refused(tiny, tmp_path, capsys):
         capsys, ["dataset", "merge", "--out", str(out), str(tiny / "d32"), str(tiny / "d48")]
     )
     assert "panoramas of 48 rows" in line and "32" in line and not out.exists()
+
+
+def test_a_stopped_dataset_make_lists_what_it_wrote_and_leaves_no_half_scene(
+    tmp_path, monkeypatch, capsys
+):
+    from panogrf.app.synth import make as mk
+
+    real, calls = mk.transforms_dict, []
+
+    def stop_at_the_third(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 3:  # Ctrl-C while the third scene is written
+            raise KeyboardInterrupt
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(mk, "transforms_dict", stop_at_the_third)
+    out = tmp_path / "d"
+    with pytest.raises(KeyboardInterrupt):
+        make_dataset(MakeConfig(out=out, count=5, height=32), progress=False)
+    index = json.loads((out / "dataset.json").read_text())
+    assert [e["folder"] for e in index["scenes"]] == ["train_00000", "train_00001"]
+    assert sorted(p.name for p in out.iterdir()) == ["dataset.json", "train_00000", "train_00001"]
+    assert "2 of 5 scenes written" in capsys.readouterr().err
+    make_dataset(MakeConfig(out=out, count=3, start=2, height=32), progress=False)
+    assert len(json.loads((out / "dataset.json").read_text())["scenes"]) == 5

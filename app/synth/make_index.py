@@ -1,0 +1,57 @@
+"""The index of a `panogrf dataset make` folder (``dataset.json``): the scenes a run wrote
+listed beside those listed before, and what a stopped run leaves (`keep_written`)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import sys
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from panogrf.app.files.atomic import write_text_atomic
+from panogrf.app.scene.datasets import read_index_data
+
+if TYPE_CHECKING:
+    from panogrf.app.synth.make import MakeConfig
+
+
+def keep_written(cfg: MakeConfig, entries: list[dict], index_path: Path) -> None:
+    """After a stop: the scenes whose transforms.json is in place listed in the index, the
+    folders of the others this run began removed, and what to run to go on said."""
+    out = Path(cfg.out)
+    done = [e for e in entries if (out / e["folder"] / "transforms.json").is_file()]
+    names = {e["folder"] for e in done}
+    for i in range(cfg.start, cfg.start + cfg.count):
+        folder = out / f"{cfg.split}_{i:05d}"
+        if folder.name not in names and not (folder / "transforms.json").is_file():
+            shutil.rmtree(folder, ignore_errors=True)
+    if done:
+        write_index(cfg, done, index_path)
+    left = cfg.count - len(done)
+    print(
+        f"{out}: {len(done)} of {cfg.count} scenes written and listed in dataset.json; to "
+        f"make the other {left}: --start {cfg.start + len(done)} --count {left}",
+        file=sys.stderr,
+    )
+
+
+def write_index(cfg: MakeConfig, entries: list[dict], index_path: Path) -> None:
+    """``entries`` listed in ``index_path`` beside any scenes listed there before."""
+    from panogrf.app.synth.make import FINISHES as finishes
+
+    index = read_index_data(index_path) if index_path.exists() else {"scenes": []}
+    known = {e["folder"] for e in entries}
+    index["scenes"] = [e for e in index.get("scenes", []) if e["folder"] not in known] + entries
+    index["scenes"].sort(key=lambda e: e["folder"])
+    index.update(
+        {
+            "generator": "panogrf dataset make",
+            "world": cfg.world,
+            "renderer": cfg.renderer,
+            **{name: getattr(cfg, name) for name in finishes if getattr(cfg, name) > 0},
+            "height": cfg.height,
+            "width": 2 * cfg.height,
+        }
+    )
+    write_text_atomic(index_path, json.dumps(index, indent=2))
