@@ -62,6 +62,10 @@ class BenchOptions:
         twice = next((n for k, n in enumerate(names) if n in names[:k]), None)
         if twice is not None:
             raise UserError(f"--settings: {twice} is listed twice; give each setting once")
+        real = self.real_data()
+        if real is not None and not real.is_dir():
+            what = "is not a folder" if real.exists() else "no such folder"
+            raise UserError(f"--real {real}: {what} (a dataset of real triplets, or none)")
 
     def chosen(self) -> tuple[Setting, ...]:
         """The settings ``settings`` and ``skip`` name (`UserError` for an unknown name)."""

@@ -60,7 +60,11 @@ class FrameSink:
         self._raw: Path | None = None  # ffmpeg's output before the spherical metadata
         if self.is_video:
             if width % 2 or height % 2:
-                raise UserError(f"H.264 needs even frame sizes, got {width}x{height}")
+                raise UserError(
+                    f"{self.out}: H.264 needs even frame sizes, got {width}x{height} (the camera "
+                    "path's render_width and render_height); make them even, or write the "
+                    "frames to a folder (--out without .mp4)"
+                )
             check_output(self.out)
         elif self.out.suffix:
             raise UserError(f"--out must be a .mp4 file or a folder, got {self.out}")

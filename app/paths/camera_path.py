@@ -203,7 +203,8 @@ def read_camera_path(path: str | os.PathLike[str]) -> CameraPath:
     if path.is_dir():
         raise UserError(f"{path}: a folder, not a camera path file")
     if not path.is_file():
-        raise UserError(f"{path}: camera path file not found")
+        what = "not a regular file" if path.exists() else "camera path file not found"
+        raise UserError(f"{path}: {what}")
     try:
         data = parse_json(path.read_text(encoding="utf-8-sig"))
     except UnicodeDecodeError:

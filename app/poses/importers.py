@@ -138,6 +138,15 @@ def read_opensfm(path: str | Path) -> ImportedPoses:
     names, poses = [], []
     for name in sorted(shots):
         shot = shots[name]
+        if (
+            isinstance(shot, dict)
+            and isinstance(shot.get("camera"), str)
+            and (shot["camera"] not in cameras)
+        ):
+            raise UserError(
+                f'{path}: shot {name!r} names camera {shot["camera"]!r}, which "cameras" '
+                "does not define"
+            )
         try:
             camera = cameras[shot["camera"]]
             r = np.asarray(shot["rotation"], float)
@@ -237,7 +246,7 @@ def read_colmap(path: str | Path) -> ImportedPoses:
         rot_w2c = Rotation.from_quat([qx, qy, qz, qw]).as_matrix()
         face_c2w = _pose(rot_w2c.T, -rot_w2c.T @ np.array([tx, ty, tz]))
         rot_pano = face_c2w[:3, :3] @ faces[FACE_NAMES.index(match["face"])].T
-        per_pano.setdefault(match["pano"], []).append((rot_pano, face_c2w[:3, 3]))
+        per_pano.setdefault(match["pano"], []).append((rot_pano, face_c2w[:3, 3], name))
     notes = []
     if skipped:
         notes.append(f"{len(skipped)} images not named <panorama>/<face>.<ext>, skipped")
@@ -247,12 +256,19 @@ def read_colmap(path: str | Path) -> ImportedPoses:
         )
     names, poses = sorted(per_pano), []
     for name in names:
-        rots = np.stack([r for r, _ in per_pano[name]])
-        centres = np.stack([c for _, c in per_pano[name]])
+        rots = np.stack([r for r, _, _ in per_pano[name]])
+        centres = np.stack([c for _, c, _ in per_pano[name]])
         m = np.eye(4)
         m[:3, :3] = _chordal_mean(rots)
         m[:3, 3] = centres.mean(0)
-        spread = max(np.degrees(Rotation.from_matrix(m[:3, :3].T @ r).magnitude()) for r in rots)
+        off = [np.degrees(Rotation.from_matrix(m[:3, :3].T @ r).magnitude()) for r in rots]
+        spread = max(off)
+        if spread > MAX_FACE_DISAGREEMENT_DEG:  # one rig: its faces turn together
+            face = per_pano[name][int(np.argmax(off))][2]
+            raise UserError(
+                f"{path}: {face} is turned {spread:.0f} deg from the other faces of {name} "
+                "(a cube's faces share one rotation): fix or remove its line"
+            )
         if len(rots) > 1:
             notes.append(
                 f"{name}: {len(rots)} faces, rotations within {spread:.2f} deg, centres within "
@@ -260,6 +276,11 @@ def read_colmap(path: str | Path) -> ImportedPoses:
             )
         poses.append(m)
     return ImportedPoses(names, np.stack(poses), notes)
+
+
+#: The most the faces of one panorama may disagree on its rotation (a reconstruction of a rig
+#: puts them within a degree or so).
+MAX_FACE_DISAGREEMENT_DEG = 10.0
 
 
 def write_colmap(

@@ -11,6 +11,7 @@ import os
 import shutil
 import stat
 
+import numpy as np
 import pytest
 
 from panogrf.app import cli
@@ -133,3 +134,43 @@ def test_a_stopped_dataset_make_lists_what_it_wrote_and_leaves_no_half_scene(
     assert "2 of 5 scenes written" in capsys.readouterr().err
     make_dataset(MakeConfig(out=out, count=3, start=2, height=32), progress=False)
     assert len(json.loads((out / "dataset.json").read_text())["scenes"]) == 5
+
+
+def _demo_poses():
+    from panogrf.app.scene.folder import load_scene
+
+    return np.asarray(load_scene(DEMO).c2w, float)
+
+
+def test_a_cube_face_turned_against_its_panoramas_other_faces_is_refused(tmp_path):
+    from panogrf.app.errors import UserError
+    from panogrf.app.poses import importers as im
+
+    images = tmp_path / "images.txt"
+    im.write_colmap(images, ["p0", "p1", "p2"], _demo_poses())
+    lines = images.read_text().splitlines()
+    k = next(i for i, line in enumerate(lines) if line.endswith(" p1/right.png"))
+    parts = lines[k].split()
+    parts[1:5] = ["1", "0", "0", "0"]  # QW QX QY QZ: the identity, not this face's turn
+    lines[k] = " ".join(parts)
+    images.write_text("\n".join(lines) + "\n")
+    with pytest.raises(UserError, match=r"p1/right.png is turned \d+ deg from the other faces"):
+        im.read_poses("colmap", images)
+
+
+def test_odd_camera_path_and_opensfm_files_say_what_is_wrong(tmp_path, capsys):
+    from panogrf.app.errors import UserError
+    from panogrf.app.paths.camera_path import read_camera_path
+    from panogrf.app.poses import importers as im
+
+    with pytest.raises(UserError, match="^/dev/null: not a regular file$"):
+        read_camera_path("/dev/null")
+    rec = tmp_path / "reconstruction.json"
+    im.write_opensfm(rec, ["a.png", "b.png"], _demo_poses()[:2], 512, 256)
+    data = json.loads(rec.read_text())
+    data[0]["shots"]["b.png"]["camera"] = "nope"
+    rec.write_text(json.dumps(data))
+    with pytest.raises(UserError, match="shot 'b.png' names camera 'nope', which \"cameras\""):
+        im.read_poses("opensfm", rec)
+    line = _error(capsys, ["bench", str(DEMO), "--out", str(tmp_path / "b"), "--real", "/nope"])
+    assert line.endswith("--real /nope: no such folder (a dataset of real triplets, or none)")
