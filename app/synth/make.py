@@ -27,13 +27,12 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from panogrf.app.errors import UserError
 from panogrf.app.files.atomic import refuse_foreign_folder, write_text_atomic
 from panogrf.app.files.images import write_depth, write_rgb
 from panogrf.app.scene.datasets import read_index_data
 from panogrf.app.synth.gl_render import PanoramaRenderer
 from panogrf.app.synth.layout import LayoutConfig, SynthScene, generate_layout
-from panogrf.app.synth.make_index import keep_written, write_index
+from panogrf.app.synth.make_index import check_joins, keep_written, write_index
 from panogrf.app.synth.textures import texture_bank
 
 SPLITS = ("train", "test")
@@ -302,30 +301,13 @@ def _make_gl(cfg: MakeConfig, progress: bool, entries: list[dict]) -> float:
     return render_s
 
 
-def _check_joins(index: dict, index_path: Path, cfg: MakeConfig) -> None:
-    """Refuse scenes that would join a dataset of another size, world, renderer or split: its
-    index describes all of its scenes with one of each (train and test stay disjoint)."""
-    for key, value in (("height", cfg.height), ("world", cfg.world), ("renderer", cfg.renderer)):
-        if key in index and index[key] != value:
-            raise UserError(
-                f"{index_path}: its scenes have {key} {index[key]}, not {value}; "
-                "write these to another --out (`panogrf dataset merge` joins datasets)"
-            )
-    other = [e["folder"] for e in index["scenes"] if not e["folder"].startswith(cfg.split + "_")]
-    if other:
-        raise UserError(
-            f"{index_path}: holds {other[0]}, not of the {cfg.split} split; train and test "
-            "scenes go to different folders"
-        )
-
-
 def check_out(cfg: MakeConfig) -> None:
     """What the command line refuses before any work besides what `make_dataset` refuses: an
     ``out`` that is not empty and holds no earlier `dataset make` output (a scene folder, the
     user's photos), after the index there is read (its problems named first)."""
     index_path = Path(cfg.out) / "dataset.json"
     if index_path.exists():
-        _check_joins(read_index_data(index_path), index_path, cfg)
+        check_joins(read_index_data(index_path), index_path, cfg)
     refuse_foreign_folder(cfg.out, "dataset make", _earlier_make)
 
 
@@ -365,7 +347,7 @@ def make_dataset(cfg: MakeConfig, progress: bool = True) -> dict:
     out = Path(cfg.out)
     index_path = out / "dataset.json"
     if index_path.exists():  # before the rendering: scenes added must match those there
-        _check_joins(read_index_data(index_path), index_path, cfg)
+        check_joins(read_index_data(index_path), index_path, cfg)
     out.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
     make = _make_pyrender if cfg.renderer == "pyrender" else _make_gl

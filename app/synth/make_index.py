@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from panogrf.app.errors import UserError
 from panogrf.app.files.atomic import write_text_atomic
 from panogrf.app.scene.datasets import read_index_data
 
@@ -55,3 +56,31 @@ def write_index(cfg: MakeConfig, entries: list[dict], index_path: Path) -> None:
         }
     )
     write_text_atomic(index_path, json.dumps(index, indent=2))
+
+
+def check_joins(index: dict, index_path: Path, cfg: MakeConfig) -> None:
+    """Refuse scenes that would join a dataset of another size, world, renderer or split: its
+    index describes all of its scenes with one of each (train and test stay disjoint), or
+    another scene under a name it lists (a scene of another seed would be replaced)."""
+    from panogrf.app.synth.make import scene_seed
+
+    for key, value in (("height", cfg.height), ("world", cfg.world), ("renderer", cfg.renderer)):
+        if key in index and index[key] != value:
+            raise UserError(
+                f"{index_path}: its scenes have {key} {index[key]}, not {value}; "
+                "write these to another --out (`panogrf dataset merge` joins datasets)"
+            )
+    listed = {e["folder"]: e.get("seed") for e in index["scenes"]}
+    for i in range(cfg.start, cfg.start + cfg.count):  # another scene under a listed name
+        name, seed = f"{cfg.split}_{i:05d}", scene_seed(cfg.split, cfg.seed, i)
+        if listed.get(name, seed) != seed:
+            raise UserError(
+                f"{index_path}: lists another {name} (seed {listed[name]}); add scenes after "
+                f"the last with --start {len(listed)}, or write these to another --out"
+            )
+    other = [e["folder"] for e in index["scenes"] if not e["folder"].startswith(cfg.split + "_")]
+    if other:
+        raise UserError(
+            f"{index_path}: holds {other[0]}, not of the {cfg.split} split; train and test "
+            "scenes go to different folders"
+        )

@@ -174,3 +174,14 @@ def test_odd_camera_path_and_opensfm_files_say_what_is_wrong(tmp_path, capsys):
         im.read_poses("opensfm", rec)
     line = _error(capsys, ["bench", str(DEMO), "--out", str(tmp_path / "b"), "--real", "/nope"])
     assert line.endswith("--real /nope: no such folder (a dataset of real triplets, or none)")
+
+
+def test_a_dataset_make_that_would_replace_a_listed_scene_is_refused(tmp_path, capsys):
+    out = tmp_path / "d"
+    make = ["dataset", "make", "--out", str(out), "--height", "32", "--no-progress"]
+    assert cli.main([*make, "--count", "2"]) == 0
+    assert cli.main([*make, "--count", "2"]) == 0  # the same scenes again: nothing lost
+    before = (out / "train_00000" / "images" / "frame_000.png").read_bytes()
+    line = _error(capsys, [*make, "--count", "1", "--seed", "3"])
+    assert "lists another train_00000" in line and "--start 2" in line
+    assert (out / "train_00000" / "images" / "frame_000.png").read_bytes() == before
