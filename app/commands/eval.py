@@ -190,11 +190,15 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--out {cfg.out}: is the dataset's own index; choose another file")
     skipped: list[dict] = []  # broken scenes: reported, the others scored
     scenes, baselines = triplets_by_baseline(cfg.dataset, cfg.baseline_list(), cfg.limit, skipped)
-    for broken in skipped:
+    for broken in skipped if scenes else ():  # with none left, the error says why
         print(f"skipping {broken['why']}", flush=True)
     if not scenes:
-        why = skipped[0]["why"] if len(skipped) == 1 else f"{len(skipped)} skipped, see above"
-        raise UserError(f"{cfg.dataset}: no scene can be scored" + (f" ({why})" if skipped else ""))
+        reasons = [broken["why"] for broken in skipped]
+        why = reasons[0] if len(reasons) == 1 else f"{len(reasons)} skipped, the first: "
+        raise UserError(
+            f"{cfg.dataset}: no scene can be scored"
+            + (f" ({why}{reasons[0] if len(reasons) > 1 else ''})" if reasons else "")
+        )
     for _, folder in scenes:  # the report must not replace a scene's own file
         refuse_scene_inputs(cfg.out, load_scene(folder))
     models = session.default_models(resolve_device(args.device))

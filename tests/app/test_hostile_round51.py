@@ -13,6 +13,7 @@ import stat
 
 import numpy as np
 import pytest
+from helpers.cli import run_cli
 
 from panogrf.app import cli
 from panogrf.app.synth.make import MakeConfig, make_dataset
@@ -22,13 +23,10 @@ DEMO = asset_path("demo")
 
 
 def _error(capsys, argv: list[str]) -> str:
-    """The error a refused command ends with (exit status 2), after any progress bars."""
-    assert cli.main(argv) == 2
-    err = capsys.readouterr().err
-    assert "Traceback" not in err
-    last = err.strip().splitlines()[-1]
-    assert last.startswith("panogrf"), last
-    return last.split("\r")[-1]
+    """The error a refused command ends with (exit status 2, no traceback)."""
+    code, line = run_cli(argv, capsys)
+    assert code == 2 and line.startswith("panogrf"), line
+    return line.split("\r")[-1]  # after any progress bar's carriage return
 
 
 @pytest.fixture(scope="module")
@@ -185,3 +183,15 @@ def test_a_dataset_make_that_would_replace_a_listed_scene_is_refused(tmp_path, c
     line = _error(capsys, [*make, "--count", "1", "--seed", "3"])
     assert "lists another train_00000" in line and "--start 2" in line
     assert (out / "train_00000" / "images" / "frame_000.png").read_bytes() == before
+
+
+def test_eval_with_no_scene_left_says_why_once(tmp_path, capsys):
+    scenes = tmp_path / "scenes"
+    (scenes / "two").mkdir(parents=True)
+    shutil.copytree(DEMO / "images", scenes / "two" / "images")
+    meta = json.loads((DEMO / "transforms.json").read_text())
+    meta["frames"] = meta["frames"][:2]
+    (scenes / "two" / "transforms.json").write_text(json.dumps(meta))
+    assert cli.main(["eval", str(scenes), "--out", str(tmp_path / "r.json")]) == 2
+    said = capsys.readouterr()
+    assert "no scene can be scored (" in said.err and "skipping" not in said.out
