@@ -207,6 +207,11 @@ def _number(text: str) -> bool:
     return True
 
 
+#: The most the faces of one panorama may disagree on its rotation (a reconstruction of a rig
+#: puts them within a degree or so).
+MAX_FACE_DISAGREEMENT_DEG = 10.0
+
+
 def read_colmap(path: str | Path) -> ImportedPoses:
     """COLMAP images.txt of cube-face views -> one pose per panorama, sorted by stem."""
     path = Path(path)
@@ -276,11 +281,6 @@ def read_colmap(path: str | Path) -> ImportedPoses:
             )
         poses.append(m)
     return ImportedPoses(names, np.stack(poses), notes)
-
-
-#: The most the faces of one panorama may disagree on its rotation (a reconstruction of a rig
-#: puts them within a degree or so).
-MAX_FACE_DISAGREEMENT_DEG = 10.0
 
 
 def write_colmap(
