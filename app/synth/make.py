@@ -352,12 +352,14 @@ def make_dataset(cfg: MakeConfig, progress: bool = True) -> dict:
     start = time.perf_counter()
     make = _make_pyrender if cfg.renderer == "pyrender" else _make_gl
     entries: list[dict] = []
+    names = [f"{cfg.split}_{i:05d}" for i in range(cfg.start, cfg.start + cfg.count)]
+    before = {name for name in names if (out / name).exists()}
     try:
         render_s = make(cfg, progress, entries)
     except BaseException:
         # Stopped (Ctrl-C, a signal) or failed: the scenes written are listed, the one being
         # written is removed, so the dataset is usable and the same command can go on.
-        keep_written(cfg, entries, index_path)
+        keep_written(cfg, entries, index_path, [n for n in names if n not in before])
         raise
     triangles = [e["triangles"] for e in entries]
     elapsed = time.perf_counter() - start

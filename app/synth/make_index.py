@@ -17,15 +17,15 @@ if TYPE_CHECKING:
     from panogrf.app.synth.make import MakeConfig
 
 
-def keep_written(cfg: MakeConfig, entries: list[dict], index_path: Path) -> None:
+def keep_written(cfg: MakeConfig, entries: list[dict], index_path: Path, new: list[str]) -> None:
     """After a stop: the scenes whose transforms.json is in place listed in the index, the
-    folders of the others this run began removed, and what to run to go on said."""
+    folders this run made (``new``) that hold no whole scene removed, and what to run to go
+    on said."""
     out = Path(cfg.out)
     done = [e for e in entries if (out / e["folder"] / "transforms.json").is_file()]
-    names = {e["folder"] for e in done}
-    for i in range(cfg.start, cfg.start + cfg.count):
-        folder = out / f"{cfg.split}_{i:05d}"
-        if folder.name not in names and not (folder / "transforms.json").is_file():
+    for name in new:
+        folder = out / name
+        if folder.is_dir() and not (folder / "transforms.json").is_file():
             shutil.rmtree(folder, ignore_errors=True)
     if done:
         write_index(cfg, done, index_path)

@@ -17,6 +17,7 @@ from helpers.cli import run_cli
 
 from panogrf.app import cli
 from panogrf.app.synth.make import MakeConfig, make_dataset
+from panogrf.app.weights import networks
 from panogrf.assets import path as asset_path
 
 DEMO = asset_path("demo")
@@ -73,6 +74,7 @@ def test_a_wrong_weights_folder_is_named_not_blamed_on_the_weights(tmp_path, cap
     shutil.copytree(asset_path("depth_mono.safetensors").parent, swapped, ignore=_no_demo)
     shutil.copy(swapped / "lpips_alex.safetensors", swapped / "depth_mono.safetensors")
     monkeypatch.setenv("PANOGRF_WEIGHTS", str(swapped))
+    networks.load_depth_estimator.cache_clear()  # loaded once per process: load these
     line = _error(capsys, argv)
     assert "depth_mono.safetensors: not the weights of this network (its settings differ in" in line
     assert len(line) < 400

@@ -156,7 +156,10 @@ def test_a_failed_scene_stops_the_run(tmp_path):
         make_dataset(cfg, progress=False)
     done = list(tmp_path.glob("*/transforms.json"))
     assert len(done) < 10  # not the other 39 scenes first
-    assert not (tmp_path / "dataset.json").exists()
+    # The scenes written are listed (the dataset is usable); the user's file stays.
+    index = json.loads((tmp_path / "dataset.json").read_text())
+    assert sorted(e["folder"] for e in index["scenes"]) == sorted(p.parent.name for p in done)
+    assert (tmp_path / "train_00001").read_text() == "in the way"
 
 
 def test_cli_refuses_a_folder_with_a_file_where_a_scene_goes_in_one_line(tmp_path):

@@ -110,7 +110,6 @@ def test_right_key_but_wrong_contents_is_rebuilt(tmp_path):
 
 
 def test_full_disk_costs_only_the_cache(tmp_path, monkeypatch):
-    from panogrf.app.scene import store
 
     weights = tmp_path / "w"
     weights.write_bytes(b"w")
@@ -120,7 +119,7 @@ def test_full_disk_costs_only_the_cache(tmp_path, monkeypatch):
             f.write(b"\0" * 100)  # what a full disk leaves of the write
         raise SafetensorError("Error while serializing: I/O error: No space left on device")
 
-    monkeypatch.setattr(store, "save_file", full)
+    monkeypatch.setattr("safetensors.torch.save_file", full)  # as the atomic writer calls it
     views = _views()
     r = prepare_cached(views, _models(), tmp_path / "cache", [weights])
     assert "not saved" in r.status and "No space left" in r.status
