@@ -327,11 +327,7 @@ def run_from_panoramas(parsed: argparse.Namespace) -> int:
     names = _view_names([files[k] for k in keep])
     lines.append(f"baselines (m): {rep._baselines(metric.c2w)}")
     if len(keep) < n:
-        left = [rep.shown_names(files)[k] for k in range(n) if not est.registered[k]]
-        lines.append(
-            f"left out {n - len(keep)} panorama(s) that could not be posed: {', '.join(left)}; "
-            + rep.ADVICE
-        )
+        lines.append(rep.left_out_line(files, est.registered))
     kept = read.kept(keep)  # at the smallest kept photo's size
     size = f"{kept.images.shape[3]}x{kept.images.shape[2]}"
     lines.append(f"wrote {args.out} ({size}; the report: {args.out / rep.REPORT})")

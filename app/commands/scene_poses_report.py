@@ -43,6 +43,12 @@ def shown_names(files: list[Path]) -> list[str]:
     return [str(f) for f in files]  # the same path twice: refused before any report
 
 
+def left_out_line(files: list[Path], registered) -> str:
+    """The report's line naming the panoramas no pair posed, and what to do."""
+    left = [name for name, ok in zip(shown_names(files), registered, strict=True) if not ok]
+    return f"left out {len(left)} panorama(s) that could not be posed: {', '.join(left)}; " + ADVICE
+
+
 def pose_report(files: list[Path], est) -> list[str]:
     """The printed report of a `ColmapEstimate`: a line per pair and per view."""
     names = shown_names(files)

@@ -73,14 +73,11 @@ def _metadata(path: Path) -> dict:
         with safe_open(str(path), framework="pt") as f:
             return f.metadata() or {}
     except (SafetensorError, OSError, ValueError) as exc:
-        raise UserError(f"{path}: {_unreadable(exc)}") from None
+        raise UserError(f"{path}: {_unreadable(exc, path)}") from None
 
 
-def _unreadable(exc: Exception) -> str:
-    return (
-        f"not a complete weights file ({type(exc).__name__}): restore it, or reproduce it "
-        "with `panogrf train` (see docs/weights.md)"
-    )
+def _unreadable(exc: Exception, path: Path) -> str:
+    return f"not a complete weights file ({type(exc).__name__}): {_restore_advice(path)}"
 
 
 def _restore_advice(path: Path) -> str:
@@ -109,13 +106,12 @@ def read_weights(path: Path) -> dict[str, torch.Tensor]:
     try:
         tensors = load_file(str(path))
     except (SafetensorError, OSError, ValueError, RuntimeError) as exc:
-        raise UserError(f"{path}: {_unreadable(exc)}") from None
+        raise UserError(f"{path}: {_unreadable(exc, path)}") from None
     bad = [k for k, t in tensors.items() if t.is_floating_point() and not bool(t.isfinite().all())]
     if bad:
         more = f" and {len(bad) - 1} more" if len(bad) > 1 else ""
         raise UserError(
-            f"{path}: non-finite values (NaN or inf) in {bad[0]}{more}: restore the file, or "
-            "reproduce it with `panogrf train`"
+            f"{path}: non-finite values (NaN or inf) in {bad[0]}{more}: {_restore_advice(path)}"
         )
     return tensors
 
