@@ -66,6 +66,44 @@ def ray_angles(cache, c2w, depth_low):
     return torch.arccos(cos)
 
 
+def _gray8(x):
+    """[3, H, W] colour in [0, 1] -> uint8 grey numpy image."""
+    g = (0.299 * x[0] + 0.587 * x[1] + 0.114 * x[2]).clamp(0, 1)
+    return (g * 255 + 0.5).to(torch.uint8).numpy()
+
+
+def floating(proj, up_w, preset: str, wrap: int = 64):
+    """Floating textures (Eisemann et al. 2008): each projection [V, 3, H, W] warped towards
+    where the others, weighted by ``up_w`` [V, H, W], see the same texture, by optical flow
+    (OpenCV's DIS) between the projections, so that a blend of misaligned copies has one copy."""
+    import cv2
+    import numpy as np
+
+    presets = {"u": cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST, "f": cv2.DISOPTICAL_FLOW_PRESET_FAST,
+               "m": cv2.DISOPTICAL_FLOW_PRESET_MEDIUM}  # fmt: skip
+    dis = cv2.DISOpticalFlow_create(presets[preset])
+    v, _, h, w = proj.shape
+    grey = [np.concatenate((g[:, -wrap:], g, g[:, :wrap]), axis=1) for g in map(_gray8, proj)]
+    out = torch.empty_like(proj)
+    ys, xs = torch.meshgrid(
+        torch.arange(h, dtype=proj.dtype), torch.arange(w, dtype=proj.dtype), indexing="ij"
+    )
+    for i in range(v):
+        shift = torch.zeros(2, h, w, dtype=proj.dtype)
+        for j in range(v):
+            if j == i:
+                continue
+            f = dis.calc(grey[i], grey[j], None)[:, wrap : wrap + w]  # I_i(x) ~ I_j(x + f)
+            shift += up_w[j] * torch.from_numpy(np.ascontiguousarray(f)).permute(2, 0, 1)
+        sx = (xs - shift[0]) % w
+        sy = (ys - shift[1]).clamp(0, h - 1)
+        grid = torch.stack((sx / (w - 1) * 2 - 1, sy / (h - 1) * 2 - 1), -1)[None]
+        out[i] = torch.nn.functional.grid_sample(
+            proj[i : i + 1], grid, mode="bilinear", padding_mode="border", align_corners=True
+        )[0]
+    return out
+
+
 def add_detail_pick(cache, c2w, low, height, config, pick: str):
     from panogrf.renderer import detail as D
     from panogrf.renderer.cache import resize_erp
@@ -98,8 +136,8 @@ def add_detail_pick(cache, c2w, low, height, config, pick: str):
         theta = ray_angles(cache, c2w, depth_low)
         p = weight * (1.0 / (theta + 0.0175)) ** power  # 1 degree: the source's own pose
         blend_w = p / p.sum(0, keepdim=True).clamp(min=1e-12)
-    elif pick.startswith("dist"):
-        power = float(pick.removeprefix("dist").removesuffix("lp"))
+    elif pick.startswith(("dist", "float")):
+        power = 2.0 if pick.startswith("float") else float(pick[4:].removesuffix("lp"))
         d = (cache.c2w[:, :3, 3] - c2w[:3, 3]).norm(dim=-1)  # [V] metres from the target
         p = weight * ((1.0 / (d + 0.01)) ** power)[:, None, None]  # 1 cm: the source's pose
         blend_w = p / p.sum(0, keepdim=True).clamp(min=1e-12)
@@ -110,6 +148,8 @@ def add_detail_pick(cache, c2w, low, height, config, pick: str):
     gate = total.clamp(max=1.0)
     up = D.upsample_erp(torch.cat((low.rgb, gate, blend_w)), size)
     up_rgb, up_gate, up_w = up[:3], up[3:4], up[4:]
+    if pick.startswith("float"):
+        proj = floating(proj, up_w, pick.removeprefix("float") or "m")
     blend = (up_w[:, None] * proj).sum(0)
     cut = min(config.cutoff or h, h)
     diff = blend - up_rgb if cut < h else blend
@@ -140,6 +180,7 @@ def main() -> None:
     parser.add_argument("--variants", default="blend,best,sharp2,sharp4")
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--out", type=Path, default=Path("lab/results/detail_pick.json"))
+    parser.add_argument("--save", type=Path, help="folder for each variant's render (PNG)")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     variants = args.variants.split(",")
@@ -156,6 +197,15 @@ def main() -> None:
             for v in variants:
                 rgb = add_detail_pick(cache, data.c2w[1], low, 512, DEFAULT_DETAIL, v)
                 s = image_scores(rgb, data.images[1:2])
+                if args.save is not None:
+                    import cv2
+
+                    args.save.mkdir(parents=True, exist_ok=True)
+                    img = (rgb.permute(1, 2, 0).numpy()[..., ::-1] * 255 + 0.5).astype("uint8")
+                    cv2.imwrite(str(args.save / f"{group}_{folder.name}_{v}.png"), img)
+                    true = data.images[1].permute(1, 2, 0).numpy()[..., ::-1]
+                    cv2.imwrite(str(args.save / f"{group}_{folder.name}_true.png"),
+                                (true * 255 + 0.5).astype("uint8"))  # fmt: skip
                 row = {k: s[k] for k in ("ws_psnr", "ssim", "lpips")} | {"scene": str(folder)}
                 rows[v].setdefault(group, []).append(row)
                 print(f"{group}/{folder.name} {v:>7}: {s['ws_psnr']:.2f} dB LPIPS {s['lpips']:.3f}",

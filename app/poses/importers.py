@@ -90,7 +90,7 @@ def read_tum(path: str | Path) -> ImportedPoses:
         if len(values) != 8 or not np.all(np.isfinite(values)):
             raise UserError(f"{path}:{n}: expected 'timestamp tx ty tz qx qy qz qw'")
         q = np.array(values[4:8])
-        if abs(np.linalg.norm(q) - 1) > 1e-3:
+        if np.abs(q).max() > 2 or abs(np.linalg.norm(q) - 1) > 1e-3:  # no overflow in the norm
             raise UserError(f"{path}:{n}: the quaternion is not unit length")
         poses.append(_pose(Rotation.from_quat(q).as_matrix(), np.array(values[1:4])))
     if not poses:
@@ -166,6 +166,8 @@ def read_opensfm(path: str | Path) -> ImportedPoses:
         if r.shape != (3,) or t.shape != (3,) or not np.all(np.isfinite(np.r_[r, t])):
             raise UserError(f"{path}: shot {name!r}: rotation and translation must be 3 numbers")
         rot_w2c = Rotation.from_rotvec(r).as_matrix()
+        if not np.all(np.isfinite(rot_w2c)):  # an angle too large to turn into a rotation
+            raise UserError(f"{path}: shot {name!r}: its rotation {r.tolist()} is no rotation")
         names.append(name)
         poses.append(_pose(rot_w2c.T, -rot_w2c.T @ t))
     if not poses:

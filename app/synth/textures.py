@@ -149,12 +149,31 @@ _PROCEDURAL: dict[str, tuple[Callable[[np.random.Generator, int], np.ndarray], .
 }
 
 
+def _without_profile(data: bytes) -> bytes:
+    """A PNG file's bytes without its iCCP (colour profile) chunk; other files as they are."""
+    signature = b"\x89PNG\r\n\x1a\n"
+    if not data.startswith(signature):
+        return data
+    out, at = [signature], len(signature)
+    while at + 8 <= len(data):
+        length = int.from_bytes(data[at : at + 4], "big")
+        end = at + 12 + length  # length, type, data, CRC
+        if data[at + 4 : at + 8] != b"iCCP":
+            out.append(data[at:end])
+        at = end
+    return b"".join(out)
+
+
 @cache
 def _photo(name: str, size: int) -> np.ndarray:
     import skimage
 
     path = Path(skimage.__file__).parent / "data" / name
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR)  # gray photos become 3 equal channels
+    # Gray photos become 3 equal channels; a PNG's colour profile is dropped unread (page.png's
+    # is malformed and libpng would warn on every run), the pixels are the same.
+    img = cv2.imdecode(
+        np.frombuffer(_without_profile(path.read_bytes()), np.uint8), cv2.IMREAD_COLOR
+    )
     if img is None:
         raise FileNotFoundError(f"scikit-image data image {path} is missing")
     h, w = img.shape[:2]

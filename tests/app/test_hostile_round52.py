@@ -1,0 +1,63 @@
+"""Hostile input, round 52: an OpenSfM shot whose rotation is too large to be one is named (it
+was reported as NaN on the levelled output's first frame); a TUM quaternion of huge numbers is
+refused without numpy's overflow warning; the synthetic homes' photo textures load without
+libpng's warning about page.png's malformed colour profile, pixels unchanged."""
+
+from __future__ import annotations
+
+import json
+import warnings
+
+import cv2
+import numpy as np
+import pytest
+
+from panogrf.app.errors import UserError
+from panogrf.app.poses import importers as im
+from panogrf.app.synth import textures
+
+
+def _two_poses() -> np.ndarray:
+    c2w = np.tile(np.eye(4), (2, 1, 1))
+    c2w[1, 0, 3] = 1.0
+    return c2w
+
+
+def test_an_opensfm_rotation_too_large_to_be_one_names_its_shot(tmp_path):
+    rec = tmp_path / "reconstruction.json"
+    im.write_opensfm(rec, ["a.png", "b.png"], _two_poses(), 512, 256)
+    data = json.loads(rec.read_text())
+    data[0]["shots"]["b.png"]["rotation"] = [1e308, 1e308, 0.0]
+    rec.write_text(json.dumps(data))
+    with pytest.raises(UserError, match=r"shot 'b.png': its rotation \[.*\] is no rotation"):
+        im.read_poses("opensfm", rec)
+
+
+def test_a_tum_quaternion_of_huge_numbers_is_refused_quietly(tmp_path):
+    traj = tmp_path / "traj.txt"
+    traj.write_text("0 0 0 0 0 0 0 1\n1 1 0 0 1e200 1e200 0 0\n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # numpy's overflow in the norm would raise here
+        with pytest.raises(UserError, match=r"traj.txt:2: the quaternion is not unit length"):
+            im.read_poses("tum", traj)
+
+
+def test_a_png_loses_its_colour_profile_and_keeps_its_pixels(tmp_path):
+    img = (np.random.default_rng(0).random((8, 12, 3)) * 255).astype(np.uint8)
+    ok, png = cv2.imencode(".png", img)
+    assert ok
+    data = png.tobytes()
+    # An iCCP chunk after IHDR (8 + 25 bytes): length, type, a profile's name and bytes, CRC.
+    body = b"ICC Profile\x00\x00" + b"\x01" * 20
+    chunk = len(body).to_bytes(4, "big") + b"iCCP" + body + b"\x00\x00\x00\x00"
+    with_profile = data[:33] + chunk + data[33:]
+    assert textures._without_profile(with_profile) == data
+    assert textures._without_profile(b"\xff\xd8 a jpeg") == b"\xff\xd8 a jpeg"
+    decoded = cv2.imdecode(np.frombuffer(textures._without_profile(with_profile), np.uint8), 1)
+    np.testing.assert_array_equal(decoded, img)
+
+
+def test_the_photo_textures_load_without_a_libpng_warning(capfd):
+    for name in textures.photo_names("train"):
+        textures._photo.__wrapped__(name, 16)
+    assert "libpng" not in capfd.readouterr().err
