@@ -75,8 +75,10 @@ def main() -> None:
     for k, rs in rows.items():
         m = {f: statistics.fmean(r[f] for r in rs) for f in ("unseen", "ws_psnr", "ssim", "lpips",
                                                               "seconds")}  # fmt: skip
-        print(f"{k:>3} {m['unseen']:>7.1%} {m['ws_psnr']:>8.2f} {m['ssim']:>6.3f} "
-              f"{m['lpips']:>6.3f} {m['seconds']:>5.0f}")
+        print(
+            f"{k:>3} {m['unseen']:>7.1%} {m['ws_psnr']:>8.2f} {m['ssim']:>6.3f} "
+            f"{m['lpips']:>6.3f} {m['seconds']:>5.0f}"
+        )
 
 
 if __name__ == "__main__":

@@ -66,9 +66,10 @@ def main() -> None:
         print(f"{group}/{folder.name}: unseen {unseen:.0%} " + " ".join(
             f"{n} {r[group][-1]['ws_psnr']:.2f}/{r[group][-1]['lpips']:.3f}"
             for n, r in rows.items()), flush=True)  # fmt: skip
+    fields = ("ws_psnr", "ssim", "lpips")
     table = {
         n: {
-            g: {k: statistics.fmean(r[k] for r in rs) for k in ("ws_psnr", "ssim", "lpips", "unseen")}
+            g: {k: statistics.fmean(r[k] for r in rs) for k in (*fields, "unseen")}
             for g, rs in [*per.items(), ("pooled", [r for rs in per.values() for r in rs])]
         }
         for n, per in rows.items()
@@ -78,7 +79,8 @@ def main() -> None:
     print(f"\n{'variant':>12} " + " ".join(f"{g:>24}" for g in groups))
     print(f"{'unseen':>12} " + " ".join(f"{table['shipped'][g]['unseen']:>24.1%}" for g in groups))
     for n in names:
-        cells = [f"{t['ws_psnr']:6.2f} / {t['ssim']:.3f} / {t['lpips']:.3f}" for t in table[n].values()]
+        cells = [f"{t['ws_psnr']:6.2f} / {t['ssim']:.3f} / {t['lpips']:.3f}"
+                 for t in table[n].values()]  # fmt: skip
         print(f"{n:>12} " + " ".join(f"{c:>24}" for c in cells))
 
 
