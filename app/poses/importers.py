@@ -167,7 +167,9 @@ def read_opensfm(path: str | Path) -> ImportedPoses:
             raise UserError(f"{path}: shot {name!r}: rotation and translation must be 3 numbers")
         rot_w2c = Rotation.from_rotvec(r).as_matrix()
         if not np.all(np.isfinite(rot_w2c)):  # an angle too large to turn into a rotation
-            raise UserError(f"{path}: shot {name!r}: its rotation {r.tolist()} is no rotation")
+            raise UserError(
+                f"{path}: shot {name!r}: rotation {r.tolist()} is too large to be an angle"
+            )
         names.append(name)
         poses.append(_pose(rot_w2c.T, -rot_w2c.T @ t))
     if not poses:
