@@ -18,6 +18,7 @@ import re
 import signal
 import sys
 import threading
+from typing import Any, TextIO
 
 from panogrf.app.errors import UserError
 from panogrf.app.runtime import keep_freed_memory
@@ -111,9 +112,16 @@ def _main(argv: list[str] | None) -> int:
     except KeyboardInterrupt:
         print("panogrf: interrupted", file=sys.stderr)
         return 130
+    except SystemExit as done:  # --help and usage errors: the help must reach its reader
+        if (why := _stdout_failure()) is not None:
+            print(f"panogrf: error: {why}", file=sys.stderr)
+            return 1
+        raise done
     keep_freed_memory()
     # Errors name the command as typed: "panogrf scene check", not "panogrf scene".
     name = " ".join(filter(None, (args.command, getattr(args, f"{args.command}_command", None))))
+    if sys.stdout is not None:
+        sys.stdout = _Watched(sys.stdout)  # type: ignore[assignment]
     try:
         if hasattr(args, "quiet"):  # a command that prepares scenes: its stages on stderr
             from panogrf.app.progress import terminal_progress
@@ -122,7 +130,8 @@ def _main(argv: list[str] | None) -> int:
                 code = int(args.func(args) or 0)
         else:
             code = int(args.func(args) or 0)
-        sys.stdout.flush()  # here, so that a closed pipe is caught below, not at exit
+        if sys.stdout is not None:  # None: started with stdout closed (`>&-`)
+            sys.stdout.flush()  # here, so that a closed pipe is caught below, not at exit
         return code
     except BrokenPipeError:
         # The reader went away (`panogrf scene check DIR | head`): stop quietly like the shell
@@ -142,6 +151,68 @@ def _main(argv: list[str] | None) -> int:
     except KeyboardInterrupt:
         print(f"panogrf {name}: interrupted", file=sys.stderr)
         return 130
+    except OSError as exc:  # standard output on a full disk or a broken device, nothing else
+        if not isinstance(sys.stdout, _Watched) or sys.stdout.failed is not exc:
+            raise
+        _drop_stdout()
+        print(f"panogrf {name}: error: {_cannot_write(exc)}", file=sys.stderr)
+        return 1
+    finally:
+        if isinstance(sys.stdout, _Watched):
+            sys.stdout = sys.stdout.stream
+
+
+class _Watched:
+    """Standard output as it is, remembering the error a write to it raised (`failed`): a
+    full disk or /dev/full is then said in one line, not as a traceback."""
+
+    def __init__(self, stream: TextIO) -> None:
+        self.stream = stream
+        self.failed: OSError | None = None
+
+    def write(self, text: str) -> int:
+        try:
+            return int(self.stream.write(text))
+        except OSError as exc:
+            self.failed = exc
+            raise
+
+    def flush(self) -> None:
+        try:
+            self.stream.flush()
+        except OSError as exc:
+            self.failed = exc
+            raise
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.stream, name)
+
+
+def _cannot_write(exc: OSError) -> str:
+    return f"cannot write to standard output ({exc.strerror or exc})"
+
+
+def _drop_stdout() -> None:
+    """What standard output could not take is dropped: Python's own flush at exit would fail
+    again, with a traceback."""
+    try:
+        fd = sys.stdout.fileno()
+    except (OSError, ValueError):  # a stream without a file (io.UnsupportedOperation)
+        return
+    os.dup2(os.open(os.devnull, os.O_WRONLY), fd)
+
+
+def _stdout_failure() -> str | None:
+    """Why standard output cannot be written (a full disk, /dev/full, an I/O error), found by
+    flushing it; None where it can."""
+    if sys.stdout is None:
+        return None
+    try:
+        sys.stdout.flush()
+    except OSError as exc:
+        _drop_stdout()
+        return _cannot_write(exc)
+    return None
 
 
 def _out_of_memory(exc: BaseException) -> str | None:

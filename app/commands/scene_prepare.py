@@ -13,6 +13,7 @@ The options are declared once, on the fields of `PrepareConfig` (`panogrf.app.op
 from __future__ import annotations
 
 import argparse
+import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -120,11 +121,19 @@ def _check_cache_dir(cache_dir: Path | None) -> None:
     from panogrf.app.scene.store import default_cache_dir
 
     folder = cache_dir or default_cache_dir()  # a file given is refused by the option's parser
+    # The folder named as the user chose it: the option, or the variable behind the default.
+    named = f"--cache-dir {folder}" if cache_dir else _default_origin(folder)
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise UserError(f"--cache-dir {folder}: cannot make it ({exc.strerror or exc})") from None
-    check_writable(folder / "cache", "--cache-dir")
+        raise UserError(f"{named}: cannot make it ({exc.strerror or exc})") from None
+    check_writable(folder / "cache", "--cache-dir" if cache_dir else named)
+
+
+def _default_origin(folder: Path) -> str:
+    """The default cache folder as a message names it, with where it came from."""
+    origin = "$XDG_CACHE_HOME" if os.environ.get("XDG_CACHE_HOME") else "$HOME"
+    return f"the cache folder {folder} (from {origin}; --cache-dir chooses another)"
 
 
 def _quiet(*_args) -> None:

@@ -133,6 +133,8 @@ class ViewConfig:
             raise UserError("--frames must be at least 1")
         if self.path_out.suffix.lower() != ".json":  # O would replace an image, a video...
             raise UserError(f"--path-out must end in .json (a camera path), got {self.path_out}")
+        if self.path_out.exists() and not self.path_out.is_file():  # O would replace it
+            raise UserError(f"--path-out: {self.path_out} is not a regular file")
         if self.moving_rows is not None and not 16 <= self.moving_rows <= 512:
             raise UserError("--moving-rows must be between 16 and 512")
         if not self.screenshot_dir.is_dir():  # said before the session, not at the first X

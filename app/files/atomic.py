@@ -294,6 +294,8 @@ def check_output(path: str | os.PathLike[str], option: str = "--out", folder: bo
         raise UserError(f"{option}: {path} is a file, expected a folder")
     if not folder and path.is_dir():
         raise UserError(f"{option}: {path} is a folder, expected a file name")
+    if path.exists() and not (path.is_dir() or path.is_file()):  # it would replace the node
+        raise UserError(f"{option}: {path} is not a regular file (a device, pipe or socket)")
     return path
 
 

@@ -202,6 +202,8 @@ class DiskStore:
         path = self.where(key)
         if not path.exists():
             return None
+        if not path.is_file():  # a pipe would block the read for good
+            raise Unusable("not a regular file")
         if not os.access(path, os.R_OK):  # safetensors would call it a missing file
             raise Unusable("unreadable (no permission to read it)")
         try:

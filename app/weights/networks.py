@@ -68,7 +68,17 @@ def weights_path(name: str) -> Path:
     return Path(folder) / name if folder else asset_path(name)
 
 
+def _regular(path: Path) -> None:
+    """Refuse a weights path that exists but is no regular file (a pipe would block the read
+    for good, a folder says nothing useful)."""
+    if path.exists() and not path.is_file():
+        raise UserError(
+            f"{path}: not a regular file (a pipe, device or folder): put the weights file there"
+        )
+
+
 def _metadata(path: Path) -> dict:
+    _regular(path)
     try:
         with safe_open(str(path), framework="pt") as f:
             return f.metadata() or {}
@@ -103,6 +113,7 @@ def read_weights(path: Path) -> dict[str, torch.Tensor]:
     naming the file otherwise."""
     if not path.exists():
         raise UserError(f"missing weights {path}: {_restore_advice(path)}")
+    _regular(path)
     try:
         tensors = load_file(str(path))
     except (SafetensorError, OSError, ValueError, RuntimeError) as exc:

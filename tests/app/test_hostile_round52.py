@@ -5,16 +5,25 @@ libpng's warning about page.png's malformed colour profile, pixels unchanged."""
 
 from __future__ import annotations
 
+import errno
+import io
 import json
+import os
+import stat
+import sys
 import warnings
 
 import cv2
 import numpy as np
 import pytest
+from helpers.cli import run_cli
 
+from panogrf.app import cli
 from panogrf.app.errors import UserError
 from panogrf.app.poses import importers as im
 from panogrf.app.synth import textures
+from panogrf.app.weights import networks
+from panogrf.assets import path as asset_path
 
 
 def _two_poses() -> np.ndarray:
@@ -63,3 +72,69 @@ def test_the_photo_textures_load_without_a_libpng_warning(capfd):
     for name in textures.photo_names("train"):
         textures._photo.__wrapped__(name, 16)
     assert "libpng" not in capfd.readouterr().err
+
+
+# --- round 52's second battery -------------------------------------------------------------
+
+DEMO = asset_path("demo")
+
+
+def _error(capsys, argv: list[str]) -> str:
+    code, line = run_cli(argv, capsys)
+    assert code == 2 and line.startswith("panogrf"), line
+    return line
+
+
+def test_an_output_that_is_a_pipe_is_refused_and_left_alone(tmp_path, capsys):
+    out = tmp_path / "view.png"
+    os.mkfifo(out)
+    argv = ["render", str(DEMO), "--out", str(out), "--target-frame", "1", "--height", "32",
+            "--method", "nearest"]  # fmt: skip
+    assert _error(capsys, argv).endswith("is not a regular file (a device, pipe or socket)")
+    assert stat.S_ISFIFO(out.stat().st_mode)
+    path_out = tmp_path / "path.json"
+    os.mkfifo(path_out)
+    line = _error(capsys, ["view", str(DEMO), "--window", "headless", "--path-out", str(path_out)])
+    assert line.endswith(f"--path-out: {path_out} is not a regular file")
+
+
+def test_a_cache_entry_or_weights_file_that_is_a_pipe_does_not_block(tmp_path, monkeypatch):
+    from panogrf.app.scene.store import DiskStore, Unusable
+
+    store = DiskStore(tmp_path)
+    os.mkfifo(store.where("k"))
+    with pytest.raises(Unusable, match="not a regular file"):
+        store.read("k")  # would block in open() for good
+    weights = tmp_path / "w"
+    weights.mkdir()
+    os.mkfifo(weights / "x.safetensors")
+    with pytest.raises(UserError, match=r"x.safetensors: not a regular file \(a pipe"):
+        networks.read_weights(weights / "x.safetensors")
+
+
+class _Full(io.StringIO):
+    """Standard output on a full disk."""
+
+    def write(self, text: str) -> int:
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+
+def test_standard_output_on_a_full_disk_is_one_line(monkeypatch, capsys):
+    frames = [str(DEMO / "images" / f"frame_00{i}.png") for i in (0, 1)]
+    capsys.readouterr()
+    monkeypatch.setattr(sys, "stdout", _Full())
+    code = cli.main(["compare", *frames])
+    err = capsys.readouterr().err
+    assert code == 1 and "Traceback" not in err
+    assert (
+        err.strip()
+        == "panogrf compare: error: cannot write to standard output (No space left on device)"
+    )
+
+
+def test_a_cache_folder_from_the_environment_is_named_so(monkeypatch, capsys, tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(blocker))
+    line = _error(capsys, ["scene", "prepare", str(DEMO), "--sources", "0,2", "--no-refine-depth"])
+    assert f"the cache folder {blocker}/panogrf (from $XDG_CACHE_HOME; --cache-dir" in line
