@@ -105,8 +105,9 @@ class RenderConfig:
     """The method (`panogrf.renderer.methods.METHODS`)."""
     quality: Quality = option(
         None,
-        "preview (GL depth-mesh warp), fast (depth-guided neural, default) or paper "
-        "(neural, 64 + 64 samples); the neural methods only",
+        "preview (GL depth-mesh warp), draft (neural, 3 + 1 samples: the viewer's first "
+        "refinement), fast (depth-guided neural, 8 + 4, default) or paper (neural, 64 + 64 "
+        "samples); the neural methods only",
         choices=(Quality.PREVIEW, *sorted(QUALITY)),
     )
     """The sampling, or ``preview`` (the GL depth-mesh warp); given as None: fast."""

@@ -163,12 +163,17 @@ def run_reproject(args: argparse.Namespace) -> int:
     if not sources:
         raise UserError(f"{cfg.dir}: one view; reprojection needs another to warp from")
     name = scene.frames[target].name
+    if not bool((data.depths[target] > 0).any()):  # its depth decides what is occluded
+        raise UserError(f"--target {target} ({name}) has no depth map: choose a view that has")
     print(f"reprojection into view {target} ({name}), {scene.width}x{scene.height}:")
     print(
         f"  {'source':<12} {'baseline m':>10} {'covered':>8} "
         f"{'PSNR depth warp':>16} {'PSNR rotation only':>19}"
     )
     for i in sources:
+        if not bool((data.depths[i] > 0).any()):
+            print(f"  {scene.frames[i].name:<12} no depth map to warp with")
+            continue
         r = reprojection_check(data.images, data.c2w, data.depths, i, target, cfg.occlusion_tol)
         print(
             f"  {scene.frames[i].name:<12} {r.baseline_m:>10.3f} {r.covered:>8.1%} "

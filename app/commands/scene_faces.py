@@ -34,8 +34,15 @@ def run_faces(parsed: argparse.Namespace) -> int:
         raise UserError(f"--out {args.out}: is a file, not a folder")
     images = read_panoramas(args.panoramas).images
     size = args.size or images.shape[3] // 4
-    if size < 8:
+    if size < 8 and args.size:
         raise UserError(f"--size {size}: faces need at least 8 px")
+    if size < 8:  # the default, a quarter of the width
+        h, w = images.shape[2:4]  # the smallest panorama's size: all are read at it
+        which = args.panoramas[0] if len(args.panoramas) == 1 else "the smallest panorama"
+        raise UserError(
+            f"{which}: {w}x{h} is too small for cube faces (a quarter of the width, at least "
+            "8 px); give --size, or larger panoramas"
+        )
     try:
         for path, img in zip(args.panoramas, images, strict=True):
             erp = torch.from_numpy(img).double()[None] / 255.0

@@ -61,7 +61,11 @@ class ViewConfig:
     """The window's width and height in pixels."""
     start_frame: int = option(0, "start at this view's pose")
     """The frame whose pose the camera starts at."""
-    no_refine: bool = option(False, "preview only (no network)")
+    no_refine: bool = option(
+        False,
+        "show the GL preview only: no neural refinement of the view (the scene's depth is "
+        "still estimated; --no-refine-depth skips its per-scene refinement)",
+    )
     """The GL preview only: no neural refinement."""
     live: str = option(
         "auto",

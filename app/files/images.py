@@ -14,7 +14,12 @@ from __future__ import annotations
 import io
 import os
 import re
+import sys
+import tempfile
+import threading
 import warnings
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import cv2
@@ -58,14 +63,95 @@ def read_pixels(path: Path) -> np.ndarray:
         raise ImageReadError(path, problem)
     # libjpeg decodes a truncated file with a warning only, its lost part flat grey.
     if data[:2] == b"\xff\xd8" and _jpeg_truncated(data):
+        if data.rstrip(b"\x00").endswith(b"\xff\xd9"):  # all there, but not well formed
+            raise ImageReadError(path, "corrupt JPEG (its data is damaged)")
         raise ImageReadError(path, "truncated JPEG (the file ends before the image does)")
-    try:
-        pixels = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
-    except cv2.error:  # OpenCV asserts on some inputs instead of returning None
-        pixels = None
+    with _libpng_lines() as said:  # its own lines, naming no file: said here once, named
+        try:
+            pixels = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+        except cv2.error:  # OpenCV asserts on some inputs instead of returning None
+            pixels = None
     if pixels is None:
+        errors = [x.removeprefix("libpng error: ") for x in said if x.startswith("libpng error")]
+        if errors:
+            raise ImageReadError(path, f"corrupt PNG ({errors[0]})")
         raise ImageReadError(path, "not a readable image (unknown format or corrupt file)")
     return pixels
+
+
+class _Capture:
+    """The process's stderr taken into a temporary file while any thread decodes (`_libpng_lines`):
+    the first to come redirects it, the last to leave puts it back and passes on all that was
+    not libpng's. libpng's lines go to the block that was alone while they were printed;
+    where blocks overlapped (threads decoding side by side) nobody can tell whose they are and
+    they are dropped (the caller names the file that failed anyway)."""
+
+    def __init__(self) -> None:
+        self.lock = threading.Lock()
+        self.inside = 0
+        self.shared = False
+        self.saved = -1
+        self.file: io.BufferedRandom | None = None
+
+    def enter(self) -> None:
+        with self.lock:
+            self.inside += 1
+            if self.inside > 1:
+                self.shared = True
+                return
+            if sys.stderr is not None:
+                sys.stderr.flush()
+            self.file = tempfile.TemporaryFile()
+            self.saved = os.dup(2)
+            os.dup2(self.file.fileno(), 2)
+
+    def leave(self, said: list[str]) -> None:
+        with self.lock:
+            self.inside -= 1
+            if self.inside:
+                return
+            os.dup2(self.saved, 2)
+            os.close(self.saved)
+            assert self.file is not None
+            self.file.seek(0)
+            text, self.file = self.file.read(), None
+            shared, self.shared = self.shared, False
+        kept, lines = _split_libpng(text)
+        if kept:
+            os.write(2, kept)
+        if not shared:
+            said.extend(lines)
+
+
+def _split_libpng(text: bytes) -> tuple[bytes, list[str]]:
+    """(``text`` without libpng's lines, those lines); a line of libpng's may follow a progress
+    bar's carriage return on the same line."""
+    kept, lines = [], []
+    for part in text.split(b"\n"):
+        at = part.find(b"libpng ")
+        if at >= 0:
+            lines.append(part[at:].decode(errors="replace"))
+            part = part[:at]
+            if not part:
+                continue
+        kept.append(part)
+    return b"\n".join(kept), lines
+
+
+_CAPTURE = _Capture()
+
+
+@contextmanager
+def _libpng_lines() -> Iterator[list[str]]:
+    """The lines libpng prints on the process's stderr while the block decodes (a warning for
+    harmless extra data, an error before OpenCV gives up), off stderr and in the list once the
+    block ends (`_Capture`)."""
+    said: list[str] = []
+    _CAPTURE.enter()
+    try:
+        yield said
+    finally:
+        _CAPTURE.leave(said)
 
 
 def turned_note(path: Path) -> str:

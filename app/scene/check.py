@@ -148,7 +148,13 @@ def _inspect_frame(root: Path, i: int, frame: Any, keep: bool, problems: list, n
         try:
             found.depth = read_depth(root / found.depth_file)
             dh, dw = found.depth.shape
-            if found.size is not None and (dw, dh) != found.size:
+            if not (found.depth > 0).any():  # every score against it would be NaN
+                notes.append(
+                    f"{where}.depth_file_path ({found.depth_file}): no known depth (every pixel "
+                    "is 0, unknown): left out"
+                )
+                found.depth_file = found.depth = None
+            elif found.size is not None and (dw, dh) != found.size:
                 problems.append(
                     f"{where}.depth_file_path ({found.depth_file}): depth map is {dw}x{dh} but "
                     f"its image is {found.size[0]}x{found.size[1]} (width x height)"

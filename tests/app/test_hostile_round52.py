@@ -138,3 +138,78 @@ def test_a_cache_folder_from_the_environment_is_named_so(monkeypatch, capsys, tm
     monkeypatch.setenv("XDG_CACHE_HOME", str(blocker))
     line = _error(capsys, ["scene", "prepare", str(DEMO), "--sources", "0,2", "--no-refine-depth"])
     assert f"the cache folder {blocker}/panogrf (from $XDG_CACHE_HOME; --cache-dir" in line
+
+
+def _png_with_idat(raw_of) -> bytes:
+    """The demo's frame 1 as a PNG whose image data is ``raw_of(its raw data)``, chunks valid."""
+    import struct
+    import zlib
+
+    data = (DEMO / "images" / "frame_001.png").read_bytes()
+    chunks, at = [], 8
+    while at < len(data):
+        (n,) = struct.unpack(">I", data[at : at + 4])
+        chunks.append((data[at + 4 : at + 8], data[at + 8 : at + 8 + n]))
+        at += 12 + n
+
+    def chunk(kind: bytes, body: bytes) -> bytes:
+        return (
+            struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+        )
+
+    raw = zlib.decompress(b"".join(body for kind, body in chunks if kind == b"IDAT"))
+    idat = zlib.compress(raw_of(raw))
+    return data[:8] + chunk(b"IHDR", chunks[0][1]) + chunk(b"IDAT", idat) + chunk(b"IEND", b"")
+
+
+def test_png_data_cut_short_is_named_without_libpng_lines(tmp_path, capfd):
+    from panogrf.app.files.images import ImageReadError, read_pixels
+
+    half = tmp_path / "half.png"
+    half.write_bytes(_png_with_idat(lambda raw: raw[: len(raw) // 2]))
+    with pytest.raises(ImageReadError, match=r"half.png: corrupt PNG \(Not enough image data\)"):
+        read_pixels(half)
+    extra = tmp_path / "extra.png"
+    extra.write_bytes(_png_with_idat(lambda raw: raw + raw))
+    assert read_pixels(extra).shape == (256, 512, 3)  # the extra data is harmless
+    assert "libpng" not in capfd.readouterr().err
+
+
+def test_a_damaged_jpeg_that_is_all_there_is_called_corrupt(tmp_path):
+    from panogrf.app.files.images import ImageReadError, read_pixels
+
+    img = cv2.imread(str(DEMO / "images" / "frame_001.png"))
+    ok, jpeg = cv2.imencode(".jpg", img)
+    data = bytearray(jpeg.tobytes())
+    for i in range(len(data) // 2, len(data) // 2 + 40, 3):
+        data[i] = 0xFF
+    bad = tmp_path / "bad.jpg"
+    bad.write_bytes(bytes(data))
+    with pytest.raises(ImageReadError, match=r"bad.jpg: corrupt JPEG \(its data is damaged\)"):
+        read_pixels(bad)
+
+
+def test_faces_of_a_tiny_panorama_name_it_not_the_size_option(tmp_path, capsys):
+    tiny = tmp_path / "tiny.png"
+    cv2.imwrite(str(tiny), np.zeros((15, 30, 3), np.uint8))
+    line = _error(capsys, ["scene", "faces", str(tiny), "--out", str(tmp_path / "f")])
+    assert line.endswith(f"{tiny}: 30x15 is too small for cube faces (a quarter of the width, "
+                         "at least 8 px); give --size, or larger panoramas")  # fmt: skip
+
+
+def test_a_depth_map_with_no_known_pixel_is_left_out_and_said(tmp_path, capsys):
+    import shutil
+
+    scene = tmp_path / "s"
+    shutil.copytree(DEMO, scene)
+    meta = json.loads((scene / "transforms.json").read_text())
+    depth = scene / meta["frames"][1]["depth_file_path"]
+    cv2.imwrite(str(depth), np.zeros((256, 512), np.uint16))
+    assert cli.main(["scene", "check", str(scene)]) == 0
+    out = capsys.readouterr().out
+    assert "no known depth (every pixel is 0, unknown): left out" in out
+    assert "depth: 2 of 3 views" in out
+    line = _error(capsys, ["scene", "reproject", str(scene), "--target", "1"])
+    assert line.endswith("--target 1 (frame_001) has no depth map: choose a view that has")
+    assert cli.main(["scene", "reproject", str(scene), "--target", "0"]) == 0
+    assert "frame_001    no depth map to warp with" in capsys.readouterr().out
