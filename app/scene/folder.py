@@ -210,15 +210,18 @@ def write_new_scene(out: Path, c2w: np.ndarray, *args: Any, **kwargs: Any) -> No
     write (a full disk, Ctrl-C) what was written goes again, so the same command can run
     again; a failed write's error is one line (UserError). Photos kilometres apart are warned
     about (`far_apart_warning`): a unit mistake is best caught where the poses come in."""
-    existed = out.exists()
+    from panogrf.app.files.atomic import commit, discard, temp_path
+
+    tmp = temp_path(out)  # written whole beside it, then renamed: one run's scene, never two
     try:
-        write_scene(out, c2w, *args, **kwargs)
+        write_scene(tmp, c2w, *args, **kwargs)
+        if out.is_dir() and any(out.iterdir()):  # another run wrote there meanwhile
+            raise UserError(
+                f"{out}: another run wrote a scene there meanwhile; choose another --out"
+            )
+        commit(tmp, out)
     except BaseException as exc:  # a full disk, Ctrl-C, SIGTERM: no half scene is left
-        if existed:
-            for item in out.iterdir():
-                shutil.rmtree(item, ignore_errors=True) if item.is_dir() else item.unlink()
-        else:
-            shutil.rmtree(out, ignore_errors=True)
+        discard(tmp)
         if isinstance(exc, OSError):
             raise UserError(f"cannot write {out}: {exc.strerror or exc}") from None
         raise

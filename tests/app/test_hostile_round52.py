@@ -213,3 +213,24 @@ def test_a_depth_map_with_no_known_pixel_is_left_out_and_said(tmp_path, capsys):
     assert line.endswith("--target 1 (frame_001) has no depth map: choose a view that has")
     assert cli.main(["scene", "reproject", str(scene), "--target", "0"]) == 0
     assert "frame_001    no depth map to warp with" in capsys.readouterr().out
+
+
+def test_a_scene_written_meanwhile_by_another_run_is_kept(tmp_path, monkeypatch):
+    from panogrf.app.scene import folder
+
+    out = tmp_path / "scene"
+    real = folder.write_scene
+
+    def slow_write(root, *args, **kwargs):  # another run finishes while this one writes
+        real(root, *args, **kwargs)
+        out.mkdir()
+        (out / "transforms.json").write_text("{}")
+
+    monkeypatch.setattr(folder, "write_scene", slow_write)
+    images = np.zeros((2, 3, 16, 32), np.uint8)
+    c2w = np.tile(np.eye(4), (2, 1, 1))
+    c2w[1, 0, 3] = 1.0
+    with pytest.raises(UserError, match="another run wrote a scene there meanwhile"):
+        folder.write_new_scene(out, c2w, images)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scene"]  # no temporary left
+    assert (out / "transforms.json").read_text() == "{}"
