@@ -279,7 +279,29 @@ def read_rgb_with_notes(path: str | os.PathLike[str]) -> tuple[np.ndarray, list[
     if full == 65535:
         pixels = np.round(pixels.astype(np.float32) * (255.0 / 65535.0)).astype(np.uint8)
         notes.append("16-bit converted to 8-bit")
+    if (turn := _orientation(path)) is not None:
+        notes.append(f"its EXIF orientation (viewers show it {turn}) is not applied")
     return np.ascontiguousarray(pixels, dtype=np.uint8), notes
+
+
+#: EXIF orientation tag -> how a viewer shows the stored pixels.
+_TURNS = {2: "mirrored", 3: "turned 180 degrees", 4: "upside down", 5: "turned 90 degrees",
+          6: "turned 90 degrees", 7: "turned 90 degrees", 8: "turned 90 degrees"}  # fmt: skip
+
+
+def _orientation(path: Path) -> str | None:
+    """How the file's EXIF orientation tag turns it for viewers (a JPEG, TIFF or WebP), or
+    None where it has none or the identity."""
+    if path.suffix.lower() not in (".jpg", ".jpeg", ".tif", ".tiff", ".webp"):
+        return None
+    try:
+        from PIL import Image
+
+        with Image.open(path) as img:
+            tag = img.getexif().get(0x0112)
+    except Exception:  # noqa: BLE001 - no tag to tell of
+        return None
+    return _TURNS.get(tag)
 
 
 def read_rgb(path: str | os.PathLike[str]) -> np.ndarray:

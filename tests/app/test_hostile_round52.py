@@ -234,3 +234,19 @@ def test_a_scene_written_meanwhile_by_another_run_is_kept(tmp_path, monkeypatch)
         folder.write_new_scene(out, c2w, images)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["scene"]  # no temporary left
     assert (out / "transforms.json").read_text() == "{}"
+
+
+def test_an_exif_orientation_that_is_not_applied_is_said(tmp_path):
+    from PIL import Image
+
+    from panogrf.app.files.images import read_rgb_with_notes
+
+    photo = Image.open(DEMO / "images" / "frame_001.png").convert("RGB")
+    exif = Image.Exif()
+    exif[0x0112] = 3
+    photo.save(tmp_path / "turned.jpg", exif=exif)
+    photo.save(tmp_path / "plain.jpg")
+    pixels, notes = read_rgb_with_notes(tmp_path / "turned.jpg")
+    assert notes == ["its EXIF orientation (viewers show it turned 180 degrees) is not applied"]
+    plain, plain_notes = read_rgb_with_notes(tmp_path / "plain.jpg")
+    assert plain_notes == [] and np.array_equal(pixels, plain)  # used as stored
