@@ -84,9 +84,12 @@ def _at_smallest(originals: list[np.ndarray]) -> Panoramas:
 
 
 def _view_names(paths: list[Path]) -> list[str]:
-    """The photos' stems, or ``view_000``... if two share one or one is not plain (``.jpg``)."""
+    """The photos' stems, or ``view_000``... if two share one or one is not plain (``.jpg``; bytes
+    that are not text, lone surrogates here, which transforms.json cannot hold)."""
     names = [p.stem for p in paths]
-    if len(set(names)) != len(names) or any(not n or n.startswith(".") for n in names):
+    if len(set(names)) != len(names) or any(
+        not n.isprintable() or n[:1] in ("", ".") for n in names
+    ):
         names = [f"view_{k:03d}" for k in range(len(paths))]
     return names
 

@@ -228,9 +228,26 @@ def nan_to_null(data: object) -> object:
     return data
 
 
+def _valid_text(data: object) -> object:
+    """``data`` with every string that holds bytes of a file name that are not UTF-8 (lone
+    surrogates, which JSON readers refuse) showing them as ``\\xff``."""
+    if isinstance(data, str):
+        if data.isprintable() or data.isascii():
+            return data
+        try:
+            return data.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+        except UnicodeEncodeError:  # a surrogate no file name's byte gives
+            return data.encode("utf-8", "backslashreplace").decode("utf-8")
+    if isinstance(data, dict):
+        return {_valid_text(k): _valid_text(v) for k, v in data.items()}
+    if isinstance(data, (list, tuple)):
+        return [_valid_text(v) for v in data]
+    return data
+
+
 def json_text(data: object) -> str:
     """Indented JSON with number lists on one line (a pose's matrix rows read well)."""
-    text = json.dumps(data, indent=2, allow_nan=False)
+    text = json.dumps(_valid_text(data), indent=2, allow_nan=False)
     return _FLAT_LIST.sub(lambda m: "[" + ", ".join(x.strip() for x in m[1].split(",")) + "]", text)
 
 

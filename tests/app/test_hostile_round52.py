@@ -250,3 +250,17 @@ def test_an_exif_orientation_that_is_not_applied_is_said(tmp_path):
     assert notes == ["its EXIF orientation (viewers show it turned 180 degrees) is not applied"]
     plain, plain_notes = read_rgb_with_notes(tmp_path / "plain.jpg")
     assert plain_notes == [] and np.array_equal(pixels, plain)  # used as stored
+
+
+def test_file_names_that_are_not_text_never_reach_json_as_lone_surrogates():
+    from pathlib import Path
+
+    from panogrf.app.commands.scene_poses import _view_names
+    from panogrf.app.files.atomic import json_text
+
+    odd = Path(os.fsdecode(b"bad\xff.png"))  # a Latin-1 name on a UTF-8 system
+    assert _view_names([odd, Path("b.png")]) == ["view_000", "view_001"]
+    assert _view_names([Path("a.png"), Path("b.jpg")]) == ["a", "b"]
+    text = json_text({"from": [str(odd), "café.jpg"]})
+    assert json.loads(text) == {"from": ["bad\\xff.png", "café.jpg"]}
+    text.encode("utf-8")  # no lone surrogate left
