@@ -107,21 +107,35 @@ def _main(argv: list[str] | None) -> int:
     for stream in (sys.stdout, sys.stderr):
         if hasattr(stream, "reconfigure"):
             stream.reconfigure(errors="backslashreplace")
+    watched = None if sys.stdout is None else _Watched(sys.stdout)  # None: stdout closed
+    if watched is not None:
+        sys.stdout = watched  # type: ignore[assignment]
+    try:
+        return _run(argv, watched)
+    finally:
+        if watched is not None:
+            sys.stdout = watched.stream
+            if watched.failed is None:  # what an error's path left unflushed: said, or gone
+                try:
+                    watched.stream.flush()
+                except OSError:
+                    _drop_stdout()
+
+
+def _run(argv: list[str] | None, watched: _Watched | None) -> int:
     try:  # the commands' modules import torch and OpenCV: a second or more
         args = parse_args(argv)
     except KeyboardInterrupt:
         print("panogrf: interrupted", file=sys.stderr)
         return 130
     except SystemExit as done:  # --help and usage errors: the help must reach its reader
-        if (why := _stdout_failure()) is not None:
+        if (why := _stdout_failure(watched)) is not None:
             print(f"panogrf: error: {why}", file=sys.stderr)
             return 1
         raise done
     keep_freed_memory()
     # Errors name the command as typed: "panogrf scene check", not "panogrf scene".
     name = " ".join(filter(None, (args.command, getattr(args, f"{args.command}_command", None))))
-    if sys.stdout is not None:
-        sys.stdout = _Watched(sys.stdout)  # type: ignore[assignment]
     try:
         if hasattr(args, "quiet"):  # a command that prepares scenes: its stages on stderr
             from panogrf.app.progress import terminal_progress
@@ -130,13 +144,13 @@ def _main(argv: list[str] | None) -> int:
                 code = int(args.func(args) or 0)
         else:
             code = int(args.func(args) or 0)
-        if sys.stdout is not None:  # None: started with stdout closed (`>&-`)
-            sys.stdout.flush()  # here, so that a closed pipe is caught below, not at exit
+        if watched is not None:
+            watched.flush()  # here, so that a closed pipe is caught below, not at exit
         return code
     except BrokenPipeError:
         # The reader went away (`panogrf scene check DIR | head`): stop quietly like the shell
         # tools; stdout goes to /dev/null so that Python's flush at exit does not fail again.
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        _drop_stdout()
         return 141  # 128 + SIGPIPE, what a shell reports for a tool killed by a closed pipe
     except UserError as exc:
         print(f"panogrf {name}: error: {exc}", file=sys.stderr)
@@ -152,14 +166,11 @@ def _main(argv: list[str] | None) -> int:
         print(f"panogrf {name}: interrupted", file=sys.stderr)
         return 130
     except OSError as exc:  # standard output on a full disk or a broken device, nothing else
-        if not isinstance(sys.stdout, _Watched) or sys.stdout.failed is not exc:
+        if watched is None or watched.failed is not exc:
             raise
         _drop_stdout()
         print(f"panogrf {name}: error: {_cannot_write(exc)}", file=sys.stderr)
         return 1
-    finally:
-        if isinstance(sys.stdout, _Watched):
-            sys.stdout = sys.stdout.stream
 
 
 class _Watched:
@@ -170,9 +181,9 @@ class _Watched:
         self.stream = stream
         self.failed: OSError | None = None
 
-    def write(self, text: str) -> int:
+    def write(self, text: str) -> Any:
         try:
-            return int(self.stream.write(text))
+            return self.stream.write(text)  # some streams return None
         except OSError as exc:
             self.failed = exc
             raise
@@ -197,22 +208,28 @@ def _drop_stdout() -> None:
     again, with a traceback."""
     try:
         fd = sys.stdout.fileno()
-    except (OSError, ValueError):  # a stream without a file (io.UnsupportedOperation)
+    except (OSError, ValueError, AttributeError):  # no file (io.UnsupportedOperation), None
         return
     os.dup2(os.open(os.devnull, os.O_WRONLY), fd)
 
 
-def _stdout_failure() -> str | None:
-    """Why standard output cannot be written (a full disk, /dev/full, an I/O error), found by
-    flushing it; None where it can."""
-    if sys.stdout is None:
+def _stdout_failure(watched: _Watched | None) -> str | None:
+    """Why standard output could not take what was written to it (a full disk, /dev/full, an
+    I/O error; argparse drops its own write errors, `_Watched` keeps them), found by flushing
+    it; None where it could, or where its reader went away (a closed pipe: quiet)."""
+    if watched is None:
         return None
     try:
-        sys.stdout.flush()
-    except OSError as exc:
-        _drop_stdout()
-        return _cannot_write(exc)
-    return None
+        watched.flush()
+    except OSError:
+        pass
+    failed = watched.failed
+    if failed is None or isinstance(failed, BrokenPipeError):
+        if failed is not None:
+            _drop_stdout()
+        return None
+    _drop_stdout()
+    return _cannot_write(failed)
 
 
 def _out_of_memory(exc: BaseException) -> str | None:

@@ -72,7 +72,9 @@ def read_pixels(path: Path) -> np.ndarray:
         except cv2.error:  # OpenCV asserts on some inputs instead of returning None
             pixels = None
     if pixels is None:
+        png = data[:8] == b"\x89PNG\r\n\x1a\n"  # libpng's lines are about this file only then
         errors = [x.removeprefix("libpng error: ") for x in said if x.startswith("libpng error")]
+        errors = errors if png else []
         if errors:
             raise ImageReadError(path, f"corrupt PNG ({errors[0]})")
         raise ImageReadError(path, "not a readable image (unknown format or corrupt file)")
@@ -93,34 +95,54 @@ class _Capture:
         self.saved = -1
         self.file: io.BufferedRandom | None = None
 
-    def enter(self) -> None:
+    def enter(self) -> bool:
+        """Whether stderr is being caught now (False: it could not be, decode as it is)."""
         with self.lock:
-            self.inside += 1
-            if self.inside > 1:
+            if self.inside:
+                self.inside += 1
                 self.shared = True
-                return
-            if sys.stderr is not None:
-                sys.stderr.flush()
-            self.file = tempfile.TemporaryFile()
-            self.saved = os.dup(2)
-            os.dup2(self.file.fileno(), 2)
+                return True
+            try:
+                if sys.stderr is not None:
+                    sys.stderr.flush()
+                caught = tempfile.TemporaryFile()
+            except OSError:  # no temporary folder, a full disk under stderr: not caught
+                return False
+            try:
+                saved = os.dup(2)
+            except OSError:
+                caught.close()
+                return False
+            os.dup2(caught.fileno(), 2)
+            self.file, self.saved, self.inside = caught, saved, 1
+            return True
 
     def leave(self, said: list[str]) -> None:
         with self.lock:
-            self.inside -= 1
-            if self.inside:
+            if self.inside > 1:
+                self.inside -= 1
                 return
-            os.dup2(self.saved, 2)
+            os.dup2(self.saved, 2)  # put back first: nothing after it is lost
             os.close(self.saved)
-            assert self.file is not None
-            self.file.seek(0)
-            text, self.file = self.file.read(), None
-            shared, self.shared = self.shared, False
-        kept, lines = _split_libpng(text)
-        if kept:
-            os.write(2, kept)
+            self.inside = 0
+            caught, shared, self.shared = self.file, self.shared, False
+            self.file = None
+            assert caught is not None
+            with caught:
+                caught.seek(0)
+                kept, lines = _split_libpng(caught.read())
+            _write_all(2, kept)  # under the lock: before anything printed after it
         if not shared:
             said.extend(lines)
+
+
+def _write_all(fd: int, data: bytes) -> None:
+    """``data`` to ``fd``, all of it; a stderr that cannot take it loses it, not the decode."""
+    try:
+        while data:
+            data = data[os.write(fd, data) :]
+    except OSError:
+        pass
 
 
 def _split_libpng(text: bytes) -> tuple[bytes, list[str]]:
@@ -147,7 +169,9 @@ def _libpng_lines() -> Iterator[list[str]]:
     harmless extra data, an error before OpenCV gives up), off stderr and in the list once the
     block ends (`_Capture`)."""
     said: list[str] = []
-    _CAPTURE.enter()
+    if not _CAPTURE.enter():
+        yield said
+        return
     try:
         yield said
     finally:
@@ -297,8 +321,10 @@ def _orientation(path: Path) -> str | None:
     try:
         from PIL import Image
 
-        with Image.open(path) as img:
-            tag = img.getexif().get(0x0112)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # Pillow's own warning over 89 million pixels
+            with Image.open(path) as img:
+                tag = img.getexif().get(0x0112)
     except Exception:  # noqa: BLE001 - no tag to tell of
         return None
     return _TURNS.get(tag)

@@ -129,10 +129,12 @@ def prepare_out_dir(scene_root: Path, out_dir: Path) -> None:
 
 
 def _unique_stems(names: list[str]) -> list[str]:
-    """Frame names as output file stems; a repeated stem (a/x.png, b/x.png) gets the index."""
+    """Frame names as output file stems; a repeated stem (a/x.png, b/x.png) gets the index, a
+    name that is not text (bytes of another encoding) ``view_NNN``: JSON cannot hold it."""
     seen: set[str] = set()
     out = []
     for i, name in enumerate(names):
+        name = name if name.isprintable() else f"view_{i:03d}"
         stem = name if name not in seen else f"{name}_{i:03d}"
         seen.add(stem)
         out.append(stem)

@@ -21,12 +21,13 @@ Their public names are re-exported here.
 from __future__ import annotations
 
 import dataclasses
+import errno
 import os
 import shutil
 import sys
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 import numpy as np
 import torch
@@ -205,25 +206,37 @@ def write_scene(
     return Scene(root, w, h, tuple(frames), metadata)
 
 
+def _raise_write(out: Path, exc: BaseException) -> NoReturn:
+    if isinstance(exc, OSError):
+        raise UserError(f"cannot write {out}: {exc.strerror or exc}") from None
+    raise exc
+
+
 def write_new_scene(out: Path, c2w: np.ndarray, *args: Any, **kwargs: Any) -> None:
     """`write_scene` into ``out``, a folder that is absent or empty; on a failed or interrupted
     write (a full disk, Ctrl-C) what was written goes again, so the same command can run
     again; a failed write's error is one line (UserError). Photos kilometres apart are warned
     about (`far_apart_warning`): a unit mistake is best caught where the poses come in."""
-    from panogrf.app.files.atomic import commit, discard, temp_path
+    if out.exists():  # an empty folder the user made (a mount, a link): written into
+        try:
+            write_scene(out, c2w, *args, **kwargs)
+        except BaseException as exc:  # a full disk, Ctrl-C, SIGTERM: no half scene is left
+            for item in out.iterdir():
+                shutil.rmtree(item, ignore_errors=True) if item.is_dir() else item.unlink()
+            _raise_write(out, exc)
+    else:  # written whole beside it, then renamed: two runs at once leave one scene
+        from panogrf.app.files.atomic import discard, temp_path
 
-    tmp = temp_path(out)  # written whole beside it, then renamed: one run's scene, never two
-    try:
-        write_scene(tmp, c2w, *args, **kwargs)
-        if out.is_dir() and any(out.iterdir()):  # another run wrote there meanwhile
-            raise UserError(
-                f"{out}: another run wrote a scene there meanwhile; choose another --out"
-            )
-        commit(tmp, out)
-    except BaseException as exc:  # a full disk, Ctrl-C, SIGTERM: no half scene is left
-        discard(tmp)
-        if isinstance(exc, OSError):
-            raise UserError(f"cannot write {out}: {exc.strerror or exc}") from None
-        raise
+        tmp = temp_path(Path(os.path.abspath(out)))
+        try:
+            write_scene(tmp, c2w, *args, **kwargs)
+            os.rename(tmp, out)  # an empty folder made meanwhile is replaced, a scene is not
+        except BaseException as exc:
+            discard(tmp)
+            if isinstance(exc, OSError) and exc.errno in (errno.ENOTEMPTY, errno.EEXIST):
+                raise UserError(
+                    f"{out}: another run wrote a scene there meanwhile; choose another --out"
+                ) from None
+            _raise_write(out, exc)
     if (far := far_apart_warning(c2w)) is not None:
         _warn(out, [f"{TRANSFORMS}: {far}"])

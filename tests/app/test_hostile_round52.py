@@ -98,18 +98,39 @@ def test_an_output_that_is_a_pipe_is_refused_and_left_alone(tmp_path, capsys):
     assert line.endswith(f"--path-out: {path_out} is not a regular file")
 
 
+def _within(seconds: float, call) -> None:
+    """``call()`` in a thread, which must end within ``seconds`` (a blocking open of a pipe
+    would hang the test run instead of failing it)."""
+    import threading
+
+    failure: list[BaseException] = []
+
+    def run() -> None:
+        try:
+            call()
+        except BaseException as exc:  # noqa: BLE001 - handed to the test
+            failure.append(exc)
+
+    worker = threading.Thread(target=run, daemon=True)
+    worker.start()
+    worker.join(seconds)
+    assert not worker.is_alive(), "blocked"
+    if failure:
+        raise failure[0]
+
+
 def test_a_cache_entry_or_weights_file_that_is_a_pipe_does_not_block(tmp_path, monkeypatch):
     from panogrf.app.scene.store import DiskStore, Unusable
 
     store = DiskStore(tmp_path)
     os.mkfifo(store.where("k"))
     with pytest.raises(Unusable, match="not a regular file"):
-        store.read("k")  # would block in open() for good
+        _within(20, lambda: store.read("k"))
     weights = tmp_path / "w"
     weights.mkdir()
     os.mkfifo(weights / "x.safetensors")
     with pytest.raises(UserError, match=r"x.safetensors: not a regular file \(a pipe"):
-        networks.read_weights(weights / "x.safetensors")
+        _within(20, lambda: networks.read_weights(weights / "x.safetensors"))
 
 
 class _Full(io.StringIO):
@@ -264,3 +285,35 @@ def test_file_names_that_are_not_text_never_reach_json_as_lone_surrogates():
     text = json_text({"from": [str(odd), "café.jpg"]})
     assert json.loads(text) == {"from": ["bad\\xff.png", "café.jpg"]}
     text.encode("utf-8")  # no lone surrogate left
+
+
+@pytest.mark.skipif(not os.path.exists("/dev/full"), reason="needs /dev/full")
+def test_standard_output_on_dev_full_is_one_line_for_a_command_and_its_help(tmp_path):
+    import subprocess
+
+    frames = [str(DEMO / "images" / f"frame_00{i}.png") for i in (0, 1)]
+    run = "import sys; from panogrf.app.cli import main; sys.exit(main())"
+    for argv, name in ((["compare", *frames], "panogrf compare"), (["--help"], "panogrf")):
+        with open("/dev/full", "w") as full:
+            done = subprocess.run(
+                [sys.executable, "-c", run, *argv], stdout=full, stderr=subprocess.PIPE,
+                text=True, timeout=300,
+            )  # fmt: skip
+        assert done.returncode == 1, done.stderr
+        assert done.stderr.strip() == (
+            f"{name}: error: cannot write to standard output (No space left on device)"
+        )
+
+
+def test_an_empty_folder_given_as_out_is_written_into_not_replaced(tmp_path):
+    from panogrf.app.scene import folder
+
+    target = tmp_path / "disk"
+    target.mkdir()
+    link = tmp_path / "link"
+    link.symlink_to(target)  # a mount or a link the user made: it stays where it is
+    images = np.zeros((2, 3, 16, 32), np.uint8)
+    c2w = np.tile(np.eye(4), (2, 1, 1))
+    c2w[1, 0, 3] = 1.0
+    folder.write_new_scene(link, c2w, images)
+    assert link.is_symlink() and (target / "transforms.json").is_file()
