@@ -51,14 +51,28 @@ def seen_weight(cache, c2w: torch.Tensor, rows: int) -> torch.Tensor:
     return F.avg_pool2d(m, 9, 1, 4)[0, 0]
 
 
-def main() -> None:
+def middle_views(paths: list[Path], rows: int, models):
+    """Per scene of ``paths`` (folders or datasets): (folder, its set's name, the scene with
+    the view nearest both others in the middle, that view rendered from the outer two as the
+    product does (`fast`), where the sources see it (`seen_weight`))."""
     from depth_stages import middle_first, scene_folders
 
-    from panogrf.app.scene import session
     from panogrf.app.scene.folder import load_scene
-    from panogrf.app.scoring import image_scores
     from panogrf.model.refine import PREPARE_REFINE
     from panogrf.renderer.methods import SourceViews, render_view
+
+    for folder in scene_folders(paths):
+        group = folder.parent.name if (folder.parent / "dataset.json").exists() else "real"
+        data = middle_first(load_scene(folder, load_images=True).images, rows)
+        views = SourceViews(data.images[[0, 2]], data.c2w[[0, 2]], refine=PREPARE_REFINE)
+        rgb = render_view("panogrf", views, data.c2w[1], rows, models, "fast")
+        w = seen_weight(views.cache_for("panogrf", models), data.c2w[1], rows)
+        yield folder, group, data, rgb, w
+
+
+def main() -> None:
+    from panogrf.app.scene import session
+    from panogrf.app.scoring import image_scores
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--data", type=Path, nargs="+", required=True)
@@ -69,12 +83,7 @@ def main() -> None:
     torch.set_num_threads(args.threads)
     models = session.default_models("cpu")
     rows: dict[str, dict[str, list[dict]]] = {"shipped": {}, "fill": {}}
-    for folder in scene_folders(args.data):
-        group = folder.parent.name if (folder.parent / "dataset.json").exists() else "real"
-        data = middle_first(load_scene(folder, load_images=True).images, args.rows)
-        views = SourceViews(data.images[[0, 2]], data.c2w[[0, 2]], refine=PREPARE_REFINE)
-        rgb = render_view("panogrf", views, data.c2w[1], args.rows, models, "fast")
-        w = seen_weight(views.cache_for("panogrf", models), data.c2w[1], args.rows)
+    for folder, group, data, rgb, w in middle_views(args.data, args.rows, models):
         filled = w * rgb + (1 - w) * push_pull(rgb, w)
         unseen = float(1 - w.mean())
         for name, img in (("shipped", rgb), ("fill", filled)):

@@ -30,14 +30,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 
 def main() -> None:
-    from depth_stages import middle_first, scene_folders
-    from hole_fill import seen_weight
+    from hole_fill import middle_views
 
     from panogrf.app.scene import session
-    from panogrf.app.scene.folder import load_scene
     from panogrf.app.scoring import image_scores
-    from panogrf.model.refine import PREPARE_REFINE
-    from panogrf.renderer.methods import SourceViews, render_view
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--data", type=Path, nargs="+", required=True)
@@ -49,12 +45,7 @@ def main() -> None:
     models = session.default_models("cpu")
     names = ("shipped", "true_unseen", "true_seen")
     rows: dict[str, dict[str, list[dict]]] = {n: {} for n in names}
-    for folder in scene_folders(args.data):
-        group = folder.parent.name if (folder.parent / "dataset.json").exists() else "real"
-        data = middle_first(load_scene(folder, load_images=True).images, args.rows)
-        views = SourceViews(data.images[[0, 2]], data.c2w[[0, 2]], refine=PREPARE_REFINE)
-        rgb = render_view("panogrf", views, data.c2w[1], args.rows, models, "fast")
-        w = seen_weight(views.cache_for("panogrf", models), data.c2w[1], args.rows)
+    for folder, group, data, rgb, w in middle_views(args.data, args.rows, models):
         true = data.images[1]
         images = {"shipped": rgb, "true_unseen": w * rgb + (1 - w) * true,
                   "true_seen": w * true + (1 - w) * rgb}  # fmt: skip
