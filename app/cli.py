@@ -224,12 +224,10 @@ def _stdout_failure(watched: _Watched | None) -> str | None:
     except OSError:
         pass
     failed = watched.failed
-    if failed is None or isinstance(failed, BrokenPipeError):
-        if failed is not None:
-            _drop_stdout()
+    if failed is None:
         return None
     _drop_stdout()
-    return _cannot_write(failed)
+    return None if isinstance(failed, BrokenPipeError) else _cannot_write(failed)
 
 
 def _out_of_memory(exc: BaseException) -> str | None:
